@@ -1,0 +1,108 @@
+"""Every figure of itg_vision. The only module that imports matplotlib (Agg backend)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def _save(fig, path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def path_figure(trace, title: str, path) -> None:
+    """Desired against actual path (x-y for planar arms, 3-D for the three-link arm)."""
+    d = np.asarray(trace.desired_mm)
+    g = np.asarray(trace.gripper_mm)
+    oor = np.asarray(trace.out_of_reach, bool)
+    if trace.planar:
+        fig, ax = plt.subplots(figsize=(5.5, 5.5))
+        ax.plot(d[:, 0], d[:, 1], "-", color="0.6", lw=2, label="desired")
+        ax.plot(g[:, 0], g[:, 1], ".", ms=3, color="C0", label="actual gripper")
+        if oor.any():
+            ax.plot(d[oor, 0], d[oor, 1], "x", color="C3", label="out of reach")
+        ax.plot(0, 0, "k^", label="base")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    else:
+        fig = plt.figure(figsize=(6, 5.5))
+        ax = fig.add_subplot(projection="3d")
+        ax.plot(d[:, 0], d[:, 1], d[:, 2], "-", color="0.6", lw=2, label="desired")
+        ax.plot(g[:, 0], g[:, 1], g[:, 2], ".", ms=3, color="C0", label="actual gripper")
+        if oor.any():
+            ax.plot(d[oor, 0], d[oor, 1], d[oor, 2], "x", color="C3", label="out of reach")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    _save(fig, path)
+
+
+def error_figure(trace, title: str, path) -> None:
+    """E_i along the trajectory."""
+    e = trace.error_mm()
+    oor = np.asarray(trace.out_of_reach, bool)
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    ax.plot(np.where(oor, np.nan, e), "-", color="C0", lw=1)
+    if oor.any():
+        ax.plot(np.flatnonzero(oor), np.zeros(oor.sum()), "|", color="C3", label="out of reach")
+        ax.legend(fontsize=8)
+    ax.set_xlabel("set point i")
+    ax.set_ylabel("E_i (mm)")
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.grid(alpha=0.3)
+    ax.set_title(title, fontsize=9)
+    _save(fig, path)
+
+
+def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, logx=False,
+                 logy=False, marker="o") -> None:
+    """Generic curves: ``series`` maps a label to (x, y) arrays."""
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    for label, (x, y) in series.items():
+        ax.plot(x, y, marker=marker, ms=3, lw=1.2, label=label)
+    if logx:
+        ax.set_xscale("log")
+    if logy:
+        ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    _save(fig, path)
+
+
+def paths_figure(panels: list, title: str, path) -> None:
+    """Several planar paths side by side: ``panels`` is a list of (subtitle, trace)."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 5), squeeze=False)
+    for ax, (sub, trace) in zip(axes[0], panels):
+        d, g = np.asarray(trace.desired_mm), np.asarray(trace.gripper_mm)
+        ax.plot(d[:, 0], d[:, 1], "-", color="0.6", lw=2, label="desired")
+        ax.plot(g[:, 0], g[:, 1], ".", ms=3, label="actual")
+        ax.set_aspect("equal")
+        ax.set_title(sub, fontsize=9)
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    _save(fig, path)

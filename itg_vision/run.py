@@ -1,0 +1,128 @@
+"""python -m itg_vision.run: track a trajectory with the ITG and write runs/<name>/."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tqdm import tqdm
+
+from . import outputs, plot
+from .errors import UserError, run_main
+from .runner import CONTROLLERS, FEEDBACKS, RunConfig, execute, prepare
+
+
+def _links(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected link lengths in mm separated by commas, got {text!r}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="python -m itg_vision.run",
+        description="Track a trajectory with the Intelligent Trajectory Generator and write "
+                    "summary.json, trace.csv, path.png and error.png to runs/<name>/.")
+    ap.add_argument("--arm", default="two-link", help="one-link, two-link or three-link (default %(default)s)")
+    ap.add_argument("--links", type=_links, metavar="L1,L2[,L3]",
+                    help="link lengths in mm (default: the paper's 100 mm each)")
+    ap.add_argument("--trajectory", metavar="NAME|PATH",
+                    help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, or a CSV with "
+                         "header x_mm,y_mm[,z_mm][,t_s] (default: ellipse-t1 for two-link, "
+                         "line-ab-reach for three-link, arc for one-link)")
+    ap.add_argument("--points", type=int, help="number of set points of a named trajectory")
+    ap.add_argument("--rules", metavar="NAME|PATH",
+                    help="rule base: table1, table2, three-link or a .rules file (default: the arm's)")
+    ap.add_argument("--controller", default="itg", choices=CONTROLLERS,
+                    help="itg (the rules), or a baseline: ik (closed-form inverse kinematics, "
+                         "open loop) or jacobian (vision-fed damped least squares)")
+    ap.add_argument("--gain", type=float, default=0.5, metavar="F",
+                    help="f of the variable step f*|error|, in deg per mm (default %(default)s)")
+    ap.add_argument("--step", type=float, default=0.5, metavar="S",
+                    help="fixed step S in deg, for rules that use S (default %(default)s)")
+    ap.add_argument("--tolerance", type=float, default=0.5, metavar="W",
+                    help="tolerance w in mm (default %(default)s)")
+    ap.add_argument("--iterations", type=int, default=1,
+                    help="rule iterations per set point (default 1: the paper's one step ahead)")
+    ap.add_argument("--feedback", default="vision", choices=FEEDBACKS,
+                    help="vision (two cameras, LEDs), model (encoders + nominal kinematic model) "
+                         "or truth (the simulator's marker positions) (default %(default)s)")
+    ap.add_argument("--rig", metavar="NAME|PATH",
+                    help="camera rig the estimator believes: cameras/<NAME>.yaml or a path; a "
+                         "calibrated rig renders with the true rig it names (default: planar or three-link)")
+    ap.add_argument("--noise-px", type=float, default=0.0, help="extra Gaussian centroid noise, px std")
+    ap.add_argument("--dropout", type=float, default=0.0, help="probability that an LED detection is dropped")
+    ap.add_argument("--seed", type=int, default=0, help="seed of every random thing (default %(default)s)")
+    ap.add_argument("--out", metavar="DIR", help="output folder (default runs/<arm>-<trajectory>-<feedback>)")
+    ap.add_argument("--video", action="store_true", help="also write video.mp4 of both camera views (vision)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        cfg = RunConfig(arm=args.arm, links_mm=args.links, trajectory=args.trajectory,
+                        points=args.points, controller=args.controller, rules=args.rules,
+                        gain=args.gain, step=args.step, tolerance=args.tolerance,
+                        iterations=args.iterations, feedback=args.feedback, rig=args.rig,
+                        noise_px=args.noise_px, dropout=args.dropout, seed=args.seed)
+        prep = prepare(cfg)
+        if args.video and cfg.feedback != "vision":
+            raise UserError("--video needs --feedback vision")
+        name = f"{cfg.arm}-{Path(prep.trajectory.name).stem}-{cfg.feedback}"
+        out = Path(args.out) if args.out else Path("runs") / name
+        n = len(prep.trajectory) * cfg.iterations
+        bar = tqdm(total=len(prep.trajectory), desc=name, unit="pt", disable=args.quiet,
+                   file=sys.stderr)
+        with outputs.staged_dir(out) as tmp:
+            recorder = None
+            if args.video:
+                from .video import VideoRecorder
+
+                recorder = VideoRecorder(tmp / "video.mp4")
+                prep.info["video"] = "video.mp4"
+            trace, summary = execute(prep, progress=bar.update, recorder=recorder) if recorder \
+                else execute(prep, progress=bar.update)
+            bar.close()
+            cols, rows = trace_rows = trace.rows()
+            outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
+            outputs.write_json(tmp / "summary.json", summary)
+            title = (f"{summary['arm']} {summary['trajectory']} ({summary['controller']}, "
+                     f"{summary['feedback']}): E_av {summary['e_av_mm'] or float('nan'):.2f} mm")
+            plot.path_figure(trace, title, tmp / "path.png")
+            plot.error_figure(trace, title, tmp / "error.png")
+        del n, trace_rows
+        if not args.quiet:
+            print(summary_table(summary, out))
+        return 0
+
+    return run_main(body)
+
+
+def summary_table(s: dict, out: Path) -> str:
+    def f(v, unit=""):
+        return "n/a" if v is None else (f"{v:.3f}{unit}" if isinstance(v, float) else f"{v}{unit}")
+
+    rows = [("arm", f"{s['arm']} {s['links_mm']} mm"), ("trajectory", s["trajectory"]),
+            ("controller / feedback", f"{s['controller']} / {s['feedback']}"),
+            ("set points (out of reach)", f"{s['n_setpoints']} ({s['n_out_of_reach']})"),
+            ("E_av", f(s["e_av_mm"], " mm")), ("E_max", f(s["e_max_mm"], " mm")),
+            ("E_rms", f(s["e_rms_mm"], " mm"))]
+    if s["feedback"] == "vision":
+        rows += [("estimate RMS gripper / elbow",
+                  f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),
+                 ("LED detections missed", f(s["n_missed"]))]
+        t = s.get("timing_ms", {})
+        rows.append(("median ms render/detect/triang./rules",
+                     " / ".join(f"{t.get(k, float('nan')):.2f}" for k in ("render", "detect", "triangulate", "rules"))))
+    rows += [("wall time", f(s["wall_s"], " s")), ("written to", str(out))]
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,188 @@
+"""One tracking run from a validated configuration: what `run`, `paper` and `bench` share."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import trajectory as traj
+from .arm import ArmSpec
+from .errors import UserError
+from .feedback import ModelFeedback, TruthFeedback
+from .loop import Trace, simulate
+from .rules import DEFAULT_RULES, load_rules
+from .world import World
+
+FEEDBACKS = ("vision", "model", "truth")
+CONTROLLERS = ("itg", "ik", "jacobian")
+DEFAULT_TRAJECTORY = {"one-link": "arc", "two-link": "ellipse-t1", "three-link": "line-ab-reach"}
+CAMERAS_DIR = Path(__file__).resolve().parent.parent / "cameras"
+DEFAULT_RIG = {"one-link": "planar", "two-link": "planar", "three-link": "three-link"}
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that defines a run. Units: mm, deg.
+
+    ``true_links_mm`` / ``joint_offset_deg`` make the simulated arm differ from the nominal
+    model (model error); the rules, the model feedback and the baselines only know the model.
+    """
+
+    arm: str = "two-link"
+    links_mm: tuple[float, ...] | None = None
+    trajectory: str | None = None
+    points: int | None = None
+    controller: str = "itg"
+    rules: str | None = None
+    gain: float = 0.5
+    step: float = 0.5
+    tolerance: float = 0.5
+    iterations: int = 1
+    feedback: str = "vision"
+    rig: str | None = None
+    noise_px: float = 0.0
+    dropout: float = 0.0
+    seed: int = 0
+    true_links_mm: tuple[float, ...] | None = None
+    joint_offset_deg: tuple[float, ...] | None = None
+
+    def validate(self) -> None:
+        checks = [
+            (self.controller in CONTROLLERS, f"--controller: unknown {self.controller!r} (choose from {', '.join(CONTROLLERS)})"),
+            (self.feedback in FEEDBACKS, f"--feedback: unknown {self.feedback!r} (choose from {', '.join(FEEDBACKS)})"),
+            (math.isfinite(self.gain) and self.gain > 0, f"--gain: must be > 0 (deg/mm), got {self.gain}"),
+            (math.isfinite(self.step) and self.step > 0, f"--step: must be > 0 (deg), got {self.step}"),
+            (math.isfinite(self.tolerance) and self.tolerance >= 0, f"--tolerance: must be >= 0 (mm), got {self.tolerance}"),
+            (1 <= self.iterations <= 10000, f"--iterations: must be in 1..10000, got {self.iterations}"),
+            (math.isfinite(self.noise_px) and self.noise_px >= 0, f"--noise-px: must be >= 0, got {self.noise_px}"),
+            (0 <= self.dropout <= 1, f"--dropout: must be a probability in [0, 1], got {self.dropout}"),
+            (self.seed >= 0, f"--seed: must be >= 0, got {self.seed}"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise UserError(msg)
+
+    @property
+    def trajectory_name(self) -> str:
+        return self.trajectory or DEFAULT_TRAJECTORY.get(self.arm, "ellipse-t1")
+
+    @property
+    def rules_name(self) -> str:
+        return self.rules or DEFAULT_RULES.get(self.arm, "table2")
+
+    @property
+    def rig_path(self) -> Path:
+        if self.rig is None:
+            return CAMERAS_DIR / f"{DEFAULT_RIG.get(self.arm, 'planar')}.yaml"
+        p = Path(self.rig)
+        if p.suffix in (".yaml", ".yml") or "/" in self.rig:
+            return p
+        return CAMERAS_DIR / f"{self.rig}.yaml"
+
+
+@dataclass
+class Prepared:
+    """A configuration turned into objects, validated, before anything runs or is written."""
+
+    config: RunConfig
+    model: ArmSpec
+    true_arm: ArmSpec
+    trajectory: traj.Trajectory
+    controller: object
+    feedback_factory: object
+    info: dict = field(default_factory=dict)
+
+
+def prepare(cfg: RunConfig) -> Prepared:
+    """Validate every input (files included) and build the pieces; raises ``UserError``."""
+    cfg.validate()
+    model = ArmSpec.from_args(cfg.arm, cfg.links_mm)
+    true_arm = model
+    if cfg.true_links_mm is not None:
+        true_arm = ArmSpec.from_args(cfg.arm, cfg.true_links_mm)
+    if cfg.joint_offset_deg is not None:
+        true_arm = true_arm.with_joint_offset(cfg.joint_offset_deg)
+    trajectory = traj.load(cfg.trajectory_name, cfg.points)
+    if not trajectory.planar and model.planar:
+        raise UserError(f"trajectory {trajectory.name} has z values but arm {model.name} is planar")
+    if trajectory.planar and not model.planar:
+        raise UserError(f"arm {model.name} needs a 3-D trajectory (x_mm,y_mm,z_mm), "
+                        f"{trajectory.name} is planar")
+    info: dict = {}
+    if cfg.controller == "itg":
+        controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
+                                f=cfg.gain, S=cfg.step, w=cfg.tolerance)
+        info["rules"] = str(controller.source)
+    else:
+        from .controllers import make_controller
+
+        controller = make_controller(cfg.controller, model, gain=cfg.gain)
+
+    if cfg.feedback == "model":
+        def feedback_factory():
+            return ModelFeedback(model)
+    elif cfg.feedback == "truth":
+        def feedback_factory():
+            return TruthFeedback()
+    else:
+        from .camera import Rig
+        from .feedback import VisionFeedback
+
+        estimate_rig = Rig.from_yaml(cfg.rig_path)
+        render_rig = estimate_rig
+        if estimate_rig.true_rig:
+            render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
+        info["estimate_rig"] = str(cfg.rig_path)
+        info["render_rig"] = str(render_rig.source)
+
+        def feedback_factory():
+            return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,
+                                  dropout=cfg.dropout)
+    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info)
+
+
+def resolve_relative(path: str, relative_to: Path) -> Path:
+    p = Path(path)
+    if p.is_absolute() or p.exists():
+        return p
+    return Path(relative_to).parent / p
+
+
+def execute(prep: Prepared, progress=None) -> tuple[Trace, dict]:
+    """Run the prepared configuration; return the trace and the summary dict."""
+    cfg = prep.config
+    feedback = prep.feedback_factory()
+    feedback.reset(cfg.seed)
+    t0 = time.perf_counter()
+    with World(prep.true_arm) as world:
+        trace = simulate(world, prep.controller, feedback, prep.trajectory.points_mm,
+                         iterations=cfg.iterations, planar=prep.model.planar, progress=progress)
+    wall_s = time.perf_counter() - t0
+    summary = {
+        **trace.metrics(),
+        "arm": prep.model.name,
+        "links_mm": list(prep.model.links_mm),
+        "true_links_mm": list(prep.true_arm.links_mm),
+        "joint_offset_deg": list(prep.true_arm.joint_offset_deg),
+        "trajectory": prep.trajectory.name,
+        "controller": cfg.controller,
+        "feedback": cfg.feedback,
+        "gain": cfg.gain,
+        "step_deg": cfg.step,
+        "tolerance_mm": cfg.tolerance,
+        "iterations": cfg.iterations,
+        "noise_px": cfg.noise_px,
+        "dropout": cfg.dropout,
+        "seed": cfg.seed,
+        "wall_s": wall_s,
+        **prep.info,
+    }
+    return trace, summary
+
+
+def config_dict(cfg: RunConfig) -> dict:
+    return asdict(cfg)

@@ -1,0 +1,170 @@
+"""Desired trajectories: the paper's named ones, a quintic time law, and a CSV reader.
+
+Points are in mm, shape (n, 3); planar trajectories have z = 0 (ignored by planar arms).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UserError
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A sequence of set points.
+
+    Attributes
+    ----------
+    name : a name or the CSV path.
+    points_mm : shape (n, 3).
+    t_s : shape (n,) or None: the time of each set point.
+    param_deg : shape (n,) or None: the ellipse's radial angle of each point (experiment 5).
+    planar : True when the points carry no z.
+    """
+
+    name: str
+    points_mm: np.ndarray = field(repr=False)
+    t_s: np.ndarray | None = field(default=None, repr=False)
+    param_deg: np.ndarray | None = field(default=None, repr=False)
+    planar: bool = True
+
+    def __len__(self) -> int:
+        return len(self.points_mm)
+
+
+def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Trajectory:
+    """n points on an ellipse, uniformly 360/n degrees apart in the radial (parameter) angle."""
+    theta = np.radians(np.arange(n) * 360.0 / n)
+    c, s = math.cos(math.radians(orientation_deg)), math.sin(math.radians(orientation_deg))
+    a, b = major_mm / 2.0, minor_mm / 2.0
+    u, v = a * np.cos(theta), b * np.sin(theta)
+    pts = np.column_stack([centre_mm[0] + c * u - s * v, centre_mm[1] + s * u + c * v,
+                           np.zeros(n)])
+    return Trajectory(name, pts, None, np.degrees(theta), True)
+
+
+def quintic(s: np.ndarray) -> np.ndarray:
+    """The paper's motion parameter lambda = 10 s^3 - 15 s^4 + 6 s^5, s = t / t_r in [0, 1]."""
+    s = np.asarray(s, float)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def line(name, a_mm, b_mm, duration_s=10.0, n=100) -> Trajectory:
+    """n points from a to b at times uniformly spread over [0, duration] along the quintic."""
+    t = np.linspace(0.0, duration_s, n)
+    lam = quintic(t / duration_s)[:, None]
+    a, b = np.asarray(a_mm, float), np.asarray(b_mm, float)
+    return Trajectory(name, a + lam * (b - a), t, None, False)
+
+
+def segments(name, corners_mm, per_segment: int) -> Trajectory:
+    """Experiment 1: set points along A-B and C-D, with a jump (no set point) from B to C."""
+    A, B, C, D = (np.asarray(p, float) for p in corners_mm)
+    s = np.linspace(0.0, 1.0, per_segment)[:, None]
+    pts = np.vstack([A + s * (B - A), C + s * (D - C)])
+    return Trajectory(name, np.column_stack([pts, np.zeros(len(pts))]), None, None, True)
+
+
+#: Experiment 1's corners (mm): a 120 mm stroke at y = 120, a 100 mm jump down, and back.
+ABCD_MM = ((-60.0, 120.0), (60.0, 120.0), (60.0, 20.0), (-60.0, 20.0))
+#: Experiment 6: the paper's line (B is out of reach of 100/100/100 mm links) and the reachable
+#: variant, the same segment scaled by 0.42 about the shoulder (0, 0, 100): same direction,
+#: same quintic and duration, 134 mm long, both ends within 190 mm of the shoulder.
+LINE_AB_MM = ((50.0, 30.0, 220.0), (250.0, 200.0, 400.0))
+REACH_SCALE = 0.42
+_SHOULDER = np.array([0.0, 0.0, 100.0])
+LINE_AB_REACH_MM = tuple(tuple(float(v) for v in _SHOULDER + REACH_SCALE * (np.array(p) - _SHOULDER))
+                         for p in LINE_AB_MM)
+#: One-link arm: a 270-degree arc on the circle of radius 100 mm, from +y clockwise.
+ARC_RADIUS_MM = 100.0
+
+NAMES = ("ellipse-t1", "ellipse-t2", "abcd", "line-ab", "line-ab-reach", "arc")
+DEFAULT_POINTS = {"ellipse-t1": 180, "ellipse-t2": 180, "abcd": 200, "line-ab": 100,
+                  "line-ab-reach": 100, "arc": 180}
+
+
+def named(name: str, n_points: int | None = None) -> Trajectory:
+    """A trajectory of the paper by name (see ``NAMES``); ``n_points`` overrides the default."""
+    if name not in NAMES:
+        raise UserError(f"unknown trajectory {name!r} (choose from {', '.join(NAMES)}, "
+                        "or give a path to a CSV file)")
+    n = DEFAULT_POINTS[name] if n_points is None else int(n_points)
+    if n < 2 or (name == "abcd" and n % 2):
+        raise UserError(f"--points: {name} needs {'an even number of' if name == 'abcd' else 'at least 2'} "
+                        f"points, got {n}")
+    if name == "ellipse-t1":
+        return ellipse(name, (20.0, -30.0), 130.0, 80.0, -45.0, n)
+    if name == "ellipse-t2":
+        return ellipse(name, (-30.0, 40.0), 125.0, 100.0, -45.0, n)
+    if name == "abcd":
+        return segments(name, ABCD_MM, n // 2)
+    if name == "line-ab":
+        return line(name, *LINE_AB_MM, 10.0, n)
+    if name == "line-ab-reach":
+        return line(name, *LINE_AB_REACH_MM, 10.0, n)
+    theta = np.radians(90.0 - np.arange(n) * 270.0 / (n - 1))
+    pts = np.column_stack([ARC_RADIUS_MM * np.cos(theta), ARC_RADIUS_MM * np.sin(theta), np.zeros(n)])
+    return Trajectory(name, pts, None, None, True)
+
+
+def read_csv(path: str | Path) -> Trajectory:
+    """A user trajectory: header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm``, optional ``t_s`` column."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: cannot read trajectory ({getattr(exc, 'strerror', None) or exc})") from None
+    rows = list(csv.reader(text.splitlines()))
+    if not rows or not any(cell.strip() for cell in rows[0]):
+        raise UserError(f"{path}: empty file (expected a header x_mm,y_mm[,z_mm][,t_s])")
+    header = [h.strip() for h in rows[0]]
+    allowed = (["x_mm", "y_mm"], ["x_mm", "y_mm", "z_mm"], ["x_mm", "y_mm", "t_s"],
+               ["x_mm", "y_mm", "z_mm", "t_s"])
+    if header not in allowed:
+        raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got {','.join(header)}")
+    values = []
+    for lineno, row in enumerate(rows[1:], 2):
+        if not any(cell.strip() for cell in row):
+            continue
+        if len(row) != len(header):
+            raise UserError(f"{path}:{lineno}: expected {len(header)} fields, got {len(row)}")
+        vals = []
+        for col, cell in zip(header, row):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise UserError(f"{path}:{lineno}: field {col}: not a number: {cell.strip()!r}") from None
+            if not math.isfinite(v):
+                raise UserError(f"{path}:{lineno}: field {col}: must be finite, got {cell.strip()}")
+            vals.append(v)
+        values.append(vals)
+    if not values:
+        raise UserError(f"{path}: no set points after the header")
+    arr = np.array(values)
+    cols = {h: arr[:, i] for i, h in enumerate(header)}
+    planar = "z_mm" not in cols
+    pts = np.column_stack([cols["x_mm"], cols["y_mm"], cols.get("z_mm", np.zeros(len(arr)))])
+    t = cols.get("t_s")
+    if t is not None and np.any(np.diff(t) < 0):
+        bad = int(np.argmax(np.diff(t) < 0)) + 3
+        raise UserError(f"{path}:{bad}: field t_s: times must not decrease")
+    return Trajectory(str(path), pts, t, None, planar)
+
+
+def load(name_or_path: str, n_points: int | None = None) -> Trajectory:
+    if name_or_path in NAMES:
+        return named(name_or_path, n_points)
+    p = Path(name_or_path)
+    if p.suffix.lower() == ".csv" or p.exists():
+        if not p.exists():
+            raise UserError(f"{p}: trajectory file not found")
+        if n_points is not None:
+            raise UserError("--points applies to named trajectories only, not to a CSV file")
+        return read_csv(p)
+    return named(name_or_path, n_points)  # raises the 'unknown trajectory' error

@@ -1,0 +1,157 @@
+"""The simulator: the only module that imports pybullet. Metres and radians stay in here.
+
+Joints are set kinematically (``resetJointState``): the paper's experiments need no dynamics.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import sys
+import tempfile
+from contextlib import contextmanager
+
+import numpy as np
+
+
+@contextmanager
+def _quiet_c_stdout():
+    """Silence C-level writes to stdout and stderr (pybullet's 'build time' banner)."""
+    try:
+        fds = [sys.stdout.fileno(), sys.stderr.fileno()]
+    except (AttributeError, OSError, ValueError):  # streams replaced (pytest capture, notebooks)
+        yield
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in fds]
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    for fd in fds:
+        os.dup2(devnull, fd)
+    try:
+        yield
+    finally:
+        ctypes.CDLL(None).fflush(None)
+        for fd, keep in zip(fds, saved):
+            os.dup2(keep, fd)
+            os.close(keep)
+        os.close(devnull)
+
+
+with _quiet_c_stdout():
+    import pybullet as p
+
+
+from .arm import ArmSpec
+from .urdf import arm_urdf
+
+_MM = 1e-3
+
+
+class World:
+    """One PyBullet DIRECT client holding the true arm.
+
+    Parameters
+    ----------
+    arm : the *true* arm (its links and joint offset may differ from the controller's model).
+    q_deg : initial joint angles, default the paper's start pose.
+    """
+
+    def __init__(self, arm: ArmSpec, q_deg: np.ndarray | None = None):
+        self.arm = arm
+        with _quiet_c_stdout():
+            self.client = p.connect(p.DIRECT)
+        fd, path = tempfile.mkstemp(suffix=".urdf", prefix="itg_")
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(arm_urdf(arm))
+            self.body = p.loadURDF(path, useFixedBase=True, physicsClientId=self.client)
+        finally:
+            os.unlink(path)
+        names = {}
+        for j in range(p.getNumJoints(self.body, physicsClientId=self.client)):
+            info = p.getJointInfo(self.body, j, physicsClientId=self.client)
+            names[info[1].decode()] = j
+            names[info[12].decode()] = j  # child link name -> link index
+        self._joints = [names[n] for n in arm.joint_names]
+        self._leds = {m: names[f"{m}_led"] for m in arm.marker_names}
+        self._offset_rad = np.radians(np.asarray(arm.joint_offset_deg or (0.0,) * arm.n_joints))
+        self.q_deg = np.zeros(arm.n_joints)
+        self.set_q(arm.start_q_deg if q_deg is None else q_deg)
+
+    # ------------------------------------------------------------------ joints
+    def set_q(self, q_deg: np.ndarray) -> None:
+        """Command joint angles (deg); the true arm adds its joint offset."""
+        self.q_deg = np.array(q_deg, float)
+        q = np.radians(self.q_deg) + self._offset_rad
+        for j, qj in zip(self._joints, q):
+            p.resetJointState(self.body, j, float(qj), physicsClientId=self.client)
+
+    def move(self, dq_deg: np.ndarray) -> None:
+        self.set_q(self.q_deg + np.asarray(dq_deg, float))
+
+    # ------------------------------------------------------------------ markers
+    def true_markers(self) -> dict[str, np.ndarray]:
+        """LED centres in mm, world frame; NaN for markers this arm does not carry."""
+        out = {"gripper": np.full(3, np.nan), "elbow": np.full(3, np.nan)}
+        for name, link in self._leds.items():
+            pos = p.getLinkState(self.body, link, computeForwardKinematics=True,
+                                 physicsClientId=self.client)[4]
+            out[name] = np.array(pos) / _MM
+        return out
+
+    def set_led_lit(self, name: str, rgb: tuple[float, float, float]) -> None:
+        """Recolour one LED (for strobing: a dark LED is drawn in the arm's colour)."""
+        p.changeVisualShape(self.body, self._leds[name], rgbaColor=[*rgb, 1.0],
+                            physicsClientId=self.client)
+
+    # ------------------------------------------------------------------ extra bodies
+    def add_box(self, half_extents_mm, rgba=(1, 1, 1, 1)) -> int:
+        """A visual-only box (e.g. a calibration board); returns its body id."""
+        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[v * _MM for v in half_extents_mm],
+                                  rgbaColor=list(rgba), physicsClientId=self.client)
+        return p.createMultiBody(baseMass=0, baseVisualShapeIndex=vis, physicsClientId=self.client)
+
+    def add_mesh(self, path: str, scale: float = 1.0, rgba=(1, 1, 1, 1)) -> int:
+        """A visual-only mesh body (OBJ file with UVs, in metres times ``scale``)."""
+        vis = p.createVisualShape(p.GEOM_MESH, fileName=path, meshScale=[scale] * 3,
+                                  rgbaColor=list(rgba), physicsClientId=self.client)
+        return p.createMultiBody(baseMass=0, baseVisualShapeIndex=vis, physicsClientId=self.client)
+
+    def texture(self, body: int, png_path: str) -> None:
+        tex = p.loadTexture(png_path, physicsClientId=self.client)
+        p.changeVisualShape(body, -1, textureUniqueId=tex, physicsClientId=self.client)
+
+    def set_pose(self, body: int, position_mm, quaternion_xyzw) -> None:
+        p.resetBasePositionAndOrientation(body, [v * _MM for v in position_mm],
+                                          list(quaternion_xyzw), physicsClientId=self.client)
+
+    def remove(self, body: int) -> None:
+        p.removeBody(body, physicsClientId=self.client)
+
+    # ------------------------------------------------------------------ camera
+    def render(self, width: int, height: int, view_gl, proj_gl, *,
+               light_direction=(0.3, -0.4, 1.0), ambient: float = 0.75,
+               diffuse: float = 0.35) -> np.ndarray:
+        """Render an RGB image (uint8, shape (height, width, 3)) with TinyRenderer.
+
+        ``view_gl`` and ``proj_gl`` are OpenGL matrices flattened column-major (16 floats), as
+        made by :mod:`itg_vision.camera`.
+        """
+        _, _, rgba, _, _ = p.getCameraImage(
+            width, height, viewMatrix=list(view_gl), projectionMatrix=list(proj_gl),
+            renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, shadow=0,
+            lightDirection=list(light_direction), lightAmbientCoeff=ambient,
+            lightDiffuseCoeff=diffuse, lightSpecularCoeff=0.0, physicsClientId=self.client)
+        return np.reshape(np.asarray(rgba, dtype=np.uint8), (height, width, 4))[..., :3].copy()
+
+    def close(self) -> None:
+        if self.client is not None and p.isConnected(self.client):
+            p.disconnect(self.client)
+        self.client = None
+
+    def __enter__(self) -> "World":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,205 @@
+"""The rule language and the paper's tables against hand-worked situations."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from itg_vision.arm import ArmSpec, forward_kinematics
+from itg_vision.errors import UserError
+from itg_vision.feedback import Markers
+from itg_vision.rules import RuleBase, load_rules
+
+
+def markers(g, e=(np.nan, np.nan, np.nan)):
+    return Markers(np.array(g, float), np.array(e, float))
+
+
+TWO = (100.0, 100.0)
+
+
+def table2(f=0.5):
+    return load_rules("table2", 2, TWO, f=f)
+
+
+# ----------------------------------------------------------------------------- parser
+@pytest.mark.parametrize("text, where, what", [
+    ("RULE 1: IF xd > xg THEN q1 += f * |xd - xq|", ":1:41", "unknown name 'xq'"),
+    ("RULE 1: IF xd > xg q1 += S", ":1:20", "expected 'THEN'"),
+    ("RULE 1: IF (xd > xg THEN q1 += S", ":1:", "expected"),
+    ("RULE 1: IF xd > xg THEN q3 += S", ":1", "moves q3, but the arm has 2 joint(s)"),
+    ("RULE 1: IF xd $ xg THEN q1 += S", ":1:15", "unexpected character '$'"),
+    ("RULE 1 IF xd > xg THEN q1 += S", ":1:8", "expected ':'"),
+    ("\n\nRULE 1: IF xd > xg THEN q1 += |xd - xg", ":3:", "closing '|'"),
+    ("RULE 1: IF xd > xg THEN q1 += S\nRULE 1: IF xd < xg THEN q1 -= S", ":2", "defined twice"),
+    ("# only a comment\n", "", "no rules found"),
+    ("RULE 1: IF xd > xg THEN q1 = q2", ":1:30", "only 'q1 = q1'"),
+])
+def test_syntax_and_name_errors_name_file_line_column(text, where, what):
+    with pytest.raises(UserError) as exc:
+        RuleBase.from_text(text, 2, TWO, source="my.rules")
+    msg = str(exc.value)
+    assert msg.startswith("my.rules" + where), msg
+    assert what in msg
+    assert "\n" not in msg
+
+
+def test_parses_nested_conditions_and_parenthesised_expressions():
+    rb = RuleBase.from_text(
+        "RULE 1: IF ((xd - xg) * 2 > w OR NOT (yd >= 0)) AND (xg - xe) != 0 THEN q1 += 2 * (xd - xg)^2",
+        2, TWO, w=1.0)
+    step = rb.step(np.array([3.0, 1.0, 0]), markers([1.0, 0, 0], [0.5, 0, 0]), [0, 0])
+    assert step.fired == (1,) and step.dq_deg[0] == pytest.approx(8.0)
+    step = rb.step(np.array([1.2, 1.0, 0]), markers([1.0, 0, 0], [0.5, 0, 0]), [0, 0])
+    assert step.fired == ()
+
+
+_names = st.sampled_from(["xd", "yd", "xg", "yg", "xe", "ye", "f", "w", "L1", "L2"])
+_nums = st.integers(1, 9).map(str)
+
+
+def _expr(depth):
+    leaf = _names | _nums
+    if depth == 0:
+        return leaf
+    sub = _expr(depth - 1)
+    return leaf | st.tuples(sub, st.sampled_from(["+", "-", "*"]), sub).map(lambda t: f"({t[0]} {t[1]} {t[2]})")
+
+
+@settings(max_examples=150, deadline=None)
+@given(_expr(3), st.lists(st.floats(-200, 200), min_size=6, max_size=6))
+def test_compiled_step_equals_reference_arithmetic(expr, vals):
+    """The compiler computes the same number as Python's own arithmetic on the same text."""
+    rb = RuleBase.from_text(f"RULE 1: IF 1 > 0 THEN q1 += {expr}", 2, TWO, f=0.3, w=0.7)
+    xd, yd, xg, yg, xe, ye = vals
+    env = dict(xd=xd, yd=yd, xg=xg, yg=yg, xe=xe, ye=ye, f=0.3, w=0.7, L1=100.0, L2=100.0)
+    expected = eval(expr, {"__builtins__": {}}, env)  # reference only, on our own generated text
+    got = rb.step(np.array([xd, yd, 0]), markers([xg, yg, 0], [xe, ye, 0]), [0, 0]).dq_deg[0]
+    assert got == pytest.approx(expected, rel=1e-12, abs=1e-9)
+
+
+def test_each_joint_moves_at_most_once_per_iteration_first_rule_wins():
+    rb = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 += 1\nRULE 2: IF 1 > 0 THEN q1 += 5\n"
+                            "RULE 3: IF 1 > 0 THEN q2 -= 2", 2, TWO)
+    step = rb.step(np.zeros(3), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+    assert step.fired == (1, 3) and list(step.dq_deg) == [1.0, -2.0]
+
+
+def test_nan_marker_never_fires_nor_moves():
+    rb = RuleBase.from_text("RULE 1: IF xe < 1 OR xe >= 1 THEN q1 += xe", 2, TWO)
+    step = rb.step(np.zeros(3), markers([0, 0, 0]), [0, 0])
+    assert step.fired == () and np.all(step.dq_deg == 0)
+
+
+# ----------------------------------------------------------------------------- Table 2
+@pytest.mark.parametrize("q1", [30.0, 120.0, 210.0, 300.0])  # gripper in each quadrant
+@pytest.mark.parametrize("dx", [+5.0, -5.0])
+def test_table2_q1_correction_reduces_x_error_in_each_quadrant(q1, dx):
+    """Where the desired point is on the gripper's side of the x axis, the q1 correction
+    has the sign that reduces |xd - xg| (dx_g/dq1 = -y_g)."""
+    arm = ArmSpec.from_args("two-link")
+    q = np.array([q1, 60.0])  # gripper well inside the quadrant of the elbow
+    m = forward_kinematics(arm, q)
+    g = m["gripper"]
+    desired = np.array([g[0] + dx, g[1], 0.0])
+    step = table2(f=0.05).step(desired, markers(g, m["elbow"]), q)
+    assert step.dq_deg[0] == pytest.approx(math.copysign(0.05 * 5, step.dq_deg[0]))
+    after = forward_kinematics(arm, q + [step.dq_deg[0], 0])["gripper"]
+    assert abs(desired[0] - after[0]) < abs(desired[0] - g[0])
+
+
+@pytest.mark.parametrize("q", [(30, -60), (120, 40), (210, -100), (300, 80), (10, 170)])
+@pytest.mark.parametrize("dy", [+5.0, -5.0])
+def test_table2_q2_correction_reduces_y_error(q, dy):
+    """dy_g/dq2 = x_g - x_e exactly, so RULE 3/4 always turn q2 the right way."""
+    arm = ArmSpec.from_args("two-link")
+    q = np.array(q, float)
+    m = forward_kinematics(arm, q)
+    g = m["gripper"]
+    desired = np.array([g[0], g[1] + dy, 0.0])
+    step = table2(f=0.05).step(desired, markers(g, m["elbow"]), q)
+    assert set(step.fired) & {3, 4} and step.dq_deg[1] != 0
+    after = forward_kinematics(arm, q + [0, step.dq_deg[1]])["gripper"]
+    assert abs(desired[1] - after[1]) < abs(desired[1] - g[1])
+
+
+def test_table2_hand_worked_quadrant_signs():
+    rb = table2(f=0.1)
+    # gripper (100, 100), elbow (100, 0): desired to the right and above the x axis -> RULE 1
+    s = rb.step(np.array([110.0, 100.0, 0]), markers([100, 100, 0], [100, 0, 0]), [0, 90])
+    assert s.fired == (1,) and s.dq_deg[0] == pytest.approx(-1.0) and s.dq_deg[1] == 0
+    # below the x axis, desired to the right -> RULE 2 (q1 up)
+    s = rb.step(np.array([110.0, -100.0, 0]), markers([100, -100, 0], [100, 0, 0]), [0, -90])
+    assert s.fired == (2,) and s.dq_deg[0] == pytest.approx(1.0)
+    # desired above, gripper right of elbow -> RULE 3 (q2 up); gripper left of elbow -> RULE 4
+    s = rb.step(np.array([50.0, 60.0, 0]), markers([50, 50, 0], [0, 0, 0]), [0, 0])
+    assert 3 in s.fired and s.dq_deg[1] == pytest.approx(1.0)
+    s = rb.step(np.array([-50.0, 60.0, 0]), markers([-50, 50, 0], [0, 0, 0]), [0, 0])
+    assert 4 in s.fired and s.dq_deg[1] == pytest.approx(-1.0)
+    # equality everywhere: nothing fires (the paper excludes equality)
+    s = rb.step(np.array([50.0, 50.0, 0]), markers([50, 50, 0], [0, 0, 0]), [0, 0])
+    assert s.fired == () and not s.out_of_reach
+
+
+@pytest.mark.parametrize("links, r, inside", [
+    ((100, 100), 200.0, True), ((100, 100), 200.001, False), ((100, 100), 0.0, True),
+    ((100, 60), 40.0, True), ((100, 60), 39.999, False), ((100, 60), 160.0, True),
+    ((100, 60), 160.001, False)])
+def test_table2_rule0_at_its_boundaries(links, r, inside):
+    rb = load_rules("table2", 2, links)
+    for d in ([r, 0, 0], [0, -r, 0], [-r, 0, 0]):  # exact squares: no rounding at the boundary
+        d = np.array(d)
+        s = rb.step(d, markers([0, 150, 0], [0, 100, 0]), [90, 0])
+        assert s.out_of_reach is (not inside)
+        if not inside:
+            assert s.fired == (0,) and np.all(s.dq_deg == 0)
+
+
+# ----------------------------------------------------------------------------- Table 1
+def test_table1_signs_hold_and_reach():
+    rb = load_rules("table1", 1, (100.0,), S=2.0, w=0.5)
+    # on the circle, desired anticlockwise of the gripper in the upper half -> q += S
+    g = [100 * math.cos(math.radians(40)), 100 * math.sin(math.radians(40)), 0]
+    d = np.array([100 * math.cos(math.radians(50)), 100 * math.sin(math.radians(50)), 0])
+    s = rb.step(d, markers(g), [40])
+    assert s.fired == (2,) and s.dq_deg[0] == 2.0
+    s = rb.step(np.array(g), markers(g), [40])  # at the goal: RULE 1 holds
+    assert s.fired == (1,) and s.dq_deg[0] == 0.0
+    # lower half, desired clockwise (x smaller... mirrored): yd < 0, xd <= xg -> q -= S
+    g2 = [100 * math.cos(math.radians(-40)), 100 * math.sin(math.radians(-40)), 0]
+    d2 = np.array([100 * math.cos(math.radians(-50)), 100 * math.sin(math.radians(-50)), 0])
+    s = rb.step(d2, markers(g2), [-40])
+    assert s.fired == (3,) and s.dq_deg[0] == -2.0
+    # RULE 0: 0.4 mm off the circle is in reach with w = 0.5 mm, 0.6 mm is not
+    assert not rb.step(np.array([100.4, 0, 0]), markers(g), [40]).out_of_reach
+    assert rb.step(np.array([100.6, 0, 0]), markers(g), [40]).out_of_reach
+
+
+# ----------------------------------------------------------------------------- three-link
+def test_three_link_rule0_uses_distance_from_shoulder():
+    rb = load_rules("three-link", 3, (100.0, 100.0, 100.0))
+    m = markers([0, 0, 300], [0, 0, 200])
+    assert not rb.step(np.array([0, 0, 300.0]), m, [0, 90, 0]).out_of_reach  # 200 from shoulder
+    assert rb.step(np.array([0, 0, 300.01]), m, [0, 90, 0]).out_of_reach
+    assert rb.step(np.array([250.0, 200.0, 400.0]), m, [0, 90, 0]).out_of_reach  # paper's B
+
+
+@pytest.mark.parametrize("q", [(20, 40, -60), (60, 10, -20), (-30, 50, -90)])
+def test_three_link_vertical_plane_corrections_reduce_errors(q):
+    arm = ArmSpec.from_args("three-link")
+    q = np.array(q, float)
+    m = forward_kinematics(arm, q)
+    g, e = m["gripper"], m["elbow"]
+    rb = load_rules("three-link", 3, arm.links_mm, f=0.05)
+    # desired 5 mm higher: q3 must raise the gripper
+    d = g + [0, 0, 5.0]
+    s = rb.step(d, markers(g, e), q)
+    after = forward_kinematics(arm, q + [0, 0, s.dq_deg[2]])["gripper"]
+    assert abs(d[2] - after[2]) < abs(d[2] - g[2])
+    # desired 5 mm farther out radially: q2 must increase the radius
+    r = np.hypot(g[0], g[1])
+    d = g * [(r + 5) / r, (r + 5) / r, 1]
+    s = rb.step(d, markers(g, e), q)
+    after = forward_kinematics(arm, q + [0, s.dq_deg[1], 0])["gripper"]
+    assert abs(np.hypot(*d[:2]) - np.hypot(*after[:2])) < 5.0

@@ -1,0 +1,95 @@
+"""Trajectory generators (geometry, the quintic) and the CSV reader."""
+
+import math
+
+import numpy as np
+import pytest
+
+from itg_vision import trajectory as T
+from itg_vision.arm import ArmSpec
+from itg_vision.errors import UserError
+
+
+@pytest.mark.parametrize("name, centre, a, b", [("ellipse-t1", (20, -30), 65, 40),
+                                                ("ellipse-t2", (-30, 40), 62.5, 50)])
+def test_ellipses_lie_on_the_paper_ellipse(name, centre, a, b):
+    t = T.named(name)
+    assert len(t) == 180
+    p = t.points_mm[:, :2] - centre
+    c, s = math.cos(math.radians(-45)), math.sin(math.radians(-45))
+    u, v = c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]  # into the ellipse's axes
+    assert np.allclose((u / a) ** 2 + (v / b) ** 2, 1.0, atol=1e-12)
+    assert np.allclose(np.diff(t.param_deg), 2.0)
+    assert np.allclose(p.mean(axis=0), 0.0, atol=1e-9)  # uniform in angle: centred
+    assert all(ArmSpec.from_args("two-link").reachable(q) for q in t.points_mm)
+
+
+def test_points_option_changes_spacing():
+    t = T.named("ellipse-t1", 720)
+    assert len(t) == 720 and np.allclose(np.diff(t.param_deg), 0.5)
+
+
+def test_abcd_has_the_jump_and_no_point_between():
+    t = T.named("abcd")
+    p = t.points_mm
+    assert len(p) == 200
+    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    assert steps[99] == pytest.approx(100.0)  # B -> C: 100 mm with no set point between
+    assert np.all(np.delete(steps, 99) < 1.3)
+    assert all(ArmSpec.from_args("two-link").reachable(q) for q in p)
+
+
+def test_quintic_boundary_conditions():
+    lam = T.quintic
+    h = 1e-5
+    assert lam(0.0) == 0.0 and lam(1.0) == pytest.approx(1.0) and lam(0.5) == pytest.approx(0.5)
+    for s0 in (0.0, 1.0):  # zero velocity and acceleration at both ends (one-sided differences)
+        sgn = 1 if s0 == 0 else -1
+        v = (lam(s0 + sgn * h) - lam(s0)) / (sgn * h)
+        acc = (lam(s0 + 2 * sgn * h) - 2 * lam(s0 + sgn * h) + lam(s0)) / h**2
+        assert abs(v) < 1e-8 and abs(acc) < 1e-3
+    s = np.linspace(0, 1, 1001)
+    vel = np.gradient(lam(s), s)
+    assert np.argmax(vel) == 500  # peak speed at t_r / 2
+    assert np.all(np.diff(lam(s)) >= 0)
+
+
+def test_line_ab_is_straight_and_b_is_out_of_reach():
+    t = T.named("line-ab")
+    a, b = np.array(T.LINE_AB_MM)
+    assert len(t) == 100 and t.t_s[-1] == 10.0
+    assert np.allclose(t.points_mm[0], a) and np.allclose(t.points_mm[-1], b)
+    d = (t.points_mm - a) / np.linalg.norm(b - a)
+    assert np.allclose(np.cross(d, (b - a) / np.linalg.norm(b - a)), 0, atol=1e-12)
+    arm = ArmSpec.from_args("three-link")
+    assert np.linalg.norm(b - [0, 0, 100]) == pytest.approx(438.75, abs=0.01)
+    assert not arm.reachable(b) and arm.reachable(a)
+    r = T.named("line-ab-reach")
+    assert all(arm.reachable(q) for q in r.points_mm)
+
+
+def test_csv_reader_good(tmp_path):
+    f = tmp_path / "t.csv"
+    f.write_text("x_mm,y_mm,z_mm,t_s\n1,2,3,0\n4,5,6,0.5\n\n")
+    t = T.read_csv(f)
+    assert not t.planar and t.points_mm.tolist() == [[1, 2, 3], [4, 5, 6]]
+    assert t.t_s.tolist() == [0, 0.5]
+    f.write_text("x_mm,y_mm\n1,2\n")
+    assert T.read_csv(f).planar
+
+
+@pytest.mark.parametrize("text, expect", [
+    ("", "empty file"),
+    ("x,y\n1,2\n", ":1: header must be x_mm,y_mm"),
+    ("x_mm,y_mm\n1,2\n3,abc\n", ":3: field y_mm: not a number: 'abc'"),
+    ("x_mm,y_mm\n1,nan\n", ":2: field y_mm: must be finite"),
+    ("x_mm,y_mm\n1,2,3\n", ":2: expected 2 fields, got 3"),
+    ("x_mm,y_mm\n", "no set points"),
+    ("x_mm,y_mm,t_s\n1,2,1\n1,2,0\n", ":3: field t_s: times must not decrease"),
+])
+def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
+    f = tmp_path / "bad.csv"
+    f.write_text(text)
+    with pytest.raises(UserError) as exc:
+        T.read_csv(f)
+    assert str(exc.value).startswith(str(f)) and expect in str(exc.value)

@@ -1,0 +1,46 @@
+"""The PyBullet arm against the nominal kinematic model."""
+
+import numpy as np
+import pytest
+
+from itg_vision.arm import ArmSpec, forward_kinematics
+from itg_vision.world import World
+
+
+@pytest.mark.parametrize("name", ["one-link", "two-link", "three-link"])
+def test_marker_positions_match_the_kinematic_model(name):
+    arm = ArmSpec.from_args(name)
+    rng = np.random.default_rng(7)
+    with World(arm) as world:
+        for _ in range(25):
+            q = rng.uniform(-180, 180, arm.n_joints)
+            world.set_q(q)
+            truth, model = world.true_markers(), forward_kinematics(arm, q)
+            for m in arm.marker_names:
+                # 1e-6 m = 1e-3 mm: PyBullet's link transforms are exact up to float rounding
+                assert np.allclose(truth[m], model[m], atol=1e-3), (m, q)
+
+
+def test_start_pose_is_the_papers():
+    with World(ArmSpec.from_args("two-link")) as w:
+        assert np.allclose(w.true_markers()["gripper"][:2], [0, 200], atol=1e-3)
+    with World(ArmSpec.from_args("three-link")) as w:
+        assert np.allclose(w.true_markers()["gripper"], [0, 0, 300], atol=1e-3)
+
+
+def test_joint_offset_and_link_error_move_the_true_arm_not_the_model():
+    nominal = ArmSpec.from_args("two-link")
+    true_arm = ArmSpec.from_args("two-link", (105.0, 104.0)).with_joint_offset((1.0, 0.0))
+    q = np.array([30.0, 40.0])
+    with World(true_arm, q) as w:
+        assert np.allclose(w.true_markers()["gripper"], forward_kinematics(true_arm, q)["gripper"], atol=1e-3)
+        assert not np.allclose(w.true_markers()["gripper"], forward_kinematics(nominal, q)["gripper"], atol=1.0)
+        assert np.allclose(w.q_deg, q)  # the encoders read the commanded angle
+
+
+@pytest.mark.parametrize("links, bad", [((100.0,), "needs 2"), ((100.0, -1.0), "link 2"),
+                                        ((100.0, float("nan")), "link 2")])
+def test_bad_links(links, bad):
+    from itg_vision.errors import UserError
+    with pytest.raises(UserError, match=bad):
+        ArmSpec.from_args("two-link", links)
