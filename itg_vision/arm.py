@@ -19,8 +19,10 @@ ARMS: dict[str, tuple[float, ...]] = {
     "three-link": (100.0, 100.0, 100.0),  # base height, upper arm, forearm (section 3.5)
 }
 
-#: LED stand-off above the joint for planar arms (world +z), so the links never hide it.
-PLANAR_LED_STANDOFF_MM = 12.0
+#: LED stand-off so the links never hide it: planar arms carry the LEDs this far above the
+#: joints (world +z); the three-link arm carries them this far along the pitch axis, towards
+#: the cameras (world -y at q1 = 0). The tracked tool point is the gripper LED's centre.
+LED_STANDOFF_MM = 12.0
 
 
 @dataclass(frozen=True)
@@ -31,7 +33,8 @@ class ArmSpec:
     ----------
     name : one of ``ARMS``.
     links_mm : link lengths in mm; for ``three-link`` (base height L1, upper arm L2, forearm L3).
-    led_standoff_mm : height of the LED markers above the joints (planar arms; 0 for three-link).
+    led_standoff_mm : LED stand-off from the joints: above them (planar arms) or along the
+        pitch axis towards the cameras (three-link arm).
     joint_offset_deg : added to every commanded joint angle by the *true* arm (model error).
     """
 
@@ -52,7 +55,7 @@ class ArmSpec:
         for i, v in enumerate(links, 1):
             if not np.isfinite(v) or v <= 0 or v > 5000:
                 raise UserError(f"--links: link {i} must be a length in mm in (0, 5000], got {v}")
-        standoff = 0.0 if name == "three-link" else PLANAR_LED_STANDOFF_MM
+        standoff = LED_STANDOFF_MM
         return cls(name, links, standoff, (0.0,) * len(default))
 
     # ------------------------------------------------------------------ structure
@@ -118,7 +121,8 @@ def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]
     Returns
     -------
     dict with ``gripper`` and ``elbow``, each shape (3,), in mm; the LED centres (planar arms
-    carry them ``led_standoff_mm`` above the joint). One-link arms have no elbow marker: NaN.
+    carry them ``led_standoff_mm`` above the joint, the three-link arm beside it along the pitch
+    axis, (sin q1, -cos q1, 0)). One-link arms have no elbow marker: NaN.
     """
     q = np.radians(np.asarray(q_deg, float) + np.asarray(arm.joint_offset_deg or 0.0))
     L = arm.links_mm
@@ -136,4 +140,6 @@ def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]
     rg = re + L[2] * np.cos(q[1] + q[2])
     zg = ze + L[2] * np.sin(q[1] + q[2])
     c, s = np.cos(q[0]), np.sin(q[0])
-    return {"gripper": np.array([rg * c, rg * s, zg]), "elbow": np.array([re * c, re * s, ze])}
+    side = h * np.array([s, -c, 0.0])
+    return {"gripper": np.array([rg * c, rg * s, zg]) + side,
+            "elbow": np.array([re * c, re * s, ze]) + side}

@@ -92,13 +92,13 @@ def _fmt(v) -> str:
 
 
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
-             iterations: int = 1, planar: bool = True,
+             iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
              progress: Callable[[int], None] | None = None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) and return the trace.
 
     ``feedback.observe(world)`` is the controller's only view of the arm. ``world.true_markers()``
     is read here for evaluation only (E_i and the estimation error), never handed to the
-    controller.
+    controller. ``max_step_deg`` is a servo rate limit: no joint moves more per iteration.
     """
     trace = Trace(planar, world.arm.n_joints)
     timing = {"render": [], "detect": [], "triangulate": [], "rules": []}
@@ -110,7 +110,10 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
             t0 = time.perf_counter()
             step = controller.step(desired, estimate, world.q_deg)
             timing["rules"].append((time.perf_counter() - t0) * 1e3)
-            world.move(step.dq_deg)
+            dq = step.dq_deg
+            if max_step_deg:
+                dq = np.clip(dq, -max_step_deg, max_step_deg)
+            world.move(dq)
 
             for stage, ms in estimate.timing_ms.items():
                 timing.setdefault(stage, []).append(ms)

@@ -413,17 +413,16 @@ class RuleBase:
         xg, yg, zg = float(g[0]), float(g[1]), float(g[2])
         xe, ye, ze = float(e[0]), float(e[1]), float(e[2])
         links = self.links_mm
-        with np.errstate(invalid="ignore"):
-            dq, fired = self._fn(xd, yd, zd, xg, yg, zg, xe, ye, ze,
-                                 xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
-                                 *(float(q) for q in q_deg), self.f, self.S, self.w,
-                                 links[0], *links)
+        # plain Python floats: comparisons with NaN are False and raise no warning
+        dq, fired = self._fn(xd, yd, zd, xg, yg, zg, xe, ye, ze,
+                             xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
+                             *(float(q) for q in q_deg), self.f, self.S, self.w,
+                             links[0], *links)
         if dq is None:
             return Step(np.zeros(self.n_joints), tuple(fired), True)
-        dq = np.asarray(dq)
-        if not np.all(np.isfinite(dq)):  # a NaN estimate must never move a joint
-            dq = np.where(np.isfinite(dq), dq, 0.0)
-        return Step(dq, tuple(fired), False)
+        if any(v != v for v in dq):  # a NaN estimate must never move a joint
+            dq = [0.0 if v != v else v for v in dq]
+        return Step(np.array(dq), tuple(fired), False)
 
 
 RULES_DIR = Path(__file__).resolve().parent.parent / "data" / "rules"

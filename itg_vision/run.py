@@ -40,12 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
                          "open loop) or jacobian (vision-fed damped least squares)")
     ap.add_argument("--gain", type=float, default=0.5, metavar="F",
                     help="f of the variable step f*|error|, in deg per mm (default %(default)s)")
-    ap.add_argument("--step", type=float, default=0.5, metavar="S",
+    ap.add_argument("--step", type=float, default=2.0, metavar="S",
                     help="fixed step S in deg, for rules that use S (default %(default)s)")
     ap.add_argument("--tolerance", type=float, default=0.5, metavar="W",
                     help="tolerance w in mm (default %(default)s)")
     ap.add_argument("--iterations", type=int, default=1,
                     help="rule iterations per set point (default 1: the paper's one step ahead)")
+    ap.add_argument("--max-step", type=float, metavar="DEG",
+                    help="servo rate limit: no joint moves more than DEG per iteration (default: "
+                         "none, as in the paper; the three-link composition needs one, see README)")
     ap.add_argument("--feedback", default="vision", choices=FEEDBACKS,
                     help="vision (two cameras, LEDs), model (encoders + nominal kinematic model) "
                          "or truth (the simulator's marker positions) (default %(default)s)")
@@ -68,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = RunConfig(arm=args.arm, links_mm=args.links, trajectory=args.trajectory,
                         points=args.points, controller=args.controller, rules=args.rules,
                         gain=args.gain, step=args.step, tolerance=args.tolerance,
-                        iterations=args.iterations, feedback=args.feedback, rig=args.rig,
+                        iterations=args.iterations, max_step=args.max_step, feedback=args.feedback, rig=args.rig,
                         noise_px=args.noise_px, dropout=args.dropout, seed=args.seed)
         prep = prepare(cfg)
         if args.video and cfg.feedback != "vision":

@@ -39,9 +39,10 @@ class RunConfig:
     controller: str = "itg"
     rules: str | None = None
     gain: float = 0.5
-    step: float = 0.5
+    step: float = 2.0
     tolerance: float = 0.5
     iterations: int = 1
+    max_step: float | None = None
     feedback: str = "vision"
     rig: str | None = None
     noise_px: float = 0.0
@@ -57,6 +58,8 @@ class RunConfig:
             (math.isfinite(self.gain) and self.gain > 0, f"--gain: must be > 0 (deg/mm), got {self.gain}"),
             (math.isfinite(self.step) and self.step > 0, f"--step: must be > 0 (deg), got {self.step}"),
             (math.isfinite(self.tolerance) and self.tolerance >= 0, f"--tolerance: must be >= 0 (mm), got {self.tolerance}"),
+            (self.max_step is None or (math.isfinite(self.max_step) and self.max_step > 0),
+             f"--max-step: must be > 0 (deg per iteration), got {self.max_step}"),
             (1 <= self.iterations <= 10000, f"--iterations: must be in 1..10000, got {self.iterations}"),
             (math.isfinite(self.noise_px) and self.noise_px >= 0, f"--noise-px: must be >= 0, got {self.noise_px}"),
             (0 <= self.dropout <= 1, f"--dropout: must be a probability in [0, 1], got {self.dropout}"),
@@ -160,7 +163,8 @@ def execute(prep: Prepared, progress=None) -> tuple[Trace, dict]:
     t0 = time.perf_counter()
     with World(prep.true_arm) as world:
         trace = simulate(world, prep.controller, feedback, prep.trajectory.points_mm,
-                         iterations=cfg.iterations, planar=prep.model.planar, progress=progress)
+                         iterations=cfg.iterations, planar=prep.model.planar,
+                         max_step_deg=cfg.max_step, progress=progress)
     wall_s = time.perf_counter() - t0
     summary = {
         **trace.metrics(),
@@ -175,6 +179,7 @@ def execute(prep: Prepared, progress=None) -> tuple[Trace, dict]:
         "step_deg": cfg.step,
         "tolerance_mm": cfg.tolerance,
         "iterations": cfg.iterations,
+        "max_step_deg": cfg.max_step,
         "noise_px": cfg.noise_px,
         "dropout": cfg.dropout,
         "seed": cfg.seed,

@@ -2,7 +2,8 @@
 
 Planar arms turn about world z; their LEDs sit on short posts ``led_standoff_mm`` above the
 joints so the links never hide them from cameras above. The three-link arm has a base yaw joint
-and two pitch joints; its LEDs are centred on the elbow joint and the gripper point.
+and two pitch joints; its LEDs sit on posts beside the elbow and the gripper, along the pitch
+axis towards the cameras.
 """
 
 from __future__ import annotations
@@ -40,13 +41,17 @@ def _box_link(name: str, length_mm: float, axis: str) -> str:
     )
 
 
-def _led_link(name: str, standoff_mm: float) -> str:
+def _led_link(name: str, standoff_mm: float, post_axis: str = "z") -> str:
+    """An LED sphere on a post of length ``standoff_mm`` reaching back to the joint along
+    -z (``post_axis='z'``) or +y (``'y'``: the three-link arm's LEDs sit at -y of the link)."""
     r = LED_RADIUS_MM * _MM
     h = standoff_mm * _MM
     post = ""
     if h > 0:
-        post = (f'<visual><origin xyz="0 0 {-h / 2:g}"/><geometry><cylinder radius="{0.0015:g}" '
-                f'length="{h:g}"/></geometry><material name="arm"/></visual>')
+        xyz, rpy = ((0, 0, -h / 2), (0, 0, 0)) if post_axis == "z" else ((0, h / 2, 0), (1.5707963, 0, 0))
+        post = (f'<visual><origin xyz="{xyz[0]:g} {xyz[1]:g} {xyz[2]:g}" rpy="{rpy[0]:g} {rpy[1]:g} {rpy[2]:g}"/>'
+                f'<geometry><cylinder radius="{0.0015:g}" length="{h:g}"/></geometry>'
+                f'<material name="arm"/></visual>')
     return (
         f'<link name="{name}_led"><visual><geometry><sphere radius="{r:g}"/></geometry>'
         f'<material name="{name}_led"/></visual>{post}'
@@ -93,9 +98,10 @@ def arm_urdf(arm: ArmSpec) -> str:
         parts.append(_joint("q2", "continuous", "column", "upper_arm", (0, 0, L[0]), pitch))
         parts.append(_box_link("forearm", L[2], "x"))
         parts.append(_joint("q3", "continuous", "upper_arm", "forearm", (L[1], 0, 0), pitch))
-        parts.append(_led_link("elbow", 0.0))
-        parts.append(_joint("elbow_mount", "fixed", "upper_arm", "elbow_led", (L[1], 0, 0)))
-        parts.append(_led_link("gripper", 0.0))
-        parts.append(_joint("gripper_mount", "fixed", "forearm", "gripper_led", (L[2], 0, 0)))
+        # local +y is the pitch axis reversed: world +y at q1 = 0; the cameras are at -y
+        parts.append(_led_link("elbow", h, "y"))
+        parts.append(_joint("elbow_mount", "fixed", "upper_arm", "elbow_led", (L[1], -h, 0)))
+        parts.append(_led_link("gripper", h, "y"))
+        parts.append(_joint("gripper_mount", "fixed", "forearm", "gripper_led", (L[2], -h, 0)))
     parts.append("</robot>")
     return "\n".join(parts)

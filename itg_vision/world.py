@@ -155,3 +155,19 @@ class World:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def pybullet_ik_timer(arm: ArmSpec, points_mm, repeat: int = 7) -> float:
+    """Median microseconds of one ``calculateInverseKinematics`` call on the arm's body."""
+    import time
+
+    with World(arm) as w:
+        link = w._leds["gripper"]
+        targets = [[float(v) * _MM for v in (pt[0], pt[1], arm.led_standoff_mm)] for pt in points_mm]
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            for tgt in targets:
+                p.calculateInverseKinematics(w.body, link, tgt, physicsClientId=w.client)
+            times.append((time.perf_counter() - t0) / len(targets))
+    return float(np.median(times) * 1e6)

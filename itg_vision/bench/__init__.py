@@ -1,0 +1,1 @@
+"""Benchmarks: `python -m itg_vision.bench speed|noise ...`."""

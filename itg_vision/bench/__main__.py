@@ -1,0 +1,27 @@
+"""python -m itg_vision.bench speed|noise [options]"""
+
+from __future__ import annotations
+
+import sys
+
+USAGE = "usage: python -m itg_vision.bench {speed,noise} [options]  (--help after the name for its options)"
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(USAGE)
+        return 0 if argv else 2
+    name, rest = argv[0], argv[1:]
+    if name == "speed":
+        from .speed import main as run
+    elif name == "noise":
+        from .noise import main as run
+    else:
+        print(f"error: unknown benchmark {name!r} (choose speed or noise)", file=sys.stderr)
+        return 2
+    return run(rest)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

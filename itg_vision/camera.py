@@ -1,0 +1,459 @@
+"""Cameras and stereo rigs: intrinsics, lens distortion, pose, sensor model, YAML files.
+
+Conventions (OpenCV): camera x right, y down, z forward; the centre of pixel (i, j) is at
+u = i, v = j; ``x_cam = R @ X_world + t`` with X in mm. Distortion is OpenCV's ``plumb_bob``
+(k1, k2, p1, p2, k3). The OpenGL matrices handed to PyBullet are built here as pure numpy
+(metres), including TinyRenderer's one-pixel shift in v (``cy_r = cy + 1``).
+
+Rig files (``cameras/*.yaml``) use ROS ``camera_info`` names where natural::
+
+    name: planar
+    cameras:
+      - name: left
+        image_width: 640
+        image_height: 480
+        camera_matrix: {rows: 3, cols: 3, data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}
+        distortion_model: plumb_bob
+        distortion_coefficients: {rows: 1, cols: 5, data: [k1, k2, p1, p2, k3]}  # or a list
+        pose:                       # one of three forms
+          position_mm: [x, y, z]    #   look-at: camera centre, a point on the optical axis
+          look_at_mm: [x, y, z]     #   and the world direction that appears "up" in the image
+          up: [0, 0, 1]
+          # position_mm + rotation_deg: [rx, ry, rz]  (Rodrigues vector of R world->camera, deg)
+          # rotation_matrix: {rows: 3, cols: 3, data: [9]} + translation_mm: [3]  (exact; saved)
+        sensor: {noise_sigma_gray: 2.0, exposure: 1.0}
+    calibration: {...}              # optional, written by calibration
+    true_rig: cameras/planar.yaml   # optional, the rig a calibrated rig was measured from
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from .errors import UserError
+
+_MM = 1e-3
+#: Iterations of cv2.undistortPoints: the default 5 leaves ~0.1 px error in the corners.
+UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+
+
+# ---------------------------------------------------------------------------- pure functions
+def look_at_rotation(position_mm, look_at_mm, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Rotation world->camera (OpenCV axes) of a camera at ``position_mm`` looking at a point.
+
+    Parameters
+    ----------
+    position_mm, look_at_mm, up : array-like, shape (3,)
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3); rows are the camera x (right), y (down), z (forward) axes in
+        world coordinates.
+
+    Raises
+    ------
+    ValueError if the viewing direction is zero or parallel to ``up``.
+    """
+    z = np.asarray(look_at_mm, float) - np.asarray(position_mm, float)
+    nz = np.linalg.norm(z)
+    if nz < 1e-9:
+        raise ValueError("look_at equals position")
+    z = z / nz
+    u = np.asarray(up, float)
+    y = -(u - (u @ z) * z)
+    ny = np.linalg.norm(y)
+    if ny < 1e-9 * max(1.0, np.linalg.norm(u)):
+        raise ValueError("up is parallel to the viewing direction (or zero)")
+    y = y / ny
+    x = np.cross(y, z)
+    return np.stack([x, y, z])
+
+
+def gl_view_matrix(R: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
+    """OpenGL view matrix (metres), flattened column-major, shape (16,)."""
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = np.asarray(t_mm, float) * _MM
+    return (np.diag([1.0, -1.0, -1.0, 1.0]) @ M).flatten(order="F")
+
+
+def gl_projection_matrix(K: np.ndarray, width: int, height: int, near_m: float,
+                         far_m: float) -> np.ndarray:
+    """OpenGL projection matrix for TinyRenderer, flattened column-major, shape (16,).
+
+    Uses ``cy_r = cy + 1``: TinyRenderer puts a point at ``v = (1 - y_ndc) H / 2 - 1``.
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    cy_r = cy + 1.0
+    n, f = near_m, far_m
+    P = np.array([
+        [2 * fx / width, 0.0, 1 - 2 * cx / width, 0.0],
+        [0.0, 2 * fy / height, 2 * cy_r / height - 1, 0.0],
+        [0.0, 0.0, -(f + n) / (f - n), -2 * f * n / (f - n)],
+        [0.0, 0.0, -1.0, 0.0],
+    ])
+    return P.flatten(order="F")
+
+
+# ---------------------------------------------------------------------------- Camera
+def _frozen(a) -> np.ndarray:
+    """A read-only float array (cached camera properties must not be changed in place)."""
+    out = np.array(a, float)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True)
+class Camera:
+    """One camera: pinhole intrinsics, plumb_bob distortion, pose and sensor model.
+
+    Stored as tuples so the camera is hashable (caches key on it); the array views are
+    cached read-only properties.
+
+    Attributes
+    ----------
+    name : str
+    image_width, image_height : int, pixels.
+    fx, fy, cx, cy : float, pixels.
+    dist : tuple of 5 floats (k1, k2, p1, p2, k3), OpenCV order.
+    rotation : 3x3 tuple, R world->camera.
+    translation_mm : 3-tuple, t in ``x_cam = R X_world + t`` (mm).
+    noise_sigma_gray : std of Gaussian grey-level noise (0..255 scale).
+    exposure : gain multiplying the rendered intensities.
+    """
+
+    name: str
+    image_width: int
+    image_height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, ...]
+    rotation: tuple[tuple[float, ...], ...]
+    translation_mm: tuple[float, ...]
+    noise_sigma_gray: float = 2.0
+    exposure: float = 1.0
+
+    @classmethod
+    def from_arrays(cls, name: str, size: tuple[int, int], K, dist, R, t_mm,
+                    noise_sigma_gray: float = 2.0, exposure: float = 1.0) -> "Camera":
+        """Build from arrays: ``size`` is (width, height), K (3, 3), dist (5,), R (3, 3), t (3,)."""
+        K = np.asarray(K, float)
+        return cls(name, int(size[0]), int(size[1]), float(K[0, 0]), float(K[1, 1]),
+                   float(K[0, 2]), float(K[1, 2]),
+                   tuple(float(v) for v in np.ravel(dist)),
+                   tuple(tuple(float(v) for v in row) for row in np.asarray(R, float)),
+                   tuple(float(v) for v in np.ravel(t_mm)),
+                   float(noise_sigma_gray), float(exposure))
+
+    # -------------------------------------------------------------- array views
+    @cached_property
+    def K(self) -> np.ndarray:
+        """Camera matrix, shape (3, 3)."""
+        return _frozen([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @cached_property
+    def dist_coeffs(self) -> np.ndarray:
+        """Distortion coefficients, shape (5,)."""
+        return _frozen(self.dist)
+
+    @cached_property
+    def R(self) -> np.ndarray:
+        """Rotation world->camera, shape (3, 3)."""
+        return _frozen(self.rotation)
+
+    @cached_property
+    def t_mm(self) -> np.ndarray:
+        """Translation (mm), shape (3,)."""
+        return _frozen(self.translation_mm)
+
+    @cached_property
+    def position_mm(self) -> np.ndarray:
+        """Camera centre in the world frame (mm), shape (3,): ``-R^T t``."""
+        return _frozen(-self.R.T @ self.t_mm)
+
+    @cached_property
+    def P(self) -> np.ndarray:
+        """Pinhole projection matrix ``K [R | t]`` (mm), shape (3, 4)."""
+        return _frozen(self.K @ np.hstack([self.R, self.t_mm[:, None]]))
+
+    @cached_property
+    def rvec(self) -> np.ndarray:
+        """Rodrigues vector of R (radians), shape (3, 1), as cv2.projectPoints takes it."""
+        return _frozen(cv2.Rodrigues(self.R)[0])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.image_width, self.image_height
+
+    # -------------------------------------------------------------- projection
+    def to_camera(self, X_mm) -> np.ndarray:
+        """World points to camera coordinates: shape (..., 3) -> (..., 3), mm."""
+        X = np.asarray(X_mm, float)
+        return X @ self.R.T + self.t_mm
+
+    def project(self, X_mm, distort: bool = True) -> np.ndarray:
+        """Project world points to pixels.
+
+        Parameters
+        ----------
+        X_mm : array-like, shape (3,) or (n, 3)
+        distort : apply the lens distortion (the image as captured) or not (pinhole).
+
+        Returns
+        -------
+        uv : ndarray, shape (2,) or (n, 2)
+        """
+        X = np.asarray(X_mm, float)
+        pts = X.reshape(-1, 1, 3)
+        dist = self.dist_coeffs if distort else np.zeros(5)
+        uv, _ = cv2.projectPoints(pts, self.rvec, self.t_mm, self.K, dist)
+        uv = uv.reshape(-1, 2)
+        return uv[0] if X.ndim == 1 else uv
+
+    def undistort(self, uv_px) -> np.ndarray:
+        """Distorted pixels to pinhole pixels: shape (2,) or (n, 2)."""
+        uv = np.asarray(uv_px, float)
+        out = cv2.undistortPoints(uv.reshape(-1, 1, 2), self.K, self.dist_coeffs, None, None,
+                                  self.K, criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
+        return out[0] if uv.ndim == 1 else out
+
+    def back_project(self, uv_px, depth_mm, distorted: bool = True) -> np.ndarray:
+        """Pixels and depths (camera z, mm) to world points.
+
+        Parameters
+        ----------
+        uv_px : array-like, shape (2,) or (n, 2)
+        depth_mm : float or array-like, shape (n,)
+        distorted : whether ``uv_px`` are distorted (as captured) or pinhole pixels.
+
+        Returns
+        -------
+        X_mm : ndarray, shape (3,) or (n, 3)
+        """
+        uv = np.asarray(uv_px, float)
+        pts = uv.reshape(-1, 2)
+        if distorted:
+            pts = self.undistort(pts).reshape(-1, 2)
+        x = (pts[:, 0] - self.cx) / self.fx
+        y = (pts[:, 1] - self.cy) / self.fy
+        z = np.broadcast_to(np.asarray(depth_mm, float), x.shape)
+        Xc = np.stack([x * z, y * z, z], axis=1)
+        Xw = (Xc - self.t_mm) @ self.R  # R^T (Xc - t)
+        return Xw[0] if uv.ndim == 1 else Xw
+
+    # -------------------------------------------------------------- OpenGL
+    def gl_view(self) -> np.ndarray:
+        """OpenGL view matrix (metres), column-major, shape (16,)."""
+        return gl_view_matrix(self.R, self.t_mm)
+
+    def gl_projection(self, near_m: float = 0.05, far_m: float = 5.0) -> np.ndarray:
+        """OpenGL projection matrix for this image size, column-major, shape (16,)."""
+        return gl_projection_matrix(self.K, self.image_width, self.image_height, near_m, far_m)
+
+
+# ---------------------------------------------------------------------------- Rig
+@dataclass(frozen=True)
+class Rig:
+    """A stereo rig: two cameras in the world frame.
+
+    Attributes
+    ----------
+    name : str
+    cameras : (Camera, Camera)
+    source : the file it was read from ("" if built in code).
+    calibration : optional free-form record of how the rig was calibrated.
+    true_rig : optional path of the rig a calibrated rig was measured from.
+    """
+
+    name: str
+    cameras: tuple[Camera, Camera]
+    source: str = ""
+    calibration: dict | None = field(default=None, compare=False)
+    true_rig: str | None = None
+
+    @classmethod
+    def from_yaml(cls, path) -> "Rig":
+        """Read and validate a rig file; any bad field raises `UserError` naming it."""
+        path = str(path)
+        try:
+            with open(path, encoding="utf-8") as f:
+                doc = yaml.safe_load(f)
+        except OSError as exc:
+            raise UserError(f"{path}: cannot read rig file ({exc.strerror})") from None
+        except yaml.YAMLError as exc:
+            raise UserError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        return rig_from_dict(doc, path)
+
+    def to_yaml(self, path) -> None:
+        """Write the rig (exact pose as a rotation matrix), via a temporary name + rename."""
+        path = str(path)
+        doc: dict[str, Any] = {"name": self.name, "cameras": [_camera_to_dict(c)
+                                                              for c in self.cameras]}
+        if self.calibration is not None:
+            doc["calibration"] = self.calibration
+        if self.true_rig is not None:
+            doc["true_rig"] = self.true_rig
+        header = ("# Stereo rig (itg_vision). OpenCV conventions, mm; pose as R world->camera\n"
+                  "# rows and t in x_cam = R X_world + t. See itg_vision/camera.py.\n")
+        tmp = f"{path}.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(header)
+            yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
+        os.replace(tmp, path)
+
+
+def _camera_to_dict(c: Camera) -> dict:
+    return {
+        "name": c.name,
+        "image_width": c.image_width,
+        "image_height": c.image_height,
+        "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in c.K.ravel()]},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5, "data": list(c.dist)},
+        "pose": {
+            "rotation_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in c.R.ravel()]},
+            "translation_mm": list(c.translation_mm),
+            "position_mm": [round(float(v), 3) for v in c.position_mm],  # for readers; ignored
+        },
+        "sensor": {"noise_sigma_gray": c.noise_sigma_gray, "exposure": c.exposure},
+    }
+
+
+# ---------------------------------------------------------------------------- validation
+class _Fields:
+    """Field readers that raise `UserError` with ``file: where.field: problem``."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def fail(self, where: str, msg: str):
+        raise UserError(f"{self.path}: {where}: {msg}")
+
+    def get(self, d: Any, key: str, where: str) -> Any:
+        if not isinstance(d, dict):
+            self.fail(where, "must be a mapping")
+        if key not in d:
+            self.fail(f"{where}.{key}" if where else key, "missing")
+        return d[key]
+
+    def number(self, v: Any, where: str) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            self.fail(where, f"must be a finite number, got {v!r}")
+        return float(v)
+
+    def numbers(self, v: Any, n: int, where: str) -> np.ndarray:
+        if isinstance(v, dict) and "data" in v:  # ROS matrix form
+            v = v["data"]
+        if not isinstance(v, (list, tuple)) or len(v) != n:
+            got = f"{len(v)} values" if isinstance(v, (list, tuple)) else repr(v)
+            self.fail(where, f"must be a list of {n} numbers, got {got}")
+        return np.array([self.number(x, f"{where}[{i}]") for i, x in enumerate(v)])
+
+    def integer(self, v: Any, where: str) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.fail(where, f"must be an integer, got {v!r}")
+        return int(v)
+
+
+def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
+    """Validate a parsed rig document and build the `Rig` (see the module docstring)."""
+    F = _Fields(path)
+    if not isinstance(doc, dict):
+        F.fail("(top level)", "must be a mapping with 'name' and 'cameras'")
+    name = F.get(doc, "name", "")
+    if not isinstance(name, str) or not name:
+        F.fail("name", "must be a non-empty string")
+    cams = F.get(doc, "cameras", "")
+    if not isinstance(cams, list) or len(cams) != 2:
+        F.fail("cameras", "must be a list of exactly two cameras")
+    cameras = tuple(_camera_from_dict(F, c, f"cameras[{i}]") for i, c in enumerate(cams))
+    if cameras[0].name == cameras[1].name:
+        F.fail("cameras[1].name", f"duplicates cameras[0].name {cameras[0].name!r}")
+    calibration = doc.get("calibration")
+    if calibration is not None and not isinstance(calibration, dict):
+        F.fail("calibration", "must be a mapping")
+    true_rig = doc.get("true_rig")
+    if true_rig is not None and not isinstance(true_rig, str):
+        F.fail("true_rig", "must be a path string")
+    return Rig(name, cameras, path, calibration, true_rig)
+
+
+def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
+    if not isinstance(d, dict):
+        F.fail(where, "must be a mapping")
+    name = F.get(d, "name", where)
+    if not isinstance(name, str) or not name:
+        F.fail(f"{where}.name", "must be a non-empty string")
+    W = F.integer(F.get(d, "image_width", where), f"{where}.image_width")
+    H = F.integer(F.get(d, "image_height", where), f"{where}.image_height")
+    if W <= 0:
+        F.fail(f"{where}.image_width", f"must be > 0, got {W}")
+    if H <= 0:
+        F.fail(f"{where}.image_height", f"must be > 0, got {H}")
+    km = f"{where}.camera_matrix"
+    K = F.numbers(F.get(d, "camera_matrix", where), 9, km).reshape(3, 3)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if fx <= 0:
+        F.fail(km, "fx must be > 0")
+    if fy <= 0:
+        F.fail(km, "fy must be > 0")
+    if not 0 <= cx <= W - 1:
+        F.fail(km, f"cx must be inside the image [0, {W - 1}], got {cx:g}")
+    if not 0 <= cy <= H - 1:
+        F.fail(km, f"cy must be inside the image [0, {H - 1}], got {cy:g}")
+    if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        F.fail(km, "must be [fx, 0, cx, 0, fy, cy, 0, 0, 1] (no skew)")
+    model = d.get("distortion_model", "plumb_bob")
+    if model != "plumb_bob":
+        F.fail(f"{where}.distortion_model", f"only plumb_bob is supported, got {model!r}")
+    dist = F.numbers(F.get(d, "distortion_coefficients", where), 5,
+                     f"{where}.distortion_coefficients")
+    R, t = _pose_from_dict(F, F.get(d, "pose", where), f"{where}.pose")
+    sensor = d.get("sensor", {}) or {}
+    if not isinstance(sensor, dict):
+        F.fail(f"{where}.sensor", "must be a mapping")
+    sigma = F.number(sensor.get("noise_sigma_gray", 2.0), f"{where}.sensor.noise_sigma_gray")
+    if sigma < 0:
+        F.fail(f"{where}.sensor.noise_sigma_gray", f"must be >= 0, got {sigma:g}")
+    exposure = F.number(sensor.get("exposure", 1.0), f"{where}.sensor.exposure")
+    if exposure <= 0:
+        F.fail(f"{where}.sensor.exposure", f"must be > 0, got {exposure:g}")
+    return Camera.from_arrays(name, (W, H), K, dist, R, t, sigma, exposure)
+
+
+def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(d, dict):
+        F.fail(where, "must be a mapping")
+    if "rotation_matrix" in d:
+        R = F.numbers(d["rotation_matrix"], 9, f"{where}.rotation_matrix").reshape(3, 3)
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            F.fail(f"{where}.rotation_matrix", "must be a rotation (orthonormal, det +1)")
+        t = F.numbers(F.get(d, "translation_mm", where), 3, f"{where}.translation_mm")
+        return R, t
+    C = F.numbers(F.get(d, "position_mm", where), 3, f"{where}.position_mm")
+    if "look_at_mm" in d:
+        target = F.numbers(d["look_at_mm"], 3, f"{where}.look_at_mm")
+        up = F.numbers(d.get("up", [0, 0, 1]), 3, f"{where}.up")
+        if np.linalg.norm(target - C) < 1e-9:
+            F.fail(f"{where}.look_at_mm", "must differ from position_mm")
+        try:
+            R = look_at_rotation(C, target, up)
+        except ValueError:
+            F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
+    elif "rotation_deg" in d:
+        rv = F.numbers(d["rotation_deg"], 3, f"{where}.rotation_deg")
+        R, _ = cv2.Rodrigues(np.radians(rv))
+    else:
+        F.fail(where, "needs look_at_mm, rotation_deg or rotation_matrix + translation_mm")
+    return R, -R @ C

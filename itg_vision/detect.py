@@ -1,0 +1,184 @@
+"""LED centroids in a camera image, to sub-pixel accuracy.
+
+Each LED has a saturated colour with one dominant channel (red, green, ...). Its score image is
+that channel minus the largest other channel (``R - max(G, B)`` for red), clipped at 0: the
+light background and the grey arm score about 0, the LED about its brightness. The blob is the
+connected component above a low threshold; its centroid is weighted by the score clipped at
+0.7 of the blob's peak ("coverage" weights: interior pixels count about equally whatever the
+shading, edge pixels by the fraction of the LED they hold, which anti-aliasing encodes).
+Measured on rendered LEDs at 640x480 (60 detections, sensor noise 2 grey levels), RMS error
+against the projection: coverage 0.155 px (supersample 1) / 0.128 px (supersample 2); clip
+at 0.5 peak 0.18 / 0.13; binary mask 0.22 / 0.17; raw intensity weights 0.23 / 0.21 (biased
+~0.1 px by the shading). Hence coverage with clip 0.7.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+
+#: Lowest score (grey levels) counted as LED: well above sensor noise (a few grey levels).
+MIN_SCORE = 40
+#: A blob smaller than this (px) is noise, not an LED.
+MIN_AREA_PX = 3.0
+#: Coverage weights saturate at this fraction of the blob's peak score (see module doc).
+COVERAGE_CLIP = 0.7
+#: Half-size of the search window around a predicted position (px).
+HALF_WINDOW_PX = 24
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One LED in one image.
+
+    Attributes
+    ----------
+    ok : whether the LED was found and passed the checks.
+    uv_px : ndarray (2,), undistorted (pinhole) centroid; NaN if not ok.
+    uv_raw_px : ndarray (2,), centroid in the captured (distorted) image; NaN if none.
+    area_px : float, blob area (px) at the half-peak level (0 if none).
+    reason : why it was rejected ("" if ok).
+    """
+
+    ok: bool
+    uv_px: np.ndarray
+    uv_raw_px: np.ndarray
+    area_px: float = 0.0
+    reason: str = ""
+
+
+def _nan2() -> np.ndarray:
+    return np.full(2, np.nan)
+
+
+def score_image(image: np.ndarray, rgb) -> np.ndarray:
+    """Colour-difference score: dominant channel minus the largest other, clipped at 0.
+
+    Parameters
+    ----------
+    image : uint8, shape (H, W, 3), RGB.
+    rgb : the LED colour, 3 floats in [0, 1] with one dominant channel.
+
+    Returns
+    -------
+    score : uint8, shape (H, W).
+    """
+    c = int(np.argmax(rgb))
+    others = [i for i in range(3) if i != c]
+    return cv2.subtract(image[..., c], cv2.max(image[..., others[0]], image[..., others[1]]))
+
+
+def blob_centroid(score: np.ndarray, method: str = "coverage"
+                  ) -> tuple[np.ndarray, float, float, str]:
+    """Find the single LED blob in a score image and its sub-pixel centroid.
+
+    Parameters
+    ----------
+    score : uint8, shape (h, w).
+    method : "coverage" (weights min(score, 0.7 peak)), "binary" (mask at peak/2) or
+        "intensity" (weights = score).
+
+    Returns
+    -------
+    uv : ndarray (2,), centroid in the coordinates of ``score`` (NaN if none).
+    area_px : float, pixels at or above half the peak.
+    roundness : float, minor/major axis ratio of that half-peak mask (1 for a disc).
+    reason : "" if a single blob was found, else why not.
+    """
+    mask = (score >= MIN_SCORE).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        return _nan2(), 0.0, 0.0, "not found"
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    best = int(np.argmax(areas)) + 1
+    if areas.max() < MIN_AREA_PX:
+        return _nan2(), float(areas.max()), 0.0, "too small"
+    if n > 2 and np.sort(areas)[-2] >= max(MIN_AREA_PX, 0.2 * areas.max()):
+        return _nan2(), float(areas.max()), 0.0, "several candidates"
+    x, y, w, h = stats[best, :4]
+    x0, y0 = max(x - 1, 0), max(y - 1, 0)
+    x1, y1 = min(x + w + 1, score.shape[1]), min(y + h + 1, score.shape[0])
+    s = score[y0:y1, x0:x1].astype(np.float32)
+    s[labels[y0:y1, x0:x1] != best] = 0  # other blobs out; keep the rim below MIN_SCORE
+    peak = float(s.max())
+    half = 0.5 * peak
+    core = s >= half
+    area = float(np.count_nonzero(core))
+    if method == "binary":
+        wgt = core.astype(np.float32)
+    elif method == "intensity":
+        wgt = s
+    else:
+        wgt = np.minimum(s, COVERAGE_CLIP * peak)
+    total = float(wgt.sum())
+    jj, ii = np.mgrid[y0:y1, x0:x1]
+    uv = np.array([(wgt * ii).sum() / total, (wgt * jj).sum() / total])
+    rnd = _roundness(ii[core], jj[core])
+    if x == 0 or y == 0 or x + w >= score.shape[1] or y + h >= score.shape[0]:
+        return uv, area, rnd, "touches the border"
+    return uv, area, rnd, ""
+
+
+def _roundness(i: np.ndarray, j: np.ndarray) -> float:
+    """Minor/major axis ratio of a pixel set's second moments (1 for a disc)."""
+    if i.size < 3:
+        return 0.0
+    C = np.cov(np.stack([i, j]).astype(float)) + np.eye(2) / 12.0  # + pixel's own extent
+    ev = np.linalg.eigvalsh(C)
+    return float(np.sqrt(max(ev[0], 0.0) / ev[1]))
+
+
+def expected_area_px(camera: Camera, X_mm, radius_mm: float) -> float:
+    """Projected area (px) of a sphere of ``radius_mm`` at world point ``X_mm`` (pinhole)."""
+    z = float(camera.to_camera(X_mm)[2])
+    return float(np.pi * camera.fx * camera.fy * (radius_mm / z) ** 2)
+
+
+def find_led(image: np.ndarray, camera: Camera, rgb, *, predicted_uv=None,
+             half_window: int = HALF_WINDOW_PX, method: str = "coverage",
+             min_roundness: float = 0.75) -> Detection:
+    """Detect one LED and undistort its centroid.
+
+    Parameters
+    ----------
+    image : uint8, shape (H, W, 3), as captured (distorted).
+    camera : the camera that took it (its K and distortion undistort the centroid).
+    rgb : the LED colour.
+    predicted_uv : optional (2,) raw pixel where the LED is expected; search a window of
+        ``half_window`` px around it first, the full frame if it is not found there.
+    method : centroid weighting, see :func:`blob_centroid`.
+    min_roundness : reject blobs less round than this (partly hidden LEDs).
+
+    Returns
+    -------
+    Detection
+    """
+    H, W = image.shape[:2]
+    windows = []
+    if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
+        u, v = (int(round(float(c))) for c in predicted_uv)
+        x0, y0 = max(u - half_window, 0), max(v - half_window, 0)
+        x1, y1 = min(u + half_window + 1, W), min(v + half_window + 1, H)
+        if x1 - x0 > 2 and y1 - y0 > 2:
+            windows.append((x0, y0, x1, y1))
+    windows.append((0, 0, W, H))
+    uv, area, reason = _nan2(), 0.0, "not found"
+    for x0, y0, x1, y1 in windows:
+        score = score_image(image[y0:y1, x0:x1], rgb)
+        uv, area, rnd, reason = blob_centroid(score, method)
+        full = (x0, y0, x1, y1) == (0, 0, W, H)
+        if reason == "touches the border" and full:
+            reason = "at the image border"
+        if not reason and rnd < min_roundness:
+            reason = f"not round ({rnd:.2f}): partly hidden?"
+        if not reason or reason in ("several candidates",) or full:
+            break
+    uv = uv + np.array([x0, y0], float)
+    if reason:
+        return Detection(False, _nan2(), uv, area, reason)
+    und = camera.undistort(uv)
+    return Detection(True, und, uv, area, "")

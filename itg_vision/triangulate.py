@@ -1,0 +1,114 @@
+"""Stereo triangulation of undistorted centroids, refinement, residuals and error prediction.
+
+All pixel coordinates here are *undistorted* (pinhole) pixels of the rig's cameras, as returned
+by :func:`itg_vision.detect.find_led`; points are in mm, world frame.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .camera import Camera, Rig
+
+
+def project_pinhole(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
+    """Pinhole projection ``K [R | t] X``: shape (n, 3) -> (n, 2) px."""
+    Xc = np.asarray(X_mm, float).reshape(-1, 3) @ camera.R.T + camera.t_mm
+    return np.stack([camera.fx * Xc[:, 0] / Xc[:, 2] + camera.cx,
+                     camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], axis=1)
+
+
+def projection_jacobian(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
+    """Derivative of the pinhole projection with respect to the world point.
+
+    Parameters
+    ----------
+    X_mm : array-like, shape (n, 3)
+
+    Returns
+    -------
+    J : ndarray, shape (n, 2, 3), px per mm.
+    """
+    R = camera.R
+    Xc = np.asarray(X_mm, float).reshape(-1, 3) @ R.T + camera.t_mm
+    x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
+    n = Xc.shape[0]
+    D = np.zeros((n, 2, 3))  # d(u, v) / d(x_cam)
+    D[:, 0, 0] = camera.fx / z
+    D[:, 0, 2] = -camera.fx * x / z**2
+    D[:, 1, 1] = camera.fy / z
+    D[:, 1, 2] = -camera.fy * y / z**2
+    return D @ R
+
+
+def _residuals(rig: Rig, X: np.ndarray, uv1: np.ndarray, uv2: np.ndarray) -> np.ndarray:
+    """Stacked reprojection residuals, shape (n, 4): (u1, v1, u2, v2) predicted - measured."""
+    c1, c2 = rig.cameras
+    return np.hstack([project_pinhole(c1, X) - uv1, project_pinhole(c2, X) - uv2])
+
+
+def _jacobian(rig: Rig, X: np.ndarray) -> np.ndarray:
+    """Stacked projection Jacobian of both cameras, shape (n, 4, 3)."""
+    c1, c2 = rig.cameras
+    return np.concatenate([projection_jacobian(c1, X), projection_jacobian(c2, X)], axis=1)
+
+
+def triangulate(rig: Rig, uv1_px, uv2_px, *, refine_steps: int = 3
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate matching undistorted pixels of the rig's two cameras.
+
+    DLT (``cv2.triangulatePoints`` with ``K [R | t]``), then ``refine_steps`` Gauss-Newton
+    steps minimising the reprojection error in both images.
+
+    Parameters
+    ----------
+    rig : the rig the estimator believes.
+    uv1_px, uv2_px : array-like, shape (2,) or (n, 2); undistorted pixels in camera 0 and 1.
+    refine_steps : Gauss-Newton iterations (0: plain DLT).
+
+    Returns
+    -------
+    X_mm : ndarray, shape (3,) or (n, 3).
+    rms_px : float or ndarray (n,); RMS of the four reprojection residuals (px).
+    """
+    a = np.asarray(uv1_px, float)
+    single = a.ndim == 1
+    uv1 = a.reshape(-1, 2)
+    uv2 = np.asarray(uv2_px, float).reshape(-1, 2)
+    c1, c2 = rig.cameras
+    Xh = cv2.triangulatePoints(c1.P, c2.P, uv1.T.copy(), uv2.T.copy())
+    X = (Xh[:3] / Xh[3]).T
+    for _ in range(refine_steps):
+        r = _residuals(rig, X, uv1, uv2)
+        J = _jacobian(rig, X)
+        JtJ = np.einsum("nki,nkj->nij", J, J)
+        Jtr = np.einsum("nki,nk->ni", J, r)
+        X = X - np.linalg.solve(JtJ, Jtr[..., None])[..., 0]
+    rms = np.sqrt(np.mean(_residuals(rig, X, uv1, uv2) ** 2, axis=1))
+    return (X[0], float(rms[0])) if single else (X, rms)
+
+
+def predicted_covariance(rig: Rig, X_mm, sigma_px: float) -> np.ndarray:
+    """First-order covariance of a triangulated point: ``sigma^2 (J^T J)^-1``.
+
+    Parameters
+    ----------
+    X_mm : array-like, shape (3,) or (n, 3)
+    sigma_px : std of the centroid noise in each image coordinate (px).
+
+    Returns
+    -------
+    cov : ndarray, shape (3, 3) or (n, 3, 3), mm^2.
+    """
+    X = np.asarray(X_mm, float)
+    J = _jacobian(rig, X.reshape(-1, 3))
+    cov = sigma_px**2 * np.linalg.inv(np.einsum("nki,nkj->nij", J, J))
+    return cov[0] if X.ndim == 1 else cov
+
+
+def predicted_rms_error_mm(rig: Rig, X_mm, sigma_px: float) -> np.ndarray | float:
+    """Predicted RMS 3-D error (mm): ``sqrt(trace(cov))``, shape () or (n,)."""
+    cov = predicted_covariance(rig, X_mm, sigma_px)
+    out = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+    return float(out) if np.ndim(out) == 0 else out

@@ -1,0 +1,205 @@
+"""Camera maths: projection round trips, OpenGL matrices, rig files, workspace coverage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from itg_vision.camera import (Camera, Rig, gl_projection_matrix, gl_view_matrix,
+                               look_at_rotation)
+from itg_vision.errors import UserError
+
+ROOT = Path(__file__).resolve().parents[1]
+PLANAR = ROOT / "cameras" / "planar.yaml"
+THREE = ROOT / "cameras" / "three-link.yaml"
+
+
+@pytest.fixture(scope="module")
+def rig() -> Rig:
+    return Rig.from_yaml(PLANAR)
+
+
+def _points(rng, n):
+    """World points in front of the planar rig (its workspace and beyond)."""
+    return rng.uniform([-250, -250, -50], [250, 250, 200], (n, 3))
+
+
+def test_look_at_rotation_is_a_rotation_and_looks_at_the_target():
+    R = look_at_rotation([100, -300, 500], [10, 20, 30], up=[0, 0, 1])
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.isclose(np.linalg.det(R), 1.0)
+    cam = Camera.from_arrays("c", (640, 480), [[600, 0, 320], [0, 600, 240], [0, 0, 1]],
+                             np.zeros(5), R, -R @ np.array([100, -300, 500.0]))
+    assert np.allclose(cam.project([10, 20, 30]), [320, 240], atol=1e-9)
+    # a point above the target (world up) appears above the centre: smaller v
+    assert cam.project([10, 20, 60])[1] < 240
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_project_back_project_round_trip(seed):
+    cam = Rig.from_yaml(PLANAR).cameras[seed % 2]
+    X = _points(np.random.default_rng(seed), 20)
+    depth = cam.to_camera(X)[:, 2]
+    for distorted in (True, False):
+        uv = cam.project(X, distort=distorted)
+        back = cam.back_project(uv, depth, distorted=distorted)
+        # undistortPoints iterates to 1e-10; 1e-6 mm is far below anything physical
+        assert np.allclose(back, X, atol=1e-6)
+
+
+def test_undistort_inverts_distortion(rig):
+    rng = np.random.default_rng(1)
+    for cam in rig.cameras:
+        X = _points(rng, 500)
+        assert np.allclose(cam.undistort(cam.project(X)), cam.project(X, distort=False),
+                           atol=1e-6)
+
+
+def test_projection_matrix_matches_project(rig):
+    rng = np.random.default_rng(2)
+    X = _points(rng, 100)
+    for cam in rig.cameras:
+        h = np.hstack([X, np.ones((len(X), 1))]) @ cam.P.T
+        assert np.allclose(h[:, :2] / h[:, 2:], cam.project(X, distort=False), atol=1e-9)
+        assert np.allclose(cam.to_camera(cam.position_mm), 0, atol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_gl_matrices_match_opencv_with_tinyrenderer_rule(seed):
+    """PyBullet's matrices put a point where TinyRenderer draws it: u = (x_ndc + 1) W / 2,
+    v = (1 - y_ndc) H / 2 - 1 (measured); that must equal the pinhole projection."""
+    rng = np.random.default_rng(seed)
+    cam = Rig.from_yaml(THREE if seed % 2 else PLANAR).cameras[seed % 2]
+    X = _points(rng, 30)
+    view = cam.gl_view().reshape(4, 4, order="F")
+    proj = cam.gl_projection(0.05, 5.0).reshape(4, 4, order="F")
+    clip = (proj @ view @ np.hstack([X * 1e-3, np.ones((len(X), 1))]).T).T
+    ndc = clip[:, :3] / clip[:, 3:]
+    W, H = cam.size
+    uv = np.stack([(ndc[:, 0] + 1) * W / 2, (1 - ndc[:, 1]) * H / 2 - 1], axis=1)
+    assert np.allclose(uv, cam.project(X, distort=False), atol=1e-6)
+    assert np.all(np.abs(ndc[:, 2]) < 1)  # inside the near/far range
+
+
+def test_gl_functions_are_the_methods(rig):
+    cam = rig.cameras[0]
+    assert np.array_equal(cam.gl_view(), gl_view_matrix(cam.R, cam.t_mm))
+    assert np.array_equal(cam.gl_projection(0.1, 3.0),
+                          gl_projection_matrix(cam.K, 640, 480, 0.1, 3.0))
+
+
+def test_yaml_round_trip_is_exact(rig, tmp_path):
+    out = tmp_path / "rig.yaml"
+    cal = Rig(rig.name, rig.cameras, "", {"rms_px": 0.12}, str(PLANAR))
+    cal.to_yaml(out)
+    back = Rig.from_yaml(out)
+    assert back.cameras == rig.cameras  # exact float equality, field by field
+    assert back.calibration == {"rms_px": 0.12} and back.true_rig == str(PLANAR)
+    assert not (tmp_path / "rig.yaml.tmp").exists()
+
+
+def test_rotation_deg_form_equals_look_at_form(rig, tmp_path):
+    import cv2
+
+    doc = yaml.safe_load(PLANAR.read_text())
+    cam = rig.cameras[0]
+    rv = np.degrees(cv2.Rodrigues(cam.R)[0].ravel())
+    doc["cameras"][0]["pose"] = {"position_mm": cam.position_mm.tolist(),
+                                 "rotation_deg": rv.tolist()}
+    path = tmp_path / "rv.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    other = Rig.from_yaml(path).cameras[0]
+    assert np.allclose(other.R, cam.R, atol=1e-12) and np.allclose(other.t_mm, cam.t_mm)
+
+
+def _set(doc, keys, value):
+    d = doc
+    for k in keys[:-1]:
+        d = d[k]
+    if value is _DELETE:
+        del d[keys[-1]]
+    else:
+        d[keys[-1]] = value
+
+
+_DELETE = object()
+_K = [600.0, 0.0, 319.5, 0.0, 600.0, 239.5, 0.0, 0.0, 1.0]
+
+
+@pytest.mark.parametrize("keys, value, expected", [
+    (("cameras", 1, "camera_matrix"), {"rows": 3, "cols": 3, "data": [-600.0] + _K[1:]},
+     "cameras[1].camera_matrix: fx must be > 0"),
+    (("cameras", 0, "camera_matrix"), _K[:2] + [900.0] + _K[3:],
+     "cameras[0].camera_matrix: cx must be inside"),
+    (("cameras", 0, "camera_matrix"), _K[:8], "cameras[0].camera_matrix: must be a list of 9"),
+    (("cameras", 0, "image_width"), 0, "cameras[0].image_width: must be > 0"),
+    (("cameras", 1, "image_height"), "tall", "cameras[1].image_height: must be an integer"),
+    (("cameras", 0, "distortion_coefficients"), [0.1, 0.0, 0.0],
+     "cameras[0].distortion_coefficients: must be a list of 5"),
+    (("cameras", 0, "distortion_coefficients"), [0.1, "x", 0.0, 0.0, 0.0],
+     "cameras[0].distortion_coefficients[1]: must be a finite number"),
+    (("cameras", 1, "pose", "look_at_mm"), [180.0, -60.0, 620.0],
+     "cameras[1].pose.look_at_mm: must differ from position_mm"),
+    (("cameras", 0, "pose", "position_mm"), _DELETE, "cameras[0].pose.position_mm: missing"),
+    (("cameras", 0, "sensor", "noise_sigma_gray"), -1, "cameras[0].sensor.noise_sigma_gray"),
+    (("cameras", 0, "distortion_model"), "fisheye", "cameras[0].distortion_model"),
+    (("cameras",), [], "cameras: must be a list of exactly two"),
+    (("name",), _DELETE, "name: missing"),
+])
+def test_bad_rig_file_names_the_field(tmp_path, keys, value, expected):
+    doc = yaml.safe_load(PLANAR.read_text())
+    _set(doc, keys, value)
+    path = tmp_path / "x.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(UserError) as exc:
+        Rig.from_yaml(path)
+    msg = str(exc.value)
+    assert msg.startswith(f"{path}: ") and expected in msg and "\n" not in msg
+
+
+def test_unreadable_rig_file(tmp_path):
+    with pytest.raises(UserError, match="cannot read"):
+        Rig.from_yaml(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("cameras: [\n")
+    with pytest.raises(UserError, match="not valid YAML"):
+        Rig.from_yaml(bad)
+
+
+def _workspace(kind: str) -> np.ndarray:
+    """A dense grid over every place an LED can be (mm)."""
+    if kind == "planar":  # disc r = 200 mm at the LED height 12 mm
+        g = np.linspace(-200, 200, 81)
+        x, y = np.meshgrid(g, g)
+        keep = x**2 + y**2 <= 200**2
+        return np.stack([x[keep], y[keep], np.full(keep.sum(), 12.0)], axis=1)
+    g = np.linspace(-200, 200, 41)  # ball r = 200 mm about the shoulder (0, 0, 100)
+    x, y, z = np.meshgrid(g, g, g)
+    P = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    return P[np.linalg.norm(P, axis=1) <= 200] + [0, 0, 100]
+
+
+@pytest.mark.parametrize("path, kind", [(PLANAR, "planar"), (THREE, "three")])
+def test_shipped_rigs_see_the_whole_workspace(path, kind):
+    rig = Rig.from_yaml(path)
+    X = _workspace(kind)
+    for cam in rig.cameras:
+        z = cam.to_camera(X)[:, 2]
+        assert z.min() > 300  # well in front of the camera
+        uv = cam.project(X)
+        # margin: LED radius in px (6 mm * 600 px / 600 mm ~ 6 px) + the +-24 px search
+        # window + a few px of slack = 40 px from every edge
+        r_px = 6.0 * cam.fx / z.min()
+        margin = r_px + 24 + 8
+        W, H = cam.size
+        assert uv[:, 0].min() > margin and uv[:, 0].max() < W - 1 - margin
+        assert uv[:, 1].min() > margin and uv[:, 1].max() < H - 1 - margin
+    B = np.linalg.norm(rig.cameras[0].position_mm - rig.cameras[1].position_mm)
+    assert 300 <= B <= 400

@@ -1,0 +1,176 @@
+"""VisionFeedback end to end: accuracy, missed markers, seeding, no peeking at the truth."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from itg_vision.arm import ArmSpec
+from itg_vision.camera import Rig
+from itg_vision.feedback import Markers, VisionFeedback
+from itg_vision.world import World
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def planar() -> Rig:
+    return Rig.from_yaml(ROOT / "cameras" / "planar.yaml")
+
+
+class _NoTruth:
+    """A world whose true markers cannot be read: the estimation path must not need them."""
+
+    def __init__(self, world):
+        self._w = world
+
+    def true_markers(self):
+        raise AssertionError("VisionFeedback read the true markers")
+
+    def __getattr__(self, name):
+        return getattr(self._w, name)
+
+
+def test_two_link_accuracy_without_added_noise(planar):
+    """Centroids are good to ~0.16 px RMS; with ~1.1 mm/px laterally and Z/B ~ 1.8 in depth
+    this gives ~0.25 mm RMS (measured 0.25 gripper, 0.31 elbow over 40 poses); bound each
+    error by 1 mm (4 sigma) and the RMS by 0.5 mm (the brief's target)."""
+    arm = ArmSpec.from_args("two-link")
+    rng = np.random.default_rng(11)
+    fb = VisionFeedback(planar, planar, arm)
+    fb.reset(0)
+    errs = []
+    with World(arm) as world:
+        for _ in range(8):
+            world.set_q(rng.uniform(-180, 180, 2))
+            truth = world.true_markers()
+            m = fb.observe(_NoTruth(world))
+            assert isinstance(m, Markers) and m.missed == ()
+            assert set(m.timing_ms) == {"render", "detect", "triangulate"}
+            assert set(m.residual_px) == {"gripper", "elbow"}
+            assert max(m.residual_px.values()) < 0.5
+            for name in ("gripper", "elbow"):
+                errs.append(m.get(name) - truth[name])
+    e = np.linalg.norm(errs, axis=1)
+    assert e.max() < 1.0 and np.sqrt(np.mean(e**2)) < 0.5
+
+
+def test_one_link_has_no_elbow(planar):
+    arm = ArmSpec.from_args("one-link")
+    fb = VisionFeedback(planar, planar, arm)
+    fb.reset(1)
+    with World(arm) as world:
+        m = fb.observe(world)
+        assert np.all(np.isnan(m.elbow_mm)) and "elbow" not in m.missed
+        assert np.linalg.norm(m.gripper_mm - world.true_markers()["gripper"]) < 1.0
+
+
+def test_dropout_misses_and_holds_the_last_estimate(planar):
+    arm = ArmSpec.from_args("two-link")
+    with World(arm) as world:
+        fb = VisionFeedback(planar, planar, arm, dropout=1.0)
+        fb.reset(2)
+        m = fb.observe(world)  # never a good estimate: NaN
+        assert set(m.missed) == {"gripper", "elbow"} and np.all(np.isnan(m.gripper_mm))
+        fb.dropout = 0.0
+        good = fb.observe(world)
+        assert good.missed == ()
+        fb.dropout = 1.0
+        world.set_q([10.0, 20.0])  # the arm moves but is not seen: the estimate is held
+        held = fb.observe(world)
+        assert set(held.missed) == {"gripper", "elbow"}
+        assert np.array_equal(held.gripper_mm, good.gripper_mm)
+        assert np.array_equal(held.elbow_mm, good.elbow_mm)
+        assert fb.reasons["gripper"] == "dropped"
+
+
+def test_led_outside_the_image_is_missed(planar):
+    """A camera turned away from the arm (looking horizontally along +x, in the render and
+    estimate rig alike) sees no LED: both markers missed, nothing triangulated."""
+    from itg_vision.camera import look_at_rotation
+
+    c0, c1 = planar.cameras
+    R = look_at_rotation(c0.position_mm, c0.position_mm + [1000.0, 0, 0], up=[0, 0, 1])
+    turned = replace(c0, rotation=tuple(map(tuple, R)),
+                     translation_mm=tuple(-R @ c0.position_mm))
+    away = Rig("away", (turned, c1))
+    arm = ArmSpec.from_args("two-link")
+    fb = VisionFeedback(away, away, arm)
+    fb.reset(3)
+    with World(arm) as world:
+        m = fb.observe(world)
+    assert set(m.missed) == {"gripper", "elbow"}
+    assert fb.reasons["gripper"] == "not found"
+
+
+def test_wrong_estimate_rig_is_rejected_by_the_residual(planar):
+    """If the estimator's rig is badly wrong (one camera 30 mm off vertically), the rays do
+    not meet: residual of several px, above max_residual_px, so the marker is missed."""
+    c0, c1 = planar.cameras
+    moved = replace(c1, translation_mm=tuple(np.array(c1.translation_mm) + [0, 30.0, 0]))
+    wrong = Rig("wrong", (c0, moved))
+    arm = ArmSpec.from_args("one-link")
+    fb = VisionFeedback(planar, wrong, arm, max_residual_px=2.0)
+    fb.reset(4)
+    with World(arm) as world:
+        m = fb.observe(world)
+    assert m.missed == ("gripper",) and m.residual_px["gripper"] > 2.0
+
+
+def test_seeded_noise_is_reproducible_and_sized(planar):
+    arm = ArmSpec.from_args("one-link")
+    with World(arm) as world:
+        runs = []
+        for _ in range(2):
+            fb = VisionFeedback(planar, planar, arm, noise_px=1.0)
+            fb.reset(5)
+            runs.append(np.array([fb.observe(world).gripper_mm for _ in range(6)]))
+        assert np.array_equal(runs[0], runs[1])
+        # 1 px of centroid noise: ~3 mm RMS predicted on this rig; different every frame
+        spread = np.linalg.norm(runs[0] - runs[0].mean(axis=0), axis=1)
+        assert 0.3 < np.sqrt(np.mean(spread**2)) < 10
+
+
+def test_strobe_gives_the_same_estimate(planar):
+    arm = ArmSpec.from_args("two-link")
+    with World(arm) as world:
+        world.set_q([30.0, -60.0])
+        a = VisionFeedback(planar, planar, arm)
+        b = VisionFeedback(planar, planar, arm, strobe=True)
+        a.reset(6)
+        b.reset(6)
+        ma, mb = a.observe(world), b.observe(world)
+        truth = world.true_markers()
+    assert mb.missed == ()
+    for name in ("gripper", "elbow"):
+        # both within the no-noise accuracy (1 mm, see above) of the truth
+        assert np.linalg.norm(mb.get(name) - truth[name]) < 1.0
+        assert np.linalg.norm(ma.get(name) - truth[name]) < 1.0
+
+
+@pytest.mark.slow
+def test_three_link_markers_mostly_visible():
+    """Three-link arm on its rig over random poses. Its LEDs sit on the joints with no
+    stand-off, so the 8 mm links hide part of them from many viewpoints: measured 56 % of
+    the LEDs pass the shape check over 40 random poses (elbow worst). Accepted estimates
+    measured 0.74 mm RMS (some partly hidden blobs still pass); bounds 45 % and 1.5 mm."""
+    arm = ArmSpec.from_args("three-link")
+    rig = Rig.from_yaml(ROOT / "cameras" / "three-link.yaml")
+    rng = np.random.default_rng(12)
+    fb = VisionFeedback(rig, rig, arm)
+    fb.reset(0)
+    seen, errs = 0, []
+    with World(arm) as world:
+        for _ in range(30):
+            world.set_q([rng.uniform(-180, 180), rng.uniform(-30, 120), rng.uniform(-150, 150)])
+            truth = world.true_markers()
+            m = fb.observe(world)
+            for name in arm.marker_names:
+                if name not in m.missed:
+                    seen += 1
+                    errs.append(np.linalg.norm(m.get(name) - truth[name]))
+    assert seen >= 0.45 * 60
+    assert np.sqrt(np.mean(np.square(errs))) < 1.5
