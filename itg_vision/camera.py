@@ -282,6 +282,23 @@ class Rig:
     calibration: dict | None = field(default=None, compare=False)
     true_rig: str | None = None
 
+    def scaled(self, factor: float) -> "Rig":
+        """The same rig with every image ``factor`` times larger (same field of view).
+
+        Pixel centres sit at integer coordinates, so c' = (c + 0.5) * factor - 0.5.
+        """
+        cams = []
+        for c in self.cameras:
+            K = c.K.copy()
+            K[0, 0] *= factor
+            K[1, 1] *= factor
+            K[0, 2] = (K[0, 2] + 0.5) * factor - 0.5
+            K[1, 2] = (K[1, 2] + 0.5) * factor - 0.5
+            size = (int(round(c.image_width * factor)), int(round(c.image_height * factor)))
+            cams.append(Camera.from_arrays(c.name, size, K, c.dist_coeffs, c.R, c.t_mm,
+                                           c.noise_sigma_gray, c.exposure))
+        return Rig(self.name, tuple(cams), self.source, self.calibration, self.true_rig)
+
     @classmethod
     def from_yaml(cls, path) -> "Rig":
         """Read and validate a rig file; any bad field raises `UserError` naming it."""

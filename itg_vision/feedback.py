@@ -151,6 +151,8 @@ class VisionFeedback:
 
         t0 = perf_counter()
         images = self._images(world)
+        self.last_images = images
+        self.last_uv_raw: dict[str, list] = {}
         t1 = perf_counter()
         est_cams = self.estimate_rig.cameras
         found: dict[str, tuple] = {}
@@ -162,6 +164,7 @@ class VisionFeedback:
             for cam, img in zip(est_cams, imgs):
                 pred = cam.project(last) if self.windowed and np.all(np.isfinite(last)) else None
                 dets.append(find_led(img, cam, LED_RGB[name], predicted_uv=pred))
+            self.last_uv_raw[name] = [d.uv_raw_px if d.ok else None for d in dets]
             bad = [d.reason for d in dets if not d.ok]
             if bad:
                 self.reasons[name] = bad[0]

@@ -93,7 +93,7 @@ def _fmt(v) -> str:
 
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
-             progress: Callable[[int], None] | None = None) -> Trace:
+             progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) and return the trace.
 
     ``feedback.observe(world)`` is the controller's only view of the arm. ``world.true_markers()``
@@ -123,6 +123,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
             oor |= step.out_of_reach
             _record_estimate_error(trace, estimate, seen)
         truth = world.true_markers()
+        if recorder is not None:
+            recorder.frame(feedback, desired)
         if oor:
             flags.insert(0, "out_of_reach")
         trace.desired_mm.append(np.asarray(desired, float))

@@ -20,6 +20,7 @@ def _save(fig, path) -> None:
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=110, bbox_inches="tight")
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     finally:
         plt.close(fig)
@@ -105,4 +106,27 @@ def paths_figure(panels: list, title: str, path) -> None:
         ax.set_ylabel("y (mm)")
         ax.legend(fontsize=8)
     fig.suptitle(title, fontsize=10)
+    _save(fig, path)
+
+
+def grouped_bars_figure(categories: list, values: dict, ylabel: str, title: str, path, *,
+                        logy=False) -> None:
+    """Grouped bars: ``values`` maps a series label to one value per category (NaN: no bar)."""
+    n = max(1, len(values))
+    width = 0.8 / n
+    x = np.arange(len(categories))
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.55 * len(categories) * max(1, n / 2) + 2), 4.2))
+    for i, (label, ys) in enumerate(values.items()):
+        ys = np.asarray(ys, float)
+        if logy:
+            ys = np.where(np.isfinite(ys), np.maximum(ys, 1e-6), np.nan)
+        ax.bar(x + (i - (n - 1) / 2) * width, ys, width, label=label)
+    ax.set_xticks(x)
+    ax.set_xticklabels(categories, rotation=35, ha="right", fontsize=8)
+    if logy:
+        ax.set_yscale("log")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
     _save(fig, path)

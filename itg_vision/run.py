@@ -78,7 +78,6 @@ def main(argv: list[str] | None = None) -> int:
             raise UserError("--video needs --feedback vision")
         name = f"{cfg.arm}-{Path(prep.trajectory.name).stem}-{cfg.feedback}"
         out = Path(args.out) if args.out else Path("runs") / name
-        n = len(prep.trajectory) * cfg.iterations
         bar = tqdm(total=len(prep.trajectory), desc=name, unit="pt", disable=args.quiet,
                    file=sys.stderr)
         with outputs.staged_dir(out) as tmp:
@@ -88,17 +87,15 @@ def main(argv: list[str] | None = None) -> int:
 
                 recorder = VideoRecorder(tmp / "video.mp4")
                 prep.info["video"] = "video.mp4"
-            trace, summary = execute(prep, progress=bar.update, recorder=recorder) if recorder \
-                else execute(prep, progress=bar.update)
+            trace, summary = execute(prep, progress=bar.update, recorder=recorder)
             bar.close()
-            cols, rows = trace_rows = trace.rows()
+            cols, rows = trace.rows()
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
             outputs.write_json(tmp / "summary.json", summary)
             title = (f"{summary['arm']} {summary['trajectory']} ({summary['controller']}, "
                      f"{summary['feedback']}): E_av {summary['e_av_mm'] or float('nan'):.2f} mm")
             plot.path_figure(trace, title, tmp / "path.png")
             plot.error_figure(trace, title, tmp / "error.png")
-        del n, trace_rows
         if not args.quiet:
             print(summary_table(summary, out))
         return 0

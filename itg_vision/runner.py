@@ -155,7 +155,7 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
     return Path(relative_to).parent / p
 
 
-def execute(prep: Prepared, progress=None) -> tuple[Trace, dict]:
+def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     """Run the prepared configuration; return the trace and the summary dict."""
     cfg = prep.config
     feedback = prep.feedback_factory()
@@ -164,7 +164,9 @@ def execute(prep: Prepared, progress=None) -> tuple[Trace, dict]:
     with World(prep.true_arm) as world:
         trace = simulate(world, prep.controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
-                         max_step_deg=cfg.max_step, progress=progress)
+                         max_step_deg=cfg.max_step, progress=progress, recorder=recorder)
+    if recorder is not None:
+        recorder.close()
     wall_s = time.perf_counter() - t0
     summary = {
         **trace.metrics(),
