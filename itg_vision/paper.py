@@ -37,21 +37,35 @@ def settle_index(e: np.ndarray, threshold_mm: float) -> int:
     return len(e)
 
 
+def _simulate_points(base: RunConfig, points_mm: np.ndarray, **kw):
+    """Run the two-link arm (or ``kw['arm']``) on raw points with the base configuration."""
+    prep = prepare(replace(base, **{"arm": "two-link", "trajectory": "ellipse-t1", **kw}))
+    fb = prep.feedback_factory()
+    fb.reset(base.seed)
+    with World(prep.true_arm) as w:
+        return simulate(w, prep.controller, fb, points_mm, iterations=prep.config.iterations,
+                        planar=prep.model.planar, max_step_deg=prep.config.max_step)
+
+
 def exp1(base, out) -> dict:
+    """The jump B-C, against a control run where B-C is crossed by 100 set points."""
     trace, s = _run(base, arm="two-link", trajectory="abcd")
     e = trace.error_mm()
     n = len(e) // 2
-    ab, cd = e[:n], e[n:]
-    start_ab = settle_index(ab, 5.0)
-    steady_ab = float(np.mean(ab[start_ab:])) if start_ab < n else float("nan")
-    rec = settle_index(cd, max(2 * steady_ab, 1.0))
-    steady_cd = float(np.mean(cd[rec:])) if rec < n else float("nan")
+    pts = np.asarray(trace.desired_mm)
+    bridge = pts[n - 1] + np.linspace(0, 1, 102)[1:-1, None] * (pts[n] - pts[n - 1])
+    control = _simulate_points(base, np.vstack([pts[:n], bridge, pts[n:]])).error_mm()[-n:]
+    cd = e[n:]
+    after = settle_index(np.abs(cd - control), 0.1)  # set points until the jump is forgotten
     plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain, trace)], "Fig. 4.1", out / "exp1_path.png")
-    plot.lines_figure({"E_i": (np.arange(len(e)), e)}, "set point i", "E_i (mm)",
-                      "experiment 1: E_i along ABCD (jump after set point %d)" % (n - 1),
-                      out / "exp1_error.png", logy=True, marker="")
-    return {"e_av_mm": s["e_av_mm"], "steady_ab_mm": steady_ab, "steady_cd_mm": steady_cd,
-            "jump_e_mm": float(cd[0]), "recovery_setpoints": rec}
+    plot.lines_figure({"with the jump": (np.arange(n), cd), "control: B-C crossed by 100 set points": (np.arange(n), control)},
+                      "set point on C-D", "E_i (mm)", "experiment 1: E_i along C-D", out / "exp1_error.png",
+                      logy=True, marker="")
+    return {"e_av_mm": s["e_av_mm"], "e_av_ab_last_half_mm": float(e[n // 2:n].mean()),
+            "e_av_cd_mm": float(cd.mean()), "e_av_cd_control_mm": float(control.mean()),
+            "jump_e_mm": float(cd[0]), "forgotten_after_setpoints": int(after),
+            "e_av_cd_after_mm": float(cd[after:].mean()) if after < n else float("nan"),
+            "e_av_cd_control_after_mm": float(control[after:].mean()) if after < n else float("nan")}
 
 
 def exp2(base, out) -> dict:
@@ -65,14 +79,20 @@ def exp2(base, out) -> dict:
 
 def exp3(base, out) -> dict:
     ns = np.arange(100, 1001, 100)
-    eav = np.array([_run(base, arm="two-link", trajectory="ellipse-t1", points=int(n))[1]["e_av_mm"]
-                    for n in ns])
+    eav, near_axis = [], []
+    for n in ns:
+        trace, summ = _run(base, arm="two-link", trajectory="ellipse-t1", points=int(n))
+        e, yd = trace.error_mm(), np.asarray(trace.desired_mm)[:, 1]
+        eav.append(summ["e_av_mm"])
+        near_axis.append(float(e[np.abs(yd) < 15.0].sum() / e.sum()))
+    eav = np.array(eav)
     slope = float(np.polyfit(np.log(ns), np.log(eav), 1)[0])
     fit = np.exp(np.mean(np.log(eav * ns))) / ns
-    plot.lines_figure({"measured E_av": (ns, eav), "c / n_t (fit)": (ns, fit)}, "n_t (set points)",
+    plot.lines_figure({"measured E_av": (ns, eav), "c / n_t": (ns, fit)}, "n_t (set points)",
                       "E_av (mm)", f"Fig. 4.3: E_av against n_t (log-log slope {slope:.2f})",
                       out / "exp3_eav_vs_nt.png", logx=True, logy=True)
-    return {"n_t": ns.tolist(), "e_av_mm": eav.tolist(), "loglog_slope": slope}
+    return {"n_t": ns.tolist(), "e_av_mm": eav.tolist(), "loglog_slope": slope,
+            "share_of_error_near_y0": near_axis}
 
 
 def exp4(base, out) -> dict:
@@ -96,20 +116,15 @@ def exp5(base, out) -> dict:
     res, series_first, series_second = {}, {}, {}
     for n in (180, 360, 720):
         prep = prepare(replace(base, arm="two-link", trajectory="ellipse-t1", points=n))
-        pts = prep.trajectory.points_mm
-        ang = prep.trajectory.param_deg
-        fb = prep.feedback_factory()
-        fb.reset(base.seed)
-        with World(prep.true_arm) as w:  # two laps: the first as the paper, the second settled
-            trace = simulate(w, prep.controller, fb, np.vstack([pts, pts]),
-                             iterations=base.iterations, planar=True, max_step_deg=base.max_step)
-        e = trace.error_mm()
+        pts, ang = prep.trajectory.points_mm, prep.trajectory.param_deg
+        e = _simulate_points(base, np.vstack([pts, pts]), points=n).error_mm()  # two laps
         first, second = e[:n], e[n:]
         series_first[f"n_t={n}"] = (ang, first)
         series_second[f"n_t={n}"] = (ang, second)
+        peaks = _peaks(ang, second)
         res[n] = {"first_lap_max_at_deg": float(ang[int(np.argmax(first))]),
-                  "second_lap_max_at_deg": float(ang[int(np.argmax(second))]),
-                  "second_lap_peaks_deg": _peaks(ang, second),
+                  "second_lap_peaks_deg": peaks,
+                  "second_lap_peak_yd_mm": [float(pts[int(np.argmin(np.abs(ang - a))), 1]) for a in peaks],
                   "second_lap_e_av_mm": float(second.mean()), "second_lap_e_max_mm": float(second.max())}
     plot.lines_figure(series_first, "radial angle (deg)", "E_i (mm)",
                       "Fig. 4.5: set point deviation, first lap (as the paper: from the start pose)",
@@ -166,38 +181,54 @@ def report(r: dict, base: RunConfig) -> str:
         "",
         "| exp. | the paper's claim | measured here | verdict |",
         "| --- | --- | --- | --- |",
-        f"| 1 | the sudden 100 mm jump B-C does not affect tracking quality (Fig. 4.1) | steady E_i on A-B "
-        f"{e1['steady_ab_mm']:.2f} mm, on C-D {e1['steady_cd_mm']:.2f} mm; E_i right after the jump "
-        f"{e1['jump_e_mm']:.1f} mm, back to steady after {e1['recovery_setpoints']} set points | "
-        f"{'agrees' if e1['steady_cd_mm'] <= 1.5 * e1['steady_ab_mm'] + 0.5 else 'disagrees'}: after a transient of a few set points the tracking on C-D is as on A-B |",
+        f"| 1 | the sudden 100 mm jump B-C does not affect tracking quality (Fig. 4.1) | E_i right after the jump "
+        f"{e1['jump_e_mm']:.1f} mm; from set point {e1['forgotten_after_setpoints']} of C-D on, E_i is within 0.1 mm of a "
+        f"control run that crosses B-C with 100 set points (E_av there {e1['e_av_cd_after_mm']:.2f} vs "
+        f"{e1['e_av_cd_control_after_mm']:.2f} mm); E_av on all of C-D {e1['e_av_cd_mm']:.2f} vs {e1['e_av_cd_control_mm']:.2f} mm | "
+        + (f"partly: the jump costs a transient of {e1['forgotten_after_setpoints']} set points (E_i from "
+           f"{e1['jump_e_mm']:.0f} mm down), after which the tracking is the same as without the jump |"
+           if e1['forgotten_after_setpoints'] < 50 else "disagrees: the jump's effect lasts |"),
         f"| 2 | the ITG closely follows the nonlinear ellipse T1 (Fig. 4.2) | E_av {e2['e_av_mm']:.2f} mm over all 180 points "
         f"(E_max {e2['e_max_mm']:.1f} mm, the start transient from (0, 200)); after settling (set point {e2['settled_at']}) "
         f"E_av {e2['e_av_after_settling_mm']:.2f} mm | agrees in shape; the paper gives no number |",
         f"| 3 | E_av is inversely proportional to n_t (Fig. 4.3) | log-log slope {e3['loglog_slope']:.2f} over "
-        f"n_t = 100..1000 (E_av {e3['e_av_mm'][0]:.2f} -> {e3['e_av_mm'][-1]:.2f} mm) | "
-        f"{'agrees' if -1.2 <= e3['loglog_slope'] <= -0.8 else 'partly'}: a slope of -1 is inverse proportionality; both the lag (error ~ step length / loop gain) and the start transient's share of the mean scale as 1/n_t |",
+        f"n_t = 100..1000 (E_av {e3['e_av_mm'][0]:.2f} -> {e3['e_av_mm'][-1]:.2f} mm); set points with |y_d| < 15 mm carry "
+        f"{100 * e3['share_of_error_near_y0'][0]:.0f} % of the error at n_t = 100 and {100 * e3['share_of_error_near_y0'][-1]:.0f} % at 1000 | "
+        + ("agrees |" if -1.2 <= e3['loglog_slope'] <= -0.8 else
+           "disagrees: E_av falls, but more slowly than 1/n_t. The lag behind the moving set point does scale as 1/n_t; the "
+           "error where the ellipse crosses y = 0 does not, because Table 2 picks q1's direction from the sign of y_d and "
+           "turns the wrong way until y_g changes sign too |"),
         f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f']:.3f}, T2 "
         f"{t2['best_f']:.3f} deg/mm; E_av within 1.5x of the minimum for f in [{t1['good_range'][0]:.3f}, "
         f"{t1['good_range'][1]:.3f}] (T1) and [{t2['good_range'][0]:.3f}, {t2['good_range'][1]:.3f}] (T2) | "
         f"{'agrees' if min(t1['good_range'][1], t2['good_range'][1]) >= max(t1['good_range'][0], t2['good_range'][0]) else 'disagrees'}: the ranges overlap; the upper end is set by the arm (stability), not the path |",
     ]
-    peaks = "; ".join(f"n_t={n}: {', '.join(f'{a:.0f}' for a in v['second_lap_peaks_deg'])} deg"
+    peaks = "; ".join(f"n_t={n}: " + ", ".join(f"{a:.0f} deg (y_d {y:.0f} mm)" for a, y in
+                                              zip(v["second_lap_peaks_deg"], v["second_lap_peak_yd_mm"]))
                       for n, v in e5.items())
     firsts = ", ".join(f"{v['first_lap_max_at_deg']:.0f}" for v in e5.values())
+    at_ends = all(min(abs(a - 0), abs(a - 180), abs(a - 360)) <= 20 for v in e5.values()
+                  for a in v["second_lap_peaks_deg"][:1])
+    near_y0 = sum(abs(y) < 15 for v in e5.values() for y in v["second_lap_peak_yd_mm"])
+    total = sum(len(v["second_lap_peak_yd_mm"]) for v in e5.values())
     lines.append(
-        f"| 5 | the largest deviation is at radial angles 0, 180, 360 deg (Fig. 4.5) | first lap: largest at "
-        f"{firsts} deg (the start transient); settled second lap, three largest peaks at {peaks} | "
-        "partly: in the first lap the maximum is at 0/360 deg because the arm starts far away; in the settled lap "
-        "the peaks sit where the ellipse turns fastest (the ends of the major axis, 0 and 180 deg) and where y "
-        "changes sign (the Table 2 quirk) |")
+        f"| 5 | the largest deviation is at radial angles 0, 180, 360 deg (Fig. 4.5) | first lap (from the start pose, as "
+        f"the paper): largest at {firsts} deg, the start transient. Settled second lap, the three largest peaks: {peaks} | "
+        + ("agrees |" if at_ends else
+           f"partly: the first lap's maximum is at 0/360 deg, but only because the arm starts far from the first set point; "
+           f"once settled, {near_y0} of the {total} largest peaks sit where |y_d| < 15 mm, i.e. where the path crosses the "
+           f"x axis and Table 2's sign-of-y_d quirk turns q1 the wrong way, not where the path bends most |"))
     lines.append(
         f"| 6 | line A(50, 30, 220) to B(250, 200, 400), 100 points, average error about 0.4 mm | the paper's line: "
         f"{e6['line-ab']['n_out_of_reach']} of {e6['line-ab']['n_setpoints']} set points out of reach (B is 439 mm "
         f"from the shoulder, reach 200 mm): RULE 0 flags them. Reachable variant (`line-ab-reach`): as the paper, "
         f"E_av {asis['e_av_mm']:.1f} mm; with a 2 deg/iteration servo limit and 5 iterations E_av {lim['e_av_mm']:.2f} mm, "
-        f"{lim['e_av_second_half_mm']:.2f} mm on the second half | disagrees as given: from the singular straight-up start the "
-        "variable step throws the arm over the top, where the r^2 comparisons lose the sign of r. With a servo rate limit "
-        "the composition tracks; the paper's 0.4 mm is reached only after the start transient |")
+        f"{lim['e_av_second_half_mm']:.2f} mm on the second half | "
+        + ("disagrees as given: from the singular straight-up start the variable step throws the arm over the top, "
+           "where the r^2 comparisons lose the sign of r, and the Table 1 rule turns the base while the arm is still "
+           "upright. With a servo rate limit the composition tracks; an error near the paper's 0.4 mm holds only after "
+           "the start transient |" if asis["e_av_mm"] > 2 * lim["e_av_mm"] or lim["e_av_second_half_mm"] > 1 else
+           "agrees |"))
     lines += ["", "## Figures", ""]
     for name, cap in (("exp1_path.png", "Experiment 1 (Fig. 4.1)"), ("exp1_error.png", "Experiment 1: E_i"),
                       ("exp2_path.png", "Experiment 2 (Fig. 4.2)"), ("exp3_eav_vs_nt.png", "Experiment 3 (Fig. 4.3)"),
