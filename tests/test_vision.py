@@ -153,24 +153,29 @@ def test_strobe_gives_the_same_estimate(planar):
 
 @pytest.mark.slow
 def test_three_link_markers_mostly_visible():
-    """Three-link arm on its rig over random poses. Its LEDs sit on the joints with no
-    stand-off, so the 8 mm links hide part of them from many viewpoints: measured 56 % of
-    the LEDs pass the shape check over 40 random poses (elbow worst). Accepted estimates
-    measured 0.74 mm RMS (some partly hidden blobs still pass); bounds 45 % and 1.5 mm."""
+    """Three-link arm on its overhead rig over random poses (folded ones included). The LEDs
+    sit 12 mm beside the links along the pitch axis, so from above only self-folded poses hide
+    them: measured 92-94 % seen (seeds 12, 13; 60 poses). Accepted estimates measured 0.55-0.58
+    mm RMS, the first-order prediction for the 0.155 px centroid RMS of rendering at supersample
+    1 (test above) being 0.62 mm: bound 1.3 x that prediction."""
+    from itg_vision.triangulate import predicted_rms_error_mm
+
     arm = ArmSpec.from_args("three-link")
     rig = Rig.from_yaml(ROOT / "cameras" / "three-link.yaml")
     rng = np.random.default_rng(12)
     fb = VisionFeedback(rig, rig, arm)
     fb.reset(0)
-    seen, errs = 0, []
+    seen, errs, pred = 0, [], []
     with World(arm) as world:
         for _ in range(30):
             world.set_q([rng.uniform(-180, 180), rng.uniform(-30, 120), rng.uniform(-150, 150)])
             truth = world.true_markers()
+            fb.reset(0)  # no window from the previous random pose
             m = fb.observe(world)
             for name in arm.marker_names:
                 if name not in m.missed:
                     seen += 1
                     errs.append(np.linalg.norm(m.get(name) - truth[name]))
-    assert seen >= 0.45 * 60
-    assert np.sqrt(np.mean(np.square(errs))) < 1.5
+                    pred.append(predicted_rms_error_mm(rig, truth[name], 0.155))
+    assert seen >= 0.85 * 60
+    assert np.sqrt(np.mean(np.square(errs))) < 1.3 * np.sqrt(np.mean(np.square(pred)))
