@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-USAGE = "usage: python -m itg_vision.bench {speed,noise} [options]  (--help after the name for its options)"
+USAGE = "usage: python -m itg_vision.bench {speed,accuracy,noise} [options]  (--help after the name for its options)"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -15,10 +15,12 @@ def main(argv: list[str] | None = None) -> int:
     name, rest = argv[0], argv[1:]
     if name == "speed":
         from .speed import main as run
+    elif name == "accuracy":
+        from .accuracy import main as run
     elif name == "noise":
         from .noise import main as run
     else:
-        print(f"error: unknown benchmark {name!r} (choose speed or noise)", file=sys.stderr)
+        print(f"error: unknown benchmark {name!r} (choose speed, accuracy or noise)", file=sys.stderr)
         return 2
     return run(rest)
 
