@@ -149,10 +149,12 @@ def prepare(cfg: RunConfig) -> Prepared:
 
 
 def resolve_relative(path: str, relative_to: Path) -> Path:
+    """A path named inside a file: relative to that file's folder (as written), else as given."""
     p = Path(path)
-    if p.is_absolute() or p.exists():
+    if p.is_absolute():
         return p
-    return Path(relative_to).parent / p
+    beside = Path(relative_to).parent / p
+    return beside if beside.exists() else p
 
 
 def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
