@@ -111,7 +111,9 @@ def paths_figure(panels: list, title: str, path) -> None:
 
 def grouped_bars_figure(categories: list, values: dict, ylabel: str, title: str, path, *,
                         logy=False) -> None:
-    """Grouped bars: ``values`` maps a series label to one value per category (NaN: no bar)."""
+    """Grouped bars: ``values`` maps a series label to one value per category (NaN: no bar).
+
+    With ``logy``, values below 1e-3 are drawn at 1e-3 (the axis' floor)."""
     n = max(1, len(values))
     width = 0.8 / n
     x = np.arange(len(categories))
@@ -119,7 +121,7 @@ def grouped_bars_figure(categories: list, values: dict, ylabel: str, title: str,
     for i, (label, ys) in enumerate(values.items()):
         ys = np.asarray(ys, float)
         if logy:
-            ys = np.where(np.isfinite(ys), np.maximum(ys, 1e-6), np.nan)
+            ys = np.where(np.isfinite(ys), np.maximum(ys, 1e-3), np.nan)
         ax.bar(x + (i - (n - 1) / 2) * width, ys, width, label=label)
     ax.set_xticks(x)
     ax.set_xticklabels(categories, rotation=35, ha="right", fontsize=8)

@@ -1,0 +1,940 @@
+"""python -m itg_vision.bench noise: the noise-robustness benchmark.
+
+ITG fed by vision against the baselines, on the same runs, under named conditions (centroid
+noise, LED dropout, the rig the estimator believes, kinematic model error, and a few
+combinations). Writes to ``--out``:
+
+- ``results.csv``: one row per run, every parameter and every metric. Appended one row at a time
+  (flush + fsync), so an interruption never loses a finished row; a restart with the same
+  ``--out`` skips the ``run_id`` s already there and drops a torn (partial) last line.
+- ``sweep.json``: the sweep definition (its hash and the options that made it). A different
+  definition in the same folder is refused (exit 2), no row touched.
+- ``report.md``: median [IQR] of E_av and E_max per controller per condition, and a conclusion
+  generated from the numbers.
+- plots: E_av against sigma, against dropout, against model error, by condition.
+- ``rigs/``: a copy of each perturbed rig the estimator believed (for the record; the workers
+  build their own, so a cluster needs no shared file system).
+
+Runs go to a local process pool (``--workers``) or to a Dask cluster (``--scheduler``).
+
+Choices (documented in the report too):
+- The four controllers map onto :class:`itg_vision.runner.RunConfig`: ``itg-vision`` =
+  (itg, vision), ``itg-model`` = (itg, model), ``ik`` = (ik, model: IK ignores the feedback,
+  'model' wastes no rendering), ``jacobian-vision`` = (jacobian, vision).
+- Conditions that only perturb vision (noise, dropout, rig) cannot change the model-fed
+  controllers; they are run anyway (no rendering, a few ms each) so every table cell is filled
+  from real runs. Likewise every controller is run for every seed.
+- Three-link runs use ``max_step=2.0`` (deg per iteration, a servo rate limit) and
+  ``iterations=5``: the paper's three-link composition is not stable without a rate limit.
+  Two-link runs use the defaults (gain 0.5 deg/mm, one iteration per set point).
+- ``links+X%``: every link of the simulated arm is X % longer than the nominal model;
+  ``offset-1deg``: every joint of the simulated arm sits 1 degree off its commanded angle.
+- ``rig-perturbed``: the estimator believes the true rig moved as one body by 1 degree (about a
+  random axis through the cameras' midpoint) and 5 mm (in a random direction), drawn from the
+  run's seed: consistent stereo, wrong world frame. ``rig-perturbed-cams``: each camera
+  perturbed on its own by 1 degree and 5 mm: the rays no longer meet (about 10 px apart), so
+  the feedback's residual test rejects the markers. Images are rendered with the true rig.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import hashlib
+import io
+import json
+import math
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import outputs
+from ..errors import UserError, run_main
+
+# ---------------------------------------------------------------------------- the sweep
+#: Bench controller name -> (RunConfig.controller, RunConfig.feedback).
+CONTROLLERS: dict[str, tuple[str, str]] = {
+    "itg-vision": ("itg", "vision"),
+    "itg-model": ("itg", "model"),
+    "ik": ("ik", "model"),
+    "jacobian-vision": ("jacobian", "vision"),
+}
+CONTROLLER_TITLES = {
+    "itg-vision": "ITG fed by vision (no model)",
+    "itg-model": "ITG fed by encoders + nominal model",
+    "ik": "closed-form IK of the nominal model, open loop",
+    "jacobian-vision": "vision-fed Jacobian tracker (DLS, no model)",
+}
+#: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B.
+TRAJECTORIES: dict[str, str] = {
+    "ellipse-t1": "two-link",
+    "ellipse-t2": "two-link",
+    "abcd": "two-link",
+    "line-ab-reach": "three-link",
+}
+NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
+DROPOUTS = (0.05, 0.2)
+LINK_ERRORS = (0.02, 0.05)
+RIG_ANGLE_DEG = 1.0
+RIG_SHIFT_MM = 5.0
+#: Three-link runs: servo rate limit (deg per iteration) and iterations per set point.
+THREE_LINK = {"max_step": 2.0, "iterations": 5}
+FULL_SEEDS = 5
+QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
+         "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
+                        "noise-1px+links+5%")}
+#: Bump when the meaning of a column or of a run's parameters changes.
+SCHEMA = 1
+
+
+@dataclass(frozen=True)
+class Condition:
+    """A named perturbation; fields combine in the ``+`` conditions."""
+
+    name: str
+    noise_px: float = 0.0
+    dropout: float = 0.0
+    rig: str = "true"  # true | calibrated | perturbed | perturbed-cams
+    link_error: float = 0.0  # fraction: simulated links = (1 + link_error) * nominal
+    offset_deg: float = 0.0  # every joint of the simulated arm
+
+    @property
+    def vision_only(self) -> bool:
+        return self.link_error == 0 and self.offset_deg == 0
+
+    def combine(self, other: "Condition") -> "Condition":
+        def pick(a, b, zero):
+            return b if a == zero else a
+
+        return Condition(f"{self.name}+{other.name}", pick(self.noise_px, other.noise_px, 0.0),
+                         pick(self.dropout, other.dropout, 0.0), pick(self.rig, other.rig, "true"),
+                         pick(self.link_error, other.link_error, 0.0),
+                         pick(self.offset_deg, other.offset_deg, 0.0))
+
+
+def _all_conditions() -> dict[str, Condition]:
+    single = [Condition("clean")]
+    single += [Condition(f"noise-{s:g}px", noise_px=s) for s in NOISE_PX]
+    single += [Condition(f"dropout-{p:g}", dropout=p) for p in DROPOUTS]
+    single += [Condition("rig-calibrated", rig="calibrated"), Condition("rig-perturbed", rig="perturbed"),
+               Condition("rig-perturbed-cams", rig="perturbed-cams")]
+    single += [Condition(f"links+{100 * e:g}%", link_error=e) for e in LINK_ERRORS]
+    single += [Condition("offset-1deg", offset_deg=1.0)]
+    by = {c.name: c for c in single}
+    combined = [("noise-1px", "links+5%"), ("noise-0.3px", "dropout-0.05"),
+                ("noise-1px", "offset-1deg"), ("rig-perturbed", "links+2%")]
+    for a, b in combined:
+        c = by[a].combine(by[b])
+        by[c.name] = c
+    return by
+
+
+CONDITIONS: dict[str, Condition] = _all_conditions()
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run, every parameter resolved; ``run_id`` is a hash of them all."""
+
+    controller: str
+    condition: str
+    trajectory: str
+    arm: str
+    points: int | None
+    seed: int
+    rc_controller: str
+    feedback: str
+    noise_px: float
+    dropout: float
+    rig: str  # true | calibrated | perturbed | perturbed-cams
+    rig_sha: str  # content hash of the calibrated rig file ("" otherwise)
+    link_error: float
+    offset_deg: float
+    iterations: int
+    max_step: float | None
+
+    @property
+    def run_id(self) -> str:
+        text = json.dumps([SCHEMA, dataclasses.asdict(self)], sort_keys=True)
+        return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+    @property
+    def vision(self) -> bool:
+        return self.feedback == "vision"
+
+    def cost_s(self) -> float:
+        """A rough cost for the progress bar and the estimate (vision: ~28 ms per render)."""
+        n = (self.points or _default_points(self.trajectory)) * self.iterations
+        return 0.6 + 0.03 * n if self.vision else 0.05 + 0.0002 * n
+
+
+def _default_points(trajectory: str) -> int:
+    from ..trajectory import DEFAULT_POINTS
+
+    return DEFAULT_POINTS[trajectory]
+
+
+def _parse_names(text: str | None, known, what: str, noun: str) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise UserError(f"--{what}: give at least one name (choose from {', '.join(known)})")
+    for n in names:
+        if n not in known:
+            raise UserError(f"--{what}: unknown {noun} {n!r} (choose from {', '.join(known)})")
+    return tuple(dict.fromkeys(names))
+
+
+def calibrated_rig_path(arm: str) -> Path:
+    from ..runner import CAMERAS_DIR, DEFAULT_RIG
+
+    return CAMERAS_DIR / f"{DEFAULT_RIG[arm]}.calib.yaml"
+
+
+def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
+                controllers=None, trajectories=None, points: int | None = None) -> list[RunSpec]:
+    """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller)."""
+    conds = conditions or (QUICK["conditions"] if quick else tuple(CONDITIONS))
+    ctrls = controllers or tuple(CONTROLLERS)
+    trajs = trajectories or (QUICK["trajectories"] if quick else tuple(TRAJECTORIES))
+    n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else FULL_SEEDS)
+    if n_seeds < 1:
+        raise UserError(f"--seeds: must be >= 1, got {n_seeds}")
+    if points is None and quick:
+        points = QUICK["points"]
+    if points is not None and points < 2:
+        raise UserError(f"--points: must be >= 2, got {points}")
+    rig_sha: dict[str, str] = {}
+    specs = []
+    for traj_name in trajs:
+        arm = TRAJECTORIES[traj_name]
+        extra = THREE_LINK if arm == "three-link" else {"max_step": None, "iterations": 1}
+        n = points
+        if n is not None and traj_name == "abcd" and n % 2:
+            n += 1  # abcd needs an even number of points (two segments)
+        for cname in conds:
+            cond = CONDITIONS[cname]
+            sha = ""
+            if cond.rig == "calibrated":
+                if arm not in rig_sha:
+                    rig_sha[arm] = _calibrated_rig_sha(arm)
+                sha = rig_sha[arm]
+            for seed in range(n_seeds):
+                for ctrl in ctrls:
+                    rc, fb = CONTROLLERS[ctrl]
+                    specs.append(RunSpec(
+                        ctrl, cname, traj_name, arm, n, seed, rc, fb, cond.noise_px, cond.dropout,
+                        cond.rig, sha, cond.link_error, cond.offset_deg, extra["iterations"],
+                        extra["max_step"]))
+    return specs
+
+
+def _calibrated_rig_sha(arm: str) -> str:
+    path = calibrated_rig_path(arm)
+    if not path.exists():
+        from ..runner import DEFAULT_RIG
+
+        raise UserError(f"condition rig-calibrated needs {path}: make it with `python -m "
+                        f"itg_vision.calibrate --rig {DEFAULT_RIG[arm]} --out {path}`, or leave "
+                        "the rig-calibrated conditions out with --conditions")
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+
+
+def definition_hash(specs: list[RunSpec]) -> str:
+    text = json.dumps([SCHEMA, COLUMNS, sorted(s.run_id for s in specs)])
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+# ---------------------------------------------------------------------------- rigs
+def _rotation(axis, angle_rad: float) -> np.ndarray:
+    """Rodrigues: rotation by ``angle_rad`` about the unit vector ``axis``, shape (3, 3)."""
+    k = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle_rad) * K + (1.0 - math.cos(angle_rad)) * K @ K
+
+
+def perturb_rig(rig, seed: int, *, angle_deg: float = RIG_ANGLE_DEG,
+                shift_mm: float = RIG_SHIFT_MM, each_camera: bool = False,
+                true_rig: str | Path | None = None):
+    """A copy of ``rig`` whose extrinsics are off by ``angle_deg`` and ``shift_mm``.
+
+    ``each_camera=False`` (condition ``rig-perturbed``): the rig moves as one body, turned by
+    exactly ``angle_deg`` about a random axis through the midpoint of the camera centres and
+    shifted by exactly ``shift_mm`` in a random direction: the stereo geometry stays consistent
+    and every triangulated point lands in a wrong world frame (a badly measured base frame).
+    ``each_camera=True`` (``rig-perturbed-cams``): each camera turns and moves on its own by those
+    amounts (inconsistent stereo: rays no longer meet).
+
+    The random directions come from ``numpy.random.default_rng([seed, 0x5EED])``. Intrinsics and
+    distortion are unchanged. The copy's ``true_rig`` names the rig the images are rendered with
+    (``true_rig``, default the original's file), so a run believing the copy renders with the
+    truth and estimates with the copy.
+
+    Returns
+    -------
+    `itg_vision.camera.Rig`
+    """
+    from ..camera import Rig
+
+    rng = np.random.default_rng([int(seed), 0x5EED])
+
+    def draw():
+        axis, d = rng.normal(size=3), rng.normal(size=3)
+        return _rotation(axis, math.radians(angle_deg)), shift_mm * d / np.linalg.norm(d)
+
+    centres = [c.position_mm for c in rig.cameras]
+    pivot = np.mean(centres, axis=0)
+    dR, shift = draw()
+    cams = []
+    for cam, C in zip(rig.cameras, centres):
+        if each_camera:
+            dR, shift = draw()
+            C_new = C + shift
+        else:
+            C_new = pivot + dR @ (C - pivot) + shift
+        R = cam.R @ dR.T  # the camera's axes turn with the body: R' = R dR^T
+        cams.append(dataclasses.replace(cam, rotation=tuple(tuple(float(v) for v in r) for r in R),
+                                        translation_mm=tuple(float(v) for v in -R @ C_new)))
+    truth = true_rig if true_rig is not None else (rig.true_rig or rig.source)
+    if not truth:
+        raise ValueError("perturb_rig: the rig has no source file; pass true_rig")
+    record = {"perturbed": {"from": str(rig.source or truth), "seed": int(seed),
+                            "angle_deg": float(angle_deg), "shift_mm": float(shift_mm),
+                            "each_camera": bool(each_camera)}}
+    return Rig(f"{rig.name}-perturbed", tuple(cams), "", record, str(Path(truth).resolve()))
+
+
+def write_perturbed_rig(arm: str, seed: int, folder: str | Path, each_camera: bool = False) -> Path:
+    """Perturb the arm's default (true) rig with ``seed``; write it to ``folder``; its path."""
+    from ..camera import Rig
+    from ..runner import CAMERAS_DIR, DEFAULT_RIG
+
+    true_path = CAMERAS_DIR / f"{DEFAULT_RIG[arm]}.yaml"
+    rig = perturb_rig(Rig.from_yaml(true_path), seed, each_camera=each_camera, true_rig=true_path)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    kind = "perturbed-cams" if each_camera else "perturbed"
+    path = folder / f"{DEFAULT_RIG[arm]}-{kind}-seed{seed}.yaml"
+    rig.to_yaml(path)
+    return path
+
+
+# ---------------------------------------------------------------------------- one run
+def run_config(spec: RunSpec, rig_path: str | None = None):
+    """The :class:`itg_vision.runner.RunConfig` of a spec (``rig_path``: the rig believed)."""
+    from ..arm import ARMS
+    from ..runner import RunConfig
+
+    nominal = ARMS[spec.arm]
+    true_links = (tuple(round(v * (1.0 + spec.link_error), 9) for v in nominal)
+                  if spec.link_error else None)
+    offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
+    return RunConfig(arm=spec.arm, trajectory=spec.trajectory, points=spec.points,
+                     controller=spec.rc_controller, feedback=spec.feedback,
+                     iterations=spec.iterations, max_step=spec.max_step, rig=rig_path,
+                     noise_px=spec.noise_px, dropout=spec.dropout, seed=spec.seed,
+                     true_links_mm=true_links, joint_offset_deg=offset)
+
+
+def run_one(spec: RunSpec) -> dict:
+    """Execute one spec (in a worker); return its results row, or ``{'run_id', 'error'}``.
+
+    Builds its own World (PyBullet clients are per process) and, for ``rig-perturbed``, its own
+    perturbed rig file in a temporary folder: nothing is shared with the caller but the spec.
+    """
+    from ..runner import execute, prepare
+
+    try:
+        with tempfile.TemporaryDirectory(prefix="itg-noise-") as tmp:
+            rig_path = None
+            if spec.vision and spec.rig == "calibrated":
+                rig_path = str(calibrated_rig_path(spec.arm))
+            elif spec.vision and spec.rig in ("perturbed", "perturbed-cams"):
+                rig_path = str(write_perturbed_rig(spec.arm, spec.seed, tmp,
+                                                   each_camera=spec.rig == "perturbed-cams"))
+            prep = prepare(run_config(spec, rig_path))  # reads the rig files now
+        trace, s = execute(prep)
+        s["e_track_mm"] = tracking_error_mm(trace)
+    except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
+        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+    return make_row(spec, s)
+
+
+def tracking_error_mm(trace) -> float | None:
+    """Median E_i over the second half of the set points in reach: the error once the initial
+    transient from the start pose is over (E_av and E_max include it)."""
+    e = trace.error_mm()
+    ok = ~np.asarray(trace.out_of_reach, bool)
+    late = e[len(e) // 2:][ok[len(e) // 2:]]
+    return float(np.median(late)) if late.size else None
+
+
+COLUMNS = ["run_id", "controller", "condition", "trajectory", "arm", "points", "seed",
+           "rc_controller", "feedback", "noise_px", "dropout", "rig", "rig_sha", "link_error",
+           "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg", "iterations",
+           "max_step_deg", "gain", "e_av_mm", "e_max_mm", "e_rms_mm", "e_track_mm", "n_setpoints", "n_missed",
+           "n_out_of_reach", "est_gripper_rms_mm", "est_elbow_rms_mm", "wall_s"]
+METRICS = ("e_av_mm", "e_max_mm", "e_rms_mm", "n_missed", "n_out_of_reach", "wall_s")
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else f"{v:.6g}"
+    if isinstance(v, (list, tuple)):
+        return ";".join(_cell(float(x)) for x in v)
+    return str(v)
+
+
+def make_row(spec: RunSpec, s: dict) -> dict:
+    row = {"run_id": spec.run_id, **dataclasses.asdict(spec)}
+    row["points"] = s["n_setpoints"]
+    row.update({k: s.get(k) for k in ("links_mm", "true_links_mm", "joint_offset_deg", "gain",
+                                      "e_av_mm", "e_max_mm", "e_rms_mm", "e_track_mm",
+                                      "n_setpoints",
+                                      "n_missed", "n_out_of_reach", "est_gripper_rms_mm",
+                                      "est_elbow_rms_mm", "wall_s")})
+    row["max_step_deg"] = spec.max_step
+    return {c: _cell(row.get(c)) for c in COLUMNS}
+
+
+# ---------------------------------------------------------------------------- results.csv
+class Results:
+    """``results.csv`` in ``--out``: read once (dropping a torn last line), then append rows."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.rows: dict[str, dict] = {}
+        self.torn: str | None = None
+        if path.exists():
+            self._load()
+
+    def _load(self) -> None:
+        text = self.path.read_bytes().decode("utf-8", errors="replace")
+        if text and not text.endswith("\n"):
+            # a torn last line (interrupted mid-write): dropped; `repair` rewrites the file
+            text = text[: text.rfind("\n") + 1]
+            self.torn = text
+        if not text:
+            return
+        reader = csv.reader(io.StringIO(text))
+        header = next(reader, None)
+        if header != COLUMNS:
+            raise UserError(f"{self.path}: its columns are not this benchmark's (another tool's "
+                            "or another version's results): choose another --out")
+        for fields in reader:
+            if len(fields) != len(COLUMNS):
+                continue
+            row = dict(zip(COLUMNS, fields))
+            self.rows.setdefault(row["run_id"], row)
+
+    def repair(self) -> None:
+        """Rewrite the file without its torn last line (atomically), before any append."""
+        if self.torn is not None:
+            outputs.write_text(self.path, self.torn)
+            self.torn = None
+
+    def append(self, row: dict) -> None:
+        """Append one row and make it durable (flush + fsync) before returning."""
+        new = not self.path.exists() or self.path.stat().st_size == 0
+        with open(self.path, "a", newline="", encoding="utf-8") as f:
+            w = csv.writer(f, lineterminator="\n")
+            if new:
+                w.writerow(COLUMNS)
+            w.writerow([row[c] for c in COLUMNS])
+            f.flush()
+            os.fsync(f.fileno())
+        self.rows[row["run_id"]] = row
+
+
+def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: Results) -> None:
+    """Refuse an ``--out`` holding another sweep's results (writes nothing)."""
+    path = out / "sweep.json"
+    if path.exists():
+        try:
+            stored = json.loads(path.read_text())
+            old = stored["definition"]
+        except (OSError, ValueError, KeyError, TypeError):
+            raise UserError(f"{path}: unreadable sweep definition: choose another --out") from None
+        if old != definition:
+            was = " ".join(f"{k}={v}" for k, v in stored.get("options", {}).items() if v not in (None, False))
+            raise UserError(f"--out {out} holds results of a different sweep definition "
+                            f"({old} [{was or 'defaults'}], now {definition}): rerun with the same "
+                            "options or choose another --out")
+        return
+    ids = {s.run_id for s in specs}
+    foreign = [r for r in results.rows if r not in ids]
+    if foreign:
+        raise UserError(f"--out {out} holds {len(foreign)} results of a different sweep "
+                        "definition (no sweep.json): choose another --out")
+
+
+def record_sweep_file(out: Path, definition: str, options: dict, specs: list[RunSpec]) -> None:
+    path = out / "sweep.json"
+    if not path.exists():
+        outputs.write_json(path, {"definition": definition, "schema": SCHEMA,
+                                  "n_runs": len(specs), "options": options})
+
+
+# ---------------------------------------------------------------------------- executors
+class _Local:
+    """A process pool (or the calling process when workers == 1)."""
+
+    def __init__(self, workers: int):
+        self.workers = workers
+        self.pool = None
+        if workers > 1:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self.pool = ProcessPoolExecutor(max_workers=workers,
+                                            mp_context=multiprocessing.get_context("spawn"))
+
+    def results(self, specs):
+        if self.pool is None:
+            for spec in specs:
+                yield spec, run_one(spec)
+            return
+        from concurrent.futures import as_completed
+
+        futures = {self.pool.submit(run_one, s): s for s in specs}
+        for fut in as_completed(futures):
+            spec = futures[fut]
+            try:
+                res = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a dead worker, reported per run
+                res = {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
+            yield spec, res
+
+    def close(self, cancel: bool = False) -> None:
+        if self.pool is None:
+            return
+        if cancel:  # interrupted: stop the runs in flight too (their rows were not written)
+            for proc in list(getattr(self.pool, "_processes", {}).values()):
+                proc.terminate()
+        self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class _Dask:
+    """The same runs on a Dask distributed cluster (workers must be able to import itg_vision)."""
+
+    def __init__(self, address: str, timeout_s: float = 5.0):
+        try:
+            from distributed import Client
+        except ImportError:
+            raise UserError("--scheduler needs dask.distributed: pip install 'itg_vision[cluster]'") from None
+        try:
+            self.client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError (bad address)
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise UserError(f"--scheduler {address}: cannot connect ({msg})") from None
+        self.workers = max(1, sum(w.get("nthreads", 1) for w in
+                                  self.client.scheduler_info().get("workers", {}).values()))
+
+    def results(self, specs):
+        from distributed import as_completed
+
+        futures = {self.client.submit(run_one, s, key=f"itg-noise-{s.run_id}", pure=False): s
+                   for s in specs}
+        with self.client.as_current():  # as_completed looks for the current client
+            for fut in as_completed(list(futures)):
+                spec = futures[fut]
+                try:
+                    res = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a lost worker, reported per run
+                    res = {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
+                yield spec, res
+
+    def close(self, cancel: bool = False) -> None:
+        self.client.close()
+
+
+# ---------------------------------------------------------------------------- report
+def _float(v: str) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _stats(values) -> tuple[float, float, float]:
+    v = np.asarray([x for x in values if math.isfinite(x)], float)
+    if not v.size:
+        return (float("nan"),) * 3
+    q1, med, q3 = np.percentile(v, [25, 50, 75])
+    return float(med), float(q1), float(q3)
+
+
+def _fmt_mm(v: float) -> str:
+    if not math.isfinite(v):
+        return "n/a"
+    if v == 0:
+        return "0"
+    if abs(v) < 0.01:
+        return f"{v:.0e}"
+    return f"{v:.3g}" if abs(v) < 100 else f"{v:.0f}"
+
+
+def _ratio(a: float, b: float) -> str:
+    """How many times ``a`` is ``b`` (both errors in mm), for prose."""
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return "n/a"
+    if b < 1e-3:
+        return "> 1000x" if a >= 1.0 else f"{a / max(b, 1e-9):.3g}x"
+    return f"{a / b:.2g}x"
+
+
+def summarize(rows: list[dict]) -> dict:
+    """(trajectory, condition, controller) -> {'e_av': (med, q1, q3), 'e_max': ..., 'n': ...}."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["trajectory"], r["condition"], r["controller"]), []).append(r)
+    out = {}
+    for key, rs in groups.items():
+        out[key] = {"e_av": _stats(_float(r["e_av_mm"]) for r in rs),
+                    "e_max": _stats(_float(r["e_max_mm"]) for r in rs),
+                    "e_track": _stats(_float(r["e_track_mm"]) for r in rs),
+                    "missed": float(np.mean([_float(r["n_missed"]) for r in rs])),
+                    "wall": float(np.sum([_float(r["wall_s"]) for r in rs])), "n": len(rs)}
+    return out
+
+
+def _table(summary, traj, conds, ctrls, metric) -> list[str]:
+    lines = ["| condition | " + " | ".join(ctrls) + " |",
+             "|---|" + "---|" * len(ctrls)]
+    for c in conds:
+        cells = []
+        for k in ctrls:
+            s = summary.get((traj, c, k))
+            if s is None:
+                cells.append("-")
+                continue
+            med, q1, q3 = s[metric]
+            cells.append(f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]")
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def conclusion(summary, trajs, conds, ctrls) -> list[str]:
+    """Plain-words findings computed from the medians."""
+    med = {k: v["e_av"][0] for k, v in summary.items()}
+    medt = {k: v["e_track"][0] for k, v in summary.items()}
+    out = []
+    if "itg-vision" not in ctrls:
+        return ["(itg-vision not in this sweep: no comparison.)"]
+    for other in [c for c in ctrls if c != "itg-vision"]:
+        wins, losses, ties = [], [], []
+        for t in trajs:
+            for c in conds:
+                a, b = med.get((t, c, "itg-vision")), med.get((t, c, other))
+                if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
+                    continue
+                item = (t, c, a, b)
+                if abs(a - b) <= 0.05 * max(a, b) + 0.01:
+                    ties.append(item)
+                elif a < b:
+                    wins.append(item)
+                else:
+                    losses.append(item)
+        n = len(wins) + len(losses) + len(ties)
+        if not n:
+            continue
+        text = (f"- **vs {other}** ({CONTROLLER_TITLES[other]}): itg-vision has the lower median "
+                f"E_av in {len(wins)} of {n} (trajectory, condition) cells, the higher in "
+                f"{len(losses)}, within 5 % in {len(ties)}.")
+        if wins:
+            t, c, a, b = max(wins, key=lambda w: w[3] / max(w[2], 1e-9))
+            text += (f" Biggest win: {c} on {t}, {_fmt_mm(a)} mm against {_fmt_mm(b)} mm "
+                     f"({other} {_ratio(b, a)} worse).")
+        if losses:
+            t, c, a, b = max(losses, key=lambda w: w[2] / max(w[3], 1e-9))
+            text += (f" Biggest loss: {c} on {t}, {_fmt_mm(a)} mm against {_fmt_mm(b)} mm "
+                     f"(itg-vision {_ratio(a, b)} worse).")
+            where = sorted({c for _, c, _, _ in losses})
+            text += f" It loses under: {', '.join(where)}."
+        out.append(text)
+    # model error: how much each controller's E_av moves from clean
+    model_conds = [c for c in conds if not CONDITIONS[c].vision_only]
+    if "clean" in conds and model_conds:
+        for t in trajs:
+            parts = []
+            for k in ctrls:
+                base, baset = med.get((t, "clean", k)), medt.get((t, "clean", k))
+                if base is None:
+                    continue
+                deltas = [f"{c} {med[(t, c, k)] - base:+.2f} / {medt[(t, c, k)] - baset:+.2f}"
+                          for c in model_conds
+                          if (t, c, k) in med and math.isfinite(med[(t, c, k)])]
+                if deltas:
+                    parts.append(f"{k}: " + ", ".join(deltas))
+            if parts:
+                out.append(f"- **Model error on {t}** (change from clean of the median E_av / "
+                           "median E_track, mm): " + "; ".join(parts) + ".")
+    noise_conds = [c for c in conds if CONDITIONS[c].noise_px and CONDITIONS[c].vision_only
+                   and "+" not in c]
+    if "clean" in conds and noise_conds:
+        for t in trajs:
+            parts = []
+            for k in [c for c in ctrls if CONTROLLERS[c][1] == "vision"]:
+                base = med.get((t, "clean", k))
+                worst = max(noise_conds, key=lambda c: CONDITIONS[c].noise_px)
+                if base is None or (t, worst, k) not in med:
+                    continue
+                parts.append(f"{k} {_fmt_mm(base)} -> {_fmt_mm(med[(t, worst, k)])} mm")
+            if parts:
+                out.append(f"- **Centroid noise on {t}** (median E_av, clean -> {worst}): "
+                           + "; ".join(parts) + ".")
+    return out
+
+
+def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
+                 failures: dict[str, str]) -> list[Path]:
+    """report.md and the plots from the rows of this sweep; returns the plot paths."""
+    from .. import plot
+
+    ids = {s.run_id for s in specs}
+    rows = [r for r in rows if r["run_id"] in ids]
+    trajs = list(dict.fromkeys(s.trajectory for s in specs))
+    conds = list(dict.fromkeys(s.condition for s in specs))
+    ctrls = list(dict.fromkeys(s.controller for s in specs))
+    summary = summarize(rows)
+    seeds = sorted({s.seed for s in specs})
+    pts = {t: sorted({int(_float(r["points"])) for r in rows if r["trajectory"] == t}) for t in trajs}
+    wall = sum(_float(r["wall_s"]) for r in rows)
+    L = ["# Noise-robustness benchmark", "",
+         f"Produced by `{command}`.", "",
+         f"{len(rows)} of {len(specs)} runs in `results.csv`"
+         + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
+         + f"; {len(seeds)} seeds per cell; simulated time in runs {wall:.0f} s.", ""]
+    if failures:
+        L += [f"**{len(failures)} runs failed** this time (rerun to retry): "
+              + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
+    L += ["## Setup", "",
+          "Controllers, on the same runs (same trajectory, condition, seed):", ""]
+    L += [f"- `{k}`: {CONTROLLER_TITLES[k]} (RunConfig controller={CONTROLLERS[k][0]}, "
+          f"feedback={CONTROLLERS[k][1]})" for k in ctrls]
+    L += ["", "Trajectories: " + ", ".join(
+        f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points)" for t in trajs)
+        + ". Three-link runs use a servo rate limit of 2 deg per iteration and 5 iterations per "
+          "set point (the paper's three-link composition is unstable without a rate limit); "
+          "two-link runs use the defaults (gain 0.5 deg/mm, one iteration per set point).", "",
+          "Conditions: `noise-Spx` adds Gaussian noise of S px std to each centroid coordinate; "
+          "`dropout-P` drops each LED detection with probability P; `rig-calibrated` estimates "
+          "with the calibrated rig (`cameras/<rig>.calib.yaml`); `rig-perturbed` with the true "
+          "rig moved as one body by 1 degree and 5 mm (a wrong world frame, consistent stereo); "
+          "`rig-perturbed-cams` with each camera turned by 1 degree and moved by 5 mm on its own "
+          "(inconsistent stereo); random directions drawn from the seed; `links+X%` makes every link of the simulated arm X % longer "
+          "than the nominal model; `offset-1deg` puts every simulated joint 1 degree off its "
+          "command; `a+b` combines both. Images are always rendered with the true rig.", "",
+          "Vision-only conditions (noise, dropout, rig) cannot affect `itg-model` and `ik` "
+          "(no rendering): they are run anyway, a few ms each, so every cell comes from real "
+          "runs (their numbers equal clean). `ik` is deterministic: its IQR is zero.", "",
+          "E_i = distance from the set point to the true gripper after the set point's "
+          "iterations (x-y for planar arms); E_av and E_max are its mean and maximum over the "
+          "set points in reach. Every E_av and E_max includes the initial transient from the "
+          "start pose (the paper's definition), which often dominates them; E_track, the median "
+          "E_i over the second half of the set points, shows the error once tracking. Tables: median [25th, 75th percentile] over "
+          "seeds, mm.", ""]
+    L += ["## Conclusion", ""] + conclusion(summary, trajs, conds, ctrls) + [""]
+    for t in trajs:
+        L += [f"## {t}: E_av (mm)", ""] + _table(summary, t, conds, ctrls, "e_av") + [""]
+        L += [f"## {t}: E_max (mm)", ""] + _table(summary, t, conds, ctrls, "e_max") + [""]
+        L += [f"## {t}: E_track (mm), median E_i over the second half", ""] \
+            + _table(summary, t, conds, ctrls, "e_track") + [""]
+    plots = _plots(out, summary, trajs, conds, ctrls, plot)
+    if plots:
+        L += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in plots] + [""]
+    outputs.write_text(out / "report.md", "\n".join(L))
+    return plots
+
+
+def _plots(out: Path, summary, trajs, conds, ctrls, plot) -> list[Path]:
+    made = []
+
+    def med(t, c, k):
+        s = summary.get((t, c, k))
+        return s["e_av"][0] if s else float("nan")
+
+    def curve(t, k, pairs):
+        xs, ys = [], []
+        for x, c in pairs:
+            y = med(t, c, k)
+            if math.isfinite(y):
+                xs.append(x)
+                ys.append(max(y, 1e-3))  # exact IK: drawn at the floor
+        return xs, ys
+
+    for t in trajs:
+        for name, field_, xlabel in (("sigma", "noise_px", "centroid noise sigma (px)"),
+                                     ("dropout", "dropout", "LED dropout probability"),
+                                     ("model_error", "link_error", "link length error (%)")):
+            pairs = [(0.0, "clean")] if "clean" in conds else []
+            for c in conds:
+                cd = CONDITIONS[c]
+                others = dataclasses.replace(cd, name="", **{field_: Condition.__dataclass_fields__[field_].default})
+                if getattr(cd, field_) and others == Condition(""):  # this factor alone
+                    x = getattr(cd, field_) * (100 if field_ == "link_error" else 1)
+                    pairs.append((x, c))
+            if len(pairs) < 2:
+                continue
+            pairs.sort()
+            series = {k: curve(t, k, pairs) for k in ctrls}
+            series = {k: v for k, v in series.items() if v[0]}
+            path = out / f"e_av_vs_{name}-{t}.png"
+            plot.lines_figure(series, xlabel, "median E_av (mm; < 0.001 drawn at 0.001)",
+                              f"{t}: E_av against {xlabel}",
+                              path, logy=True)
+            made.append(path)
+        values = {k: [med(t, c, k) for c in conds] for k in ctrls}
+        path = out / f"e_av_by_condition-{t}.png"
+        plot.grouped_bars_figure(conds, values, "median E_av (mm)",
+                                 f"{t}: median E_av per controller and condition", path, logy=True)
+        made.append(path)
+    return made
+
+
+# ---------------------------------------------------------------------------- command line
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="python -m itg_vision.bench noise",
+        description="Noise-robustness benchmark: ITG fed by vision against ITG + nominal model, "
+                    "open-loop IK and a vision-fed Jacobian tracker, under centroid noise, LED "
+                    "dropout, rig errors and kinematic model errors. Writes results.csv, "
+                    "report.md and plots to --out; rerun with the same --out to resume.")
+    ap.add_argument("--out", default="runs/bench-noise", metavar="DIR",
+                    help="output folder (default %(default)s; --quick: runs/bench-noise-quick)")
+    ap.add_argument("--quick", action="store_true",
+                    help=f"reduced sweep (< 2 min on 2 cores): {QUICK['trajectories'][0]} with "
+                         f"{QUICK['points']} points, {QUICK['seeds']} seeds, conditions "
+                         + ", ".join(QUICK["conditions"]))
+    ap.add_argument("--seeds", type=int, metavar="K",
+                    help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
+    ap.add_argument("--workers", type=int, metavar="N",
+                    help="local worker processes (default: the number of CPUs; 1 = this process)")
+    ap.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                    help="run on this Dask distributed scheduler instead of a local pool "
+                         "(pip install 'itg_vision[cluster]')")
+    ap.add_argument("--conditions", metavar="A,B,...",
+                    help="only these conditions (see --list)")
+    ap.add_argument("--controllers", metavar="A,B,...",
+                    help="only these controllers: " + ", ".join(CONTROLLERS))
+    ap.add_argument("--trajectories", metavar="A,B,...",
+                    help="only these trajectories: " + ", ".join(TRAJECTORIES))
+    ap.add_argument("--points", type=int, metavar="N",
+                    help="set points per trajectory (default: the trajectory's; --quick "
+                         f"{QUICK['points']})")
+    ap.add_argument("--limit", type=int, metavar="N",
+                    help="run at most N of the remaining runs this time (the rest on a rerun)")
+    ap.add_argument("--list", action="store_true",
+                    help="list the conditions and controllers, and the sweep's size; run nothing")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
+        ctrls = _parse_names(args.controllers, CONTROLLERS, "controllers", "controller")
+        trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
+        if args.workers is not None and args.workers < 1:
+            raise UserError(f"--workers: must be >= 1, got {args.workers}")
+        if args.limit is not None and args.limit < 0:
+            raise UserError(f"--limit: must be >= 0, got {args.limit}")
+        if args.list:
+            print("controllers: " + ", ".join(CONTROLLERS))
+            print("conditions:  " + ", ".join(CONDITIONS))
+            print("trajectories: " + ", ".join(TRAJECTORIES))
+        specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
+                            controllers=ctrls, trajectories=trajs, points=args.points)
+        n_vision = sum(s.vision for s in specs)
+        cost = sum(s.cost_s() for s in specs)
+        if args.list:
+            print(f"sweep: {len(specs)} runs ({n_vision} with rendering), ~{cost / 60:.1f} "
+                  "min of work")
+            return 0
+        out = Path(args.out if args.out != build_parser().get_default("out") or not args.quick
+                   else "runs/bench-noise-quick")
+        if out.exists() and not out.is_dir():
+            raise UserError(f"--out {out}: exists and is not a folder")
+        options = {"quick": args.quick, "seeds": args.seeds, "conditions": args.conditions,
+                   "controllers": args.controllers, "trajectories": args.trajectories,
+                   "points": args.points}
+        definition = definition_hash(specs)
+        results = Results(out / "results.csv")
+        # every refusal comes before any write: a foreign --out keeps every row
+        check_sweep_file(out, definition, specs, results)
+        executor = _Dask(args.scheduler) if args.scheduler else _Local(
+            args.workers or os.cpu_count() or 1)
+        record_sweep_file(out, definition, options, specs)
+        results.repair()
+        todo = [s for s in specs if s.run_id not in results.rows]
+        if args.limit is not None:
+            todo = todo[: args.limit]
+        todo_cost = sum(s.cost_s() for s in todo)
+        n_workers = executor.workers
+        where = f"Dask at {args.scheduler}" if args.scheduler else f"{n_workers} local worker(s)"
+        print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
+              f"{len(results.rows)} already done, {len(todo)} to run on {where}: "
+              f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
+        failures: dict[str, str] = {}
+        command = "python -m itg_vision.bench noise " + " ".join(
+            a for a in argv if a not in ("--quiet",))
+        try:
+            _run_all(executor, todo, results, failures, args.quiet)
+        except BaseException:
+            executor.close(cancel=True)
+            raise
+        executor.close()
+        rows = list(results.rows.values())
+        plots = write_report(out, rows, specs, command.strip(), failures)
+        if failures:
+            outputs.write_text(out / "failures.log",
+                               "".join(f"{k}\t{v}\n" for k, v in failures.items()))
+        done = sum(1 for s in specs if s.run_id in results.rows)
+        print(f"{done} of {len(specs)} runs in {out / 'results.csv'}; report {out / 'report.md'}; "
+              f"{len(plots)} plots", file=sys.stderr)
+        if failures:
+            print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
+                  "same command to retry them", file=sys.stderr)
+            return 1
+        return 0
+
+    return run_main(body)
+
+
+def _run_all(executor, todo: list[RunSpec], results: Results, failures: dict, quiet: bool) -> None:
+    from tqdm import tqdm
+
+    weight = {s.run_id: max(1, round(100 * s.cost_s())) for s in todo}  # estimated cost, 10 ms
+    bar = tqdm(total=sum(weight.values()), disable=quiet or not todo, file=sys.stderr,
+               desc="noise sweep",
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix} [{elapsed}<{remaining}]")
+    n_done = 0
+    bar.set_postfix_str(f"0/{len(todo)} runs")
+    try:
+        for spec, res in executor.results(todo):
+            if "error" in res:
+                failures[spec.run_id] = f"{spec.controller} {spec.condition} {spec.trajectory} " \
+                                        f"seed {spec.seed}: {res['error']}"
+                bar.write(f"run failed: {failures[spec.run_id]}", file=sys.stderr)
+            else:
+                results.append(res)
+            n_done += 1
+            bar.update(weight[spec.run_id])
+            bar.set_postfix_str(f"{n_done}/{len(todo)} runs")
+    finally:
+        bar.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,235 @@
+"""`python -m itg_vision.bench noise`: the sweep end to end, resume, Dask, and the claims.
+
+Budget: the whole file runs in about 2 minutes on 2 cores (the quick sweep ~40 s, the Dask
+sweep ~20 s, the model-error runs ~15 s, the rest a few seconds).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+
+import numpy as np
+import pytest
+
+from itg_vision.bench import noise
+from itg_vision.bench.noise import CONTROLLERS, RunSpec, build_sweep, main, perturb_rig
+
+
+def _rows(out):
+    with open(out / "results.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _one_line_error(capsys, what: str):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and what in err[0], err
+    return err[0]
+
+
+# ---------------------------------------------------------------------------- sweep
+@pytest.mark.slow
+def test_quick_sweep_end_to_end(tmp_path):
+    out = tmp_path / "q"
+    t0 = time.perf_counter()
+    assert main(["--quick", "--out", str(out), "--workers", "2", "--quiet"]) == 0
+    wall = time.perf_counter() - t0
+    assert wall < 180, f"--quick took {wall:.0f} s (measured 38 s on 2 idle cores; limit 2 min)"
+    rows = _rows(out)
+    specs = build_sweep(quick=True)
+    assert len(rows) == len(specs) and len({r["run_id"] for r in rows}) == len(rows)
+    assert {r["controller"] for r in rows} == set(CONTROLLERS)
+    for r in rows:
+        for m in ("e_av_mm", "e_max_mm", "e_rms_mm", "e_track_mm", "wall_s"):
+            assert math.isfinite(float(r[m])), (r["controller"], r["condition"], m)
+        int(r["n_missed"]), int(r["n_out_of_reach"])
+    report = (out / "report.md").read_text()
+    assert "## Conclusion" in report and "vs itg-model" in report and "vs ik" in report
+    for k in CONTROLLERS:
+        assert f"| {k} " in report or f" {k} |" in report
+    for png in ("e_av_vs_sigma", "e_av_vs_dropout", "e_av_vs_model_error", "e_av_by_condition"):
+        assert (out / f"{png}-ellipse-t1.png").stat().st_size > 1000
+    # rerunning a finished sweep runs nothing and keeps every row
+    before = (out / "results.csv").read_bytes()
+    assert main(["--quick", "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    assert (out / "results.csv").read_bytes() == before
+
+
+def test_resume_after_interruption_and_a_torn_last_line(tmp_path):
+    # model-fed controllers only: the resume logic is what is tested, not the rendering
+    args = ["--quick", "--controllers", "itg-model,ik", "--seeds", "3", "--out", str(tmp_path),
+            "--quiet"]
+    specs = build_sweep(quick=True, controllers=("itg-model", "ik"), seeds=3)
+    assert main(args + ["--workers", "1", "--limit", "7"]) == 0
+    first = (tmp_path / "results.csv").read_text()
+    assert len(_rows(tmp_path)) == 7
+    # an interruption in the middle of a write: a partial row without its newline
+    with open(tmp_path / "results.csv", "a") as f:
+        f.write(first.splitlines()[3][:25])
+    assert main(args + ["--workers", "2"]) == 0
+    text = (tmp_path / "results.csv").read_text()
+    assert text.startswith(first)  # the finished rows are untouched, in place
+    rows = _rows(tmp_path)
+    ids = [r["run_id"] for r in rows]
+    assert len(ids) == len(set(ids)) == len(specs)
+    assert set(ids) == {s.run_id for s in specs}
+
+
+def test_run_ids_are_stable_and_distinct():
+    a, b = build_sweep(quick=True), build_sweep(quick=True)
+    assert [s.run_id for s in a] == [s.run_id for s in b]
+    assert len({s.run_id for s in a}) == len(a)
+    assert noise.definition_hash(a) != noise.definition_hash(build_sweep(quick=True, seeds=3))
+
+
+# ---------------------------------------------------------------------------- Dask
+@pytest.mark.slow
+def test_dask_path_on_a_local_cluster(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    # processes=True: one PyBullet client per worker process, as on a real cluster
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        code = main(["--quick", "--conditions", "clean,links+5%", "--seeds", "1",
+                     "--controllers", "itg-vision,ik", "--scheduler", cluster.scheduler_address,
+                     "--out", str(tmp_path), "--quiet"])
+    assert code == 0
+    rows = _rows(tmp_path)
+    assert len(rows) == 4 and {r["controller"] for r in rows} == {"itg-vision", "ik"}
+    assert all(math.isfinite(float(r["e_av_mm"])) for r in rows)
+    # the same runs give the same numbers in a local pool (seeded, independent)
+    local = noise.run_one(next(s for s in build_sweep(
+        quick=True, conditions=("clean",), seeds=1, controllers=("itg-vision",))))
+    dask_row = next(r for r in rows if r["controller"] == "itg-vision" and r["condition"] == "clean")
+    assert float(dask_row["e_av_mm"]) == pytest.approx(float(local["e_av_mm"]), rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("opt, value, what", [
+    ("--controllers", "itg-vision,pid", "unknown controller 'pid'"),
+    ("--conditions", "clean,fog", "unknown condition 'fog'"),
+    ("--trajectories", "circle", "unknown trajectory 'circle'"),
+])
+def test_unknown_names_exit_2_with_one_line(tmp_path, capsys, opt, value, what):
+    assert main(["--quick", opt, value, "--out", str(tmp_path / "o")]) == 2
+    _one_line_error(capsys, what)
+    assert not (tmp_path / "o").exists()
+
+
+def test_unreachable_scheduler_exits_2_quickly_and_loses_no_row(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path), "--quiet"]
+    assert main(args + ["--workers", "1"]) == 0
+    before = (tmp_path / "results.csv").read_bytes()
+    capsys.readouterr()
+    t0 = time.perf_counter()
+    assert main(args + ["--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert time.perf_counter() - t0 < 30
+    _one_line_error(capsys, "--scheduler tcp://127.0.0.1:9: cannot connect")
+    assert (tmp_path / "results.csv").read_bytes() == before
+
+
+def test_out_from_a_different_sweep_exits_2_and_loses_no_row(tmp_path, capsys):
+    args = ["--quick", "--controllers", "ik", "--out", str(tmp_path), "--quiet", "--workers", "1"]
+    assert main(args + ["--seeds", "1"]) == 0
+    before = (tmp_path / "results.csv").read_bytes()
+    capsys.readouterr()
+    assert main(args + ["--seeds", "2"]) == 2
+    _one_line_error(capsys, "different sweep definition")
+    assert (tmp_path / "results.csv").read_bytes() == before
+
+
+def test_cli_entry_point_exit_status(cli, tmp_path):
+    res = cli("itg_vision.bench", "noise", "--quick", "--controllers", "nope", "--out", tmp_path / "o")
+    assert res.returncode == 2
+    assert res.stderr.strip().count("\n") == 0 and "unknown controller 'nope'" in res.stderr
+
+
+# ---------------------------------------------------------------------------- rigs
+def test_perturbed_rig_is_off_by_exactly_one_degree_and_five_mm(tmp_path):
+    from itg_vision.camera import Rig
+    from itg_vision.runner import CAMERAS_DIR
+
+    true = Rig.from_yaml(CAMERAS_DIR / "planar.yaml")
+    for each in (False, True):
+        rig = perturb_rig(true, seed=3, each_camera=each)
+        path = tmp_path / f"p{each}.yaml"
+        rig.to_yaml(path)
+        back = Rig.from_yaml(path)
+        assert back.true_rig == str((CAMERAS_DIR / "planar.yaml").resolve())
+        for c0, c1 in zip(true.cameras, back.cameras):
+            dR = c1.R @ c0.R.T
+            angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+            assert angle == pytest.approx(1.0, abs=1e-6)
+            assert c1.K.tolist() == c0.K.tolist() and c1.dist == c0.dist
+            if each:
+                assert np.linalg.norm(c1.position_mm - c0.position_mm) == pytest.approx(5.0, abs=1e-6)
+        if not each:  # one body: the baseline between the cameras is unchanged
+            base0 = true.cameras[1].position_mm - true.cameras[0].position_mm
+            base1 = back.cameras[1].position_mm - back.cameras[0].position_mm
+            assert np.linalg.norm(base1) == pytest.approx(np.linalg.norm(base0), abs=1e-6)
+    a, b = perturb_rig(true, 1), perturb_rig(true, 1)
+    assert a.cameras == b.cameras and perturb_rig(true, 2).cameras != a.cameras
+
+
+# ---------------------------------------------------------------------------- the claims
+def test_jacobian_tracker_converges_from_measured_positions_alone():
+    """Truth feedback (measured marker positions, no model): a constant reachable set point."""
+    from itg_vision.arm import ArmSpec
+    from itg_vision.controllers import JacobianTracker
+    from itg_vision.feedback import TruthFeedback
+    from itg_vision.loop import simulate
+    from itg_vision.world import World
+
+    nominal = ArmSpec.from_args("two-link")
+    true = ArmSpec.from_args("two-link", (107.0, 94.0))  # the tracker never sees these
+    tracker = JacobianTracker(nominal)  # uses only: planar, 2 joints, the base at the origin
+    target = np.array([120.0, 60.0, 0.0])
+    with World(true) as world:
+        trace = simulate(world, tracker, TruthFeedback(), np.tile(target, (300, 1)))
+    e = trace.error_mm()
+    assert e[0] > 50  # it starts far away (the start pose is at (0, 201))
+    assert e[-1] < 0.1 and np.all(e[-50:] < 0.1)  # measured: ~1e-10 mm after 300 iterations
+
+
+@pytest.mark.slow
+def test_model_error_hurts_the_model_based_controllers_not_the_vision_fed_ones():
+    """Simulated links 5 % longer than the nominal model, ellipse-t1 (180 points, seed 0).
+
+    Measured (E_av / E_track = median E_i over the second half, mm, clean -> links+5%):
+    ik 0.000 -> 2.95 / 0.000 -> 2.91; itg-model 6.98 -> 7.95 / 1.37 -> 4.17;
+    itg-vision 6.54 -> 6.98 / 1.33 -> 1.38. E_av is dominated by the initial transient from
+    the start pose, so the steady error (E_track) carries the model-error signal for the ITG.
+    """
+    res = {}
+    for ctrl in ("ik", "itg-model", "itg-vision"):
+        for cond in ("clean", "links+5%"):
+            spec = build_sweep(conditions=(cond,), controllers=(ctrl,), trajectories=("ellipse-t1",),
+                               seeds=1)[0]
+            row = noise.run_one(spec)
+            res[ctrl, cond] = (float(row["e_av_mm"]), float(row["e_track_mm"]))
+
+    def grow(ctrl, i):
+        return res[ctrl, "links+5%"][i] - res[ctrl, "clean"][i]
+
+    assert grow("ik", 0) > 2.5 and grow("ik", 1) > 2.5  # measured +2.95 / +2.91
+    assert grow("itg-model", 1) > 2.0  # measured +2.80
+    assert abs(grow("itg-vision", 1)) < 0.5  # measured +0.05
+    assert abs(grow("itg-vision", 0)) < 1.0  # measured +0.44 (transient, not bias)
+    assert grow("itg-model", 1) > 4 * abs(grow("itg-vision", 1))
+
+
+def test_run_spec_maps_controllers_and_conditions_onto_run_config():
+    specs = {(s.controller, s.condition): s for s in build_sweep(
+        conditions=("clean", "links+5%", "offset-1deg", "noise-1px+links+5%"),
+        trajectories=("ellipse-t1", "line-ab-reach"), seeds=1)
+        if s.trajectory == "ellipse-t1"}
+    cfg = noise.run_config(specs["ik", "clean"])
+    assert (cfg.controller, cfg.feedback, cfg.iterations, cfg.max_step) == ("ik", "model", 1, None)
+    cfg = noise.run_config(specs["itg-vision", "noise-1px+links+5%"])
+    assert (cfg.controller, cfg.feedback, cfg.noise_px) == ("itg", "vision", 1.0)
+    assert cfg.true_links_mm == pytest.approx((105.0, 105.0))
+    assert noise.run_config(specs["jacobian-vision", "offset-1deg"]).joint_offset_deg == (1.0, 1.0)
+    three = [s for s in build_sweep(trajectories=("line-ab-reach",), conditions=("clean",), seeds=1)]
+    assert all(isinstance(s, RunSpec) and s.arm == "three-link" and s.max_step == 2.0
+               and s.iterations == 5 for s in three)
