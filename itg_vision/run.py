@@ -57,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "calibrated rig renders with the true rig it names (default: planar or three-link)")
     ap.add_argument("--noise-px", type=float, default=0.0, help="extra Gaussian centroid noise, px std")
     ap.add_argument("--dropout", type=float, default=0.0, help="probability that an LED detection is dropped")
+    ap.add_argument("--strobe", action="store_true",
+                    help="light one LED per frame (as active-marker systems do) instead of telling "
+                         "them apart by colour; doubles the rendering")
     ap.add_argument("--seed", type=int, default=0, help="seed of every random thing (default %(default)s)")
     ap.add_argument("--out", metavar="DIR", help="output folder (default runs/<arm>-<trajectory>-<feedback>)")
     ap.add_argument("--video", action="store_true", help="also write video.mp4 of both camera views (vision)")
@@ -72,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
                         points=args.points, controller=args.controller, rules=args.rules,
                         gain=args.gain, step=args.step, tolerance=args.tolerance,
                         iterations=args.iterations, max_step=args.max_step, feedback=args.feedback, rig=args.rig,
-                        noise_px=args.noise_px, dropout=args.dropout, seed=args.seed)
+                        noise_px=args.noise_px, dropout=args.dropout, strobe=args.strobe,
+                        seed=args.seed)
         prep = prepare(cfg)
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")

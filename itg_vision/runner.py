@@ -47,6 +47,7 @@ class RunConfig:
     rig: str | None = None
     noise_px: float = 0.0
     dropout: float = 0.0
+    strobe: bool = False
     seed: int = 0
     true_links_mm: tuple[float, ...] | None = None
     joint_offset_deg: tuple[float, ...] | None = None
@@ -144,7 +145,7 @@ def prepare(cfg: RunConfig) -> Prepared:
 
         def feedback_factory():
             return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,
-                                  dropout=cfg.dropout)
+                                  dropout=cfg.dropout, strobe=cfg.strobe)
     return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info)
 
 
@@ -186,6 +187,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "max_step_deg": cfg.max_step,
         "noise_px": cfg.noise_px,
         "dropout": cfg.dropout,
+        "strobe": cfg.strobe,
         "seed": cfg.seed,
         "wall_s": wall_s,
         **prep.info,

@@ -51,6 +51,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .. import outputs
@@ -252,13 +253,6 @@ def definition_hash(specs: list[RunSpec]) -> str:
 
 
 # ---------------------------------------------------------------------------- rigs
-def _rotation(axis, angle_rad: float) -> np.ndarray:
-    """Rodrigues: rotation by ``angle_rad`` about the unit vector ``axis``, shape (3, 3)."""
-    k = np.asarray(axis, float) / np.linalg.norm(axis)
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle_rad) * K + (1.0 - math.cos(angle_rad)) * K @ K
-
-
 def perturb_rig(rig, seed: int, *, angle_deg: float = RIG_ANGLE_DEG,
                 shift_mm: float = RIG_SHIFT_MM, each_camera: bool = False,
                 true_rig: str | Path | None = None):
@@ -286,7 +280,8 @@ def perturb_rig(rig, seed: int, *, angle_deg: float = RIG_ANGLE_DEG,
 
     def draw():
         axis, d = rng.normal(size=3), rng.normal(size=3)
-        return _rotation(axis, math.radians(angle_deg)), shift_mm * d / np.linalg.norm(d)
+        rvec = np.asarray(axis, float) / np.linalg.norm(axis) * math.radians(angle_deg)
+        return cv2.Rodrigues(rvec)[0], shift_mm * d / np.linalg.norm(d)
 
     centres = [c.position_mm for c in rig.cameras]
     pivot = np.mean(centres, axis=0)
