@@ -753,14 +753,14 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
 def _plots(out: Path, summary, trajs, conds, ctrls, plot) -> list[Path]:
     made = []
 
-    def med(t, c, k):
+    def med(t, c, k, metric="e_av"):
         s = summary.get((t, c, k))
-        return s["e_av"][0] if s else float("nan")
+        return s[metric][0] if s else float("nan")
 
-    def curve(t, k, pairs):
+    def curve(t, k, pairs, metric):
         xs, ys = [], []
         for x, c in pairs:
-            y = med(t, c, k)
+            y = med(t, c, k, metric)
             if math.isfinite(y):
                 xs.append(x)
                 ys.append(max(y, 1e-3))  # exact IK: drawn at the floor
@@ -780,13 +780,14 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot) -> list[Path]:
             if len(pairs) < 2:
                 continue
             pairs.sort()
-            series = {k: curve(t, k, pairs) for k in ctrls}
-            series = {k: v for k, v in series.items() if v[0]}
-            path = out / f"e_av_vs_{name}-{t}.png"
-            plot.lines_figure(series, xlabel, "median E_av (mm; < 0.001 drawn at 0.001)",
-                              f"{t}: E_av against {xlabel}",
-                              path, logy=True)
-            made.append(path)
+            # E_av (the paper's metric, start transient included) and E_track (settled error)
+            for metric, label in (("e_av", "E_av"), ("e_track", "E_track")):
+                series = {k: curve(t, k, pairs, metric) for k in ctrls}
+                series = {k: v for k, v in series.items() if v[0]}
+                path = out / f"{metric}_vs_{name}-{t}.png"
+                plot.lines_figure(series, xlabel, f"median {label} (mm; < 0.001 drawn at 0.001)",
+                                  f"{t}: {label} against {xlabel}", path, logy=True)
+                made.append(path)
         values = {k: [med(t, c, k) for c in conds] for k in ctrls}
         path = out / f"e_av_by_condition-{t}.png"
         plot.grouped_bars_figure(conds, values, "median E_av (mm)",
