@@ -52,9 +52,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from trimesh.registration import procrustes
+from trimesh.transformations import quaternion_from_matrix
 
 from . import outputs
-from .camera import Camera, Rig
+from .camera import DEFAULT_RIG, Camera, Rig, resolve_rig
 from .errors import UserError, run_main
 
 #: Fewest views (board found by both cameras) accepted for a calibration.
@@ -76,10 +78,9 @@ SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
 #: Margin (px) the board's outline keeps from the image border.
 BORDER_PX = 8.0
 
-_ROOT = Path(__file__).resolve().parent.parent
-CAMERAS_DIR = _ROOT / "cameras"
-#: The arm whose LEDs tie a rig to the base frame, by rig name (others: two-link).
-ARM_OF_RIG = {"planar": "two-link", "three-link": "three-link"}
+#: The arm whose LEDs tie a rig to the base frame, by rig name (others: two-link). The one-link
+#: arm shares the planar rig but carries one LED, on one circle: too little for the base fit.
+ARM_OF_RIG = {rig: arm for arm, rig in DEFAULT_RIG.items() if arm != "one-link"}
 
 
 # ---------------------------------------------------------------------------- the board
@@ -179,25 +180,14 @@ class BoardPose:
 
 
 def quaternion_xyzw(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation matrix, shape (4,)."""
-    R = np.asarray(R, float)
-    w = np.sqrt(max(0.0, 1 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
-    x = np.sqrt(max(0.0, 1 + R[0, 0] - R[1, 1] - R[2, 2])) / 2
-    y = np.sqrt(max(0.0, 1 - R[0, 0] + R[1, 1] - R[2, 2])) / 2
-    z = np.sqrt(max(0.0, 1 - R[0, 0] - R[1, 1] + R[2, 2])) / 2
-    x = np.copysign(x, R[2, 1] - R[1, 2])
-    y = np.copysign(y, R[0, 2] - R[2, 0])
-    z = np.copysign(z, R[1, 0] - R[0, 1])
-    q = np.array([x, y, z, w])
-    return q / np.linalg.norm(q)
+    """Unit quaternion (x, y, z, w), PyBullet's order, of a rotation matrix, shape (4,)."""
+    w, x, y, z = quaternion_from_matrix(np.asarray(R, float))
+    return np.array([x, y, z, w])
 
 
 def _axis_rotation(axis: int, angle_rad: float) -> np.ndarray:
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    R = np.eye(3)
-    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
-    return R
+    """Rotation by ``angle_rad`` about world axis 0 (x), 1 (y) or 2 (z)."""
+    return cv2.Rodrigues(np.eye(3)[axis] * angle_rad)[0]
 
 
 def board_visible(camera: Camera, board: Board, pose: BoardPose,
@@ -524,7 +514,7 @@ def place_rig(rig_c1: Rig, R_w: np.ndarray, t_w: np.ndarray, name: str) -> Rig:
 
 
 def rigid_fit(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rigid motion (Kabsch): ``B ~ R @ A + t``.
+    """Least-squares rigid motion (Kabsch, no scale or reflection): ``B ~ R @ A + t``.
 
     Parameters
     ----------
@@ -534,13 +524,9 @@ def rigid_fit(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     -------
     R : (3, 3), t : (3,).
     """
-    A = np.asarray(A, float)
-    B = np.asarray(B, float)
-    ca, cb = A.mean(axis=0), B.mean(axis=0)
-    U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cb - R @ ca
+    M, _, _ = procrustes(np.asarray(A, float), np.asarray(B, float), reflection=False,
+                         translation=True, scale=False)
+    return M[:3, :3], M[:3, 3]
 
 
 # ---------------------------------------------------------------------------- LEDs
@@ -624,7 +610,8 @@ def led_errors(rig: Rig, arm, shots) -> dict[tuple[int, str], float]:
 
 # ---------------------------------------------------------------------------- errors
 def _rot_angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+    """Angle (deg) of a rotation matrix."""
+    return float(np.degrees(np.linalg.norm(cv2.Rodrigues(np.asarray(R, float))[0])))
 
 
 def distortion_field_error_px(true: Camera, est: Camera, n: int = 21) -> float:
@@ -789,16 +776,6 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
 
 
 # ---------------------------------------------------------------------------- command line
-def resolve_rig_path(text: str | None) -> Path:
-    """``--rig``: a name (``cameras/<name>.yaml``) or a path; None: the planar rig."""
-    if text is None:
-        return CAMERAS_DIR / "planar.yaml"
-    p = Path(text)
-    if p.suffix in (".yaml", ".yml") or "/" in text or os.sep in text:
-        return p
-    return CAMERAS_DIR / f"{text}.yaml"
-
-
 def default_out(rig_path: Path) -> Path:
     """``cameras/planar.yaml`` -> ``cameras/planar.calib.yaml``."""
     return rig_path.with_name(f"{rig_path.stem}.calib.yaml")
@@ -917,7 +894,7 @@ def main(argv: list[str] | None = None) -> int:
         for ok, msg in checks:
             if not ok:
                 raise UserError(msg)
-        rig_path = resolve_rig_path(args.rig)
+        rig_path = resolve_rig(args.rig or "planar")
         true_rig = Rig.from_yaml(rig_path)
         if true_rig.true_rig:
             raise UserError(f"{rig_path} is already a calibrated rig (of {true_rig.true_rig}); "

@@ -41,8 +41,26 @@ import yaml
 from .errors import UserError
 
 _MM = 1e-3
+#: Where the shipped rigs and their calibrations live.
+CAMERAS_DIR = Path(__file__).resolve().parent.parent / "cameras"
+#: The shipped rig that sees each arm.
+DEFAULT_RIG = {"one-link": "planar", "two-link": "planar", "three-link": "three-link"}
 #: Iterations of cv2.undistortPoints: the default 5 leaves ~0.1 px error in the corners.
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+
+
+# ---------------------------------------------------------------------------- rig files
+def resolve_rig(name_or_path: str) -> Path:
+    """``--rig``: a shipped rig by name (``cameras/<name>.yaml``) or a path to a rig file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or "/" in name_or_path or os.sep in name_or_path:
+        return p
+    return CAMERAS_DIR / f"{name_or_path}.yaml"
+
+
+def default_rig_path(arm: str, calibrated: bool = False) -> Path:
+    """The shipped rig of an arm (``cameras/<rig>.yaml``), or its calibration."""
+    return CAMERAS_DIR / f"{DEFAULT_RIG[arm]}{'.calib' if calibrated else ''}.yaml"
 
 
 # ---------------------------------------------------------------------------- pure functions

@@ -19,7 +19,6 @@ import numpy as np
 from .camera import UNDISTORT_CRITERIA, Camera, gl_projection_matrix
 
 
-
 @dataclass(frozen=True)
 class RenderPlan:
     """How to render one camera: the enlarged pinhole frame and the distortion maps.
@@ -132,9 +131,13 @@ def gaussian_noise(shape, sigma_gray: float, rng: np.random.Generator) -> np.nda
     Two random bytes per value index a table of 65536 quantiles: a Gaussian truncated at
     4.3 sigma, about 2x faster than ``rng.standard_normal`` for a full frame.
     """
-    n = int(np.prod(shape))
-    idx = np.frombuffer(rng.bytes(2 * n), dtype=np.uint16)
-    return _gaussian_table(float(sigma_gray))[idx].reshape(shape)
+    return _draw(_gaussian_table(float(sigma_gray)), shape, rng)
+
+
+def _draw(table: np.ndarray, shape, rng: np.random.Generator) -> np.ndarray:
+    """Values of a 65536-entry table at two random bytes per value, shape ``shape``."""
+    idx = np.frombuffer(rng.bytes(2 * int(np.prod(shape))), dtype=np.uint16)
+    return table[idx].reshape(shape)
 
 
 def add_sensor_noise(image: np.ndarray, camera: Camera,
@@ -166,9 +169,7 @@ def add_sensor_noise(image: np.ndarray, camera: Camera,
 
 def _rounded_noise(shape, sigma_gray: float, rng: np.random.Generator) -> np.ndarray:
     """`gaussian_noise` rounded to integers, int16."""
-    n = int(np.prod(shape))
-    idx = np.frombuffer(rng.bytes(2 * n), dtype=np.uint16)
-    return _rounded_table(float(sigma_gray))[idx].reshape(shape)
+    return _draw(_rounded_table(float(sigma_gray)), shape, rng)
 
 
 @lru_cache(maxsize=8)

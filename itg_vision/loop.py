@@ -45,6 +45,14 @@ class Trace:
         diff = (d - g)[:, :2] if self.planar else d - g
         return np.linalg.norm(diff, axis=1)
 
+    def tracking_error_mm(self) -> float | None:
+        """Median E_i over the second half of the set points in reach: the error once the start
+        transient is over (E_av and E_max include it)."""
+        e = self.error_mm()
+        half = len(e) // 2
+        late = e[half:][~np.asarray(self.out_of_reach, bool)[half:]]
+        return float(np.median(late)) if late.size else None
+
     def metrics(self) -> dict:
         e = self.error_mm()
         ok = ~np.asarray(self.out_of_reach, bool)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import outputs, plot
+from . import trajectory as traj
 from .errors import UserError, run_main
 from .loop import simulate
 from .runner import RunConfig, execute, prepare
@@ -115,8 +116,8 @@ def exp4(base, out) -> dict:
 def exp5(base, out) -> dict:
     res, series_first, series_second = {}, {}, {}
     for n in (180, 360, 720):
-        prep = prepare(replace(base, arm="two-link", trajectory="ellipse-t1", points=n))
-        pts, ang = prep.trajectory.points_mm, prep.trajectory.param_deg
+        t1 = traj.named("ellipse-t1", n)
+        pts, ang = t1.points_mm, t1.param_deg
         e = _simulate_points(base, np.vstack([pts, pts]), points=n).error_mm()  # two laps
         first, second = e[:n], e[n:]
         series_first[f"n_t={n}"] = (ang, first)

@@ -406,18 +406,26 @@ class RuleBase:
         return namespace["_itg_step"]
 
     # -------------------------------------------------------------- run
-    def step(self, desired_mm, markers, q_deg) -> Step:
-        """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""
+    @property
+    def compiled(self):
+        """The compiled rule function; it takes :meth:`arguments` and returns (dq, fired)."""
+        return self._fn
+
+    def arguments(self, desired_mm, markers, q_deg) -> tuple[float, ...]:
+        """The compiled function's arguments, in its order, as plain Python floats (with NaN,
+        comparisons are False and raise no warning)."""
         d, g, e = desired_mm, markers.gripper_mm, markers.elbow_mm
         xd, yd, zd = float(d[0]), float(d[1]), float(d[2])
         xg, yg, zg = float(g[0]), float(g[1]), float(g[2])
         xe, ye, ze = float(e[0]), float(e[1]), float(e[2])
         links = self.links_mm
-        # plain Python floats: comparisons with NaN are False and raise no warning
-        dq, fired = self._fn(xd, yd, zd, xg, yg, zg, xe, ye, ze,
-                             xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
-                             *(float(q) for q in q_deg), self.f, self.S, self.w,
-                             links[0], *links)
+        return (xd, yd, zd, xg, yg, zg, xe, ye, ze,
+                xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
+                *(float(q) for q in q_deg), self.f, self.S, self.w, links[0], *links)
+
+    def step(self, desired_mm, markers, q_deg) -> Step:
+        """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""
+        dq, fired = self._fn(*self.arguments(desired_mm, markers, q_deg))
         if dq is None:
             return Step(np.zeros(self.n_joints), tuple(fired), True)
         if any(v != v for v in dq):  # a NaN estimate must never move a joint

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 
 from tqdm import tqdm
@@ -85,13 +86,15 @@ def main(argv: list[str] | None = None) -> int:
         bar = tqdm(total=len(prep.trajectory), desc=name, unit="pt", disable=args.quiet,
                    file=sys.stderr)
         with outputs.staged_dir(out) as tmp:
-            recorder = None
+            recorder = nullcontext()
             if args.video:
                 from .video import VideoRecorder
 
                 recorder = VideoRecorder(tmp / "video.mp4")
                 prep.info["video"] = "video.mp4"
-            trace, summary = execute(prep, progress=bar.update, recorder=recorder)
+            with recorder:
+                trace, summary = execute(prep, progress=bar.update,
+                                         recorder=recorder if args.video else None)
             bar.close()
             cols, rows = trace.rows()
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))

@@ -11,6 +11,7 @@ import numpy as np
 
 from . import trajectory as traj
 from .arm import ArmSpec
+from .camera import CAMERAS_DIR, DEFAULT_RIG, default_rig_path, resolve_rig  # noqa: F401 (re-exported)
 from .errors import UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .loop import Trace, simulate
@@ -20,8 +21,6 @@ from .world import World
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
 DEFAULT_TRAJECTORY = {"one-link": "arc", "two-link": "ellipse-t1", "three-link": "line-ab-reach"}
-CAMERAS_DIR = Path(__file__).resolve().parent.parent / "cameras"
-DEFAULT_RIG = {"one-link": "planar", "two-link": "planar", "three-link": "three-link"}
 
 
 @dataclass(frozen=True)
@@ -80,12 +79,7 @@ class RunConfig:
 
     @property
     def rig_path(self) -> Path:
-        if self.rig is None:
-            return CAMERAS_DIR / f"{DEFAULT_RIG.get(self.arm, 'planar')}.yaml"
-        p = Path(self.rig)
-        if p.suffix in (".yaml", ".yml") or "/" in self.rig:
-            return p
-        return CAMERAS_DIR / f"{self.rig}.yaml"
+        return default_rig_path(self.arm) if self.rig is None else resolve_rig(self.rig)
 
 
 @dataclass
@@ -101,8 +95,12 @@ class Prepared:
     info: dict = field(default_factory=dict)
 
 
-def prepare(cfg: RunConfig) -> Prepared:
-    """Validate every input (files included) and build the pieces; raises ``UserError``."""
+def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
+    """Validate every input (files included) and build the pieces; raises ``UserError``.
+
+    ``estimate_rig``: a :class:`itg_vision.camera.Rig` built in code to estimate with, in place
+    of the file ``cfg.rig_path`` (it renders with the rig its ``true_rig`` names).
+    """
     cfg.validate()
     model = ArmSpec.from_args(cfg.arm, cfg.links_mm)
     true_arm = model
@@ -136,11 +134,12 @@ def prepare(cfg: RunConfig) -> Prepared:
         from .camera import Rig
         from .feedback import VisionFeedback
 
-        estimate_rig = Rig.from_yaml(cfg.rig_path)
+        if estimate_rig is None:
+            estimate_rig = Rig.from_yaml(cfg.rig_path)
         render_rig = estimate_rig
         if estimate_rig.true_rig:
             render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
-        info["estimate_rig"] = str(cfg.rig_path)
+        info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
 
         def feedback_factory():
@@ -168,8 +167,6 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         trace = simulate(world, prep.controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
                          max_step_deg=cfg.max_step, progress=progress, recorder=recorder)
-    if recorder is not None:
-        recorder.close()
     wall_s = time.perf_counter() - t0
     summary = {
         **trace.metrics(),

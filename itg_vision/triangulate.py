@@ -14,7 +14,7 @@ from .camera import Camera, Rig
 
 def project_pinhole(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
     """Pinhole projection ``K [R | t] X``: shape (n, 3) -> (n, 2) px."""
-    Xc = np.asarray(X_mm, float).reshape(-1, 3) @ camera.R.T + camera.t_mm
+    Xc = camera.to_camera(np.asarray(X_mm, float).reshape(-1, 3))
     return np.stack([camera.fx * Xc[:, 0] / Xc[:, 2] + camera.cx,
                      camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], axis=1)
 
@@ -30,8 +30,7 @@ def projection_jacobian(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
     -------
     J : ndarray, shape (n, 2, 3), px per mm.
     """
-    R = camera.R
-    Xc = np.asarray(X_mm, float).reshape(-1, 3) @ R.T + camera.t_mm
+    Xc = camera.to_camera(np.asarray(X_mm, float).reshape(-1, 3))
     x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
     n = Xc.shape[0]
     D = np.zeros((n, 2, 3))  # d(u, v) / d(x_cam)
@@ -39,7 +38,7 @@ def projection_jacobian(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
     D[:, 0, 2] = -camera.fx * x / z**2
     D[:, 1, 1] = camera.fy / z
     D[:, 1, 2] = -camera.fy * y / z**2
-    return D @ R
+    return D @ camera.R
 
 
 def _residuals(rig: Rig, X: np.ndarray, uv1: np.ndarray, uv2: np.ndarray) -> np.ndarray:

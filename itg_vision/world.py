@@ -105,6 +105,13 @@ class World:
         p.changeVisualShape(self.body, self._leds[name], rgbaColor=[*rgb, 1.0],
                             physicsClientId=self.client)
 
+    def inverse_kinematics(self, target_mm, marker: str = "gripper") -> np.ndarray:
+        """PyBullet's numerical IK: joint angles (deg) putting ``marker`` at ``target_mm``."""
+        q = p.calculateInverseKinematics(self.body, self._leds[marker],
+                                         [float(v) * _MM for v in target_mm],
+                                         physicsClientId=self.client)
+        return np.degrees(q) - np.degrees(self._offset_rad)
+
     # ------------------------------------------------------------------ extra bodies
     def add_box(self, half_extents_mm, rgba=(1, 1, 1, 1)) -> int:
         """A visual-only box (e.g. a calibration board); returns its body id."""
@@ -156,18 +163,3 @@ class World:
     def __exit__(self, *exc) -> None:
         self.close()
 
-
-def pybullet_ik_timer(arm: ArmSpec, points_mm, repeat: int = 7) -> float:
-    """Median microseconds of one ``calculateInverseKinematics`` call on the arm's body."""
-    import time
-
-    with World(arm) as w:
-        link = w._leds["gripper"]
-        targets = [[float(v) * _MM for v in (pt[0], pt[1], arm.led_standoff_mm)] for pt in points_mm]
-        times = []
-        for _ in range(repeat):
-            t0 = time.perf_counter()
-            for tgt in targets:
-                p.calculateInverseKinematics(w.body, link, tgt, physicsClientId=w.client)
-            times.append((time.perf_counter() - t0) / len(targets))
-    return float(np.median(times) * 1e6)

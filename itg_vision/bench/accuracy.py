@@ -15,10 +15,9 @@ import sys
 import numpy as np
 
 from ..arm import ArmSpec
-from ..camera import Rig
+from ..camera import Rig, default_rig_path
 from ..errors import UserError, run_main
 from ..feedback import VisionFeedback
-from ..runner import CAMERAS_DIR, DEFAULT_RIG
 from ..triangulate import predicted_rms_error_mm
 from ..world import World
 
@@ -34,11 +33,12 @@ def random_poses(arm: ArmSpec, n: int, rng: np.random.Generator) -> np.ndarray:
 def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     poses = random_poses(arm, n_poses, rng)
-    centroid_err, per_sigma = [], {s: ([], []) for s in sigmas}
+    centroid_err, pts, errs = [], [], {s: [] for s in sigmas}
     with World(arm) as world:
         for k, q in enumerate(poses):
             world.set_q(q)
             truth = world.true_markers()
+            pts += [truth[n] for n in arm.marker_names]
             for s in sigmas:
                 fb = VisionFeedback(rig, rig, arm, noise_px=s)
                 fb.reset(seed * 100003 + k)
@@ -46,7 +46,7 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int) -> dict:
                 for name in arm.marker_names:
                     if name in m.missed:
                         continue
-                    per_sigma[s][0].append(float(np.linalg.norm(m.get(name) - truth[name])))
+                    errs[s].append(float(np.linalg.norm(m.get(name) - truth[name])))
                     if s == 0:
                         for cam, uv in zip(rig.cameras, fb.last_uv_raw[name]):
                             centroid_err.append(uv - cam.project(truth[name]).reshape(2))
@@ -55,19 +55,13 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int) -> dict:
     out = {"n_poses": n_poses, "centroid_mean_px": c.mean(axis=0).tolist(),
            "centroid_rms_px": float(np.sqrt(np.mean(np.sum(c**2, axis=1)))), "sigma_render_px": sigma_render,
            "rows": []}
-    with World(arm) as world:  # predictions at the same points
-        pts = []
-        for q in poses:
-            world.set_q(q)
-            t = world.true_markers()
-            pts += [t[n] for n in arm.marker_names]
+    pts = np.array(pts)
     for s in sigmas:
-        errs = np.array(per_sigma[s][0])
-        total = float(np.hypot(s, sigma_render))
-        pred = np.sqrt(np.mean([predicted_rms_error_mm(rig, X, total) ** 2 for X in pts]))
-        meas = float(np.sqrt(np.mean(errs**2)))
-        out["rows"].append({"sigma_px": s, "measured_rms_mm": meas, "predicted_rms_mm": float(pred),
-                            "ratio": meas / float(pred), "n": int(errs.size)})
+        e = np.array(errs[s])
+        pred = float(np.sqrt(np.mean(predicted_rms_error_mm(rig, pts, float(np.hypot(s, sigma_render))) ** 2)))
+        meas = float(np.sqrt(np.mean(e**2)))
+        out["rows"].append({"sigma_px": s, "measured_rms_mm": meas, "predicted_rms_mm": pred,
+                            "ratio": meas / pred, "n": int(e.size)})
     return out
 
 
@@ -83,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         arm = ArmSpec.from_args(args.arm)
         if args.poses < 5:
             raise UserError("--poses: at least 5")
-        rig = Rig.from_yaml(args.rig or CAMERAS_DIR / f"{DEFAULT_RIG[arm.name]}.yaml")
+        rig = Rig.from_yaml(args.rig or default_rig_path(arm.name))
         r = measure(arm, rig, (0.0, 0.1, 0.3, 1.0), args.poses, args.seed)
         print(f"{arm.name} on {rig.name}: {r['n_poses']} random poses, seed {args.seed}")
         print(f"centroid vs true projection: mean ({r['centroid_mean_px'][0]:+.3f}, {r['centroid_mean_px'][1]:+.3f}) px, "

@@ -47,7 +47,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -193,9 +192,9 @@ def _parse_names(text: str | None, known, what: str, noun: str) -> tuple[str, ..
 
 
 def calibrated_rig_path(arm: str) -> Path:
-    from ..runner import CAMERAS_DIR, DEFAULT_RIG
+    from ..camera import default_rig_path
 
-    return CAMERAS_DIR / f"{DEFAULT_RIG[arm]}.calib.yaml"
+    return default_rig_path(arm, calibrated=True)
 
 
 def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
@@ -239,7 +238,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
 def _calibrated_rig_sha(arm: str) -> str:
     path = calibrated_rig_path(arm)
     if not path.exists():
-        from ..runner import DEFAULT_RIG
+        from ..camera import DEFAULT_RIG
 
         raise UserError(f"condition rig-calibrated needs {path}: make it with `python -m "
                         f"itg_vision.calibrate --rig {DEFAULT_RIG[arm]} --out {path}`, or leave "
@@ -305,21 +304,6 @@ def perturb_rig(rig, seed: int, *, angle_deg: float = RIG_ANGLE_DEG,
     return Rig(f"{rig.name}-perturbed", tuple(cams), "", record, str(Path(truth).resolve()))
 
 
-def write_perturbed_rig(arm: str, seed: int, folder: str | Path, each_camera: bool = False) -> Path:
-    """Perturb the arm's default (true) rig with ``seed``; write it to ``folder``; its path."""
-    from ..camera import Rig
-    from ..runner import CAMERAS_DIR, DEFAULT_RIG
-
-    true_path = CAMERAS_DIR / f"{DEFAULT_RIG[arm]}.yaml"
-    rig = perturb_rig(Rig.from_yaml(true_path), seed, each_camera=each_camera, true_rig=true_path)
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    kind = "perturbed-cams" if each_camera else "perturbed"
-    path = folder / f"{DEFAULT_RIG[arm]}-{kind}-seed{seed}.yaml"
-    rig.to_yaml(path)
-    return path
-
-
 # ---------------------------------------------------------------------------- one run
 def run_config(spec: RunSpec, rig_path: str | None = None):
     """The :class:`itg_vision.runner.RunConfig` of a spec (``rig_path``: the rig believed)."""
@@ -341,33 +325,25 @@ def run_one(spec: RunSpec) -> dict:
     """Execute one spec (in a worker); return its results row, or ``{'run_id', 'error'}``.
 
     Builds its own World (PyBullet clients are per process) and, for ``rig-perturbed``, its own
-    perturbed rig file in a temporary folder: nothing is shared with the caller but the spec.
+    perturbed rig in memory: nothing is shared with the caller but the spec.
     """
+    from ..camera import Rig, default_rig_path
     from ..runner import execute, prepare
 
     try:
-        with tempfile.TemporaryDirectory(prefix="itg-noise-") as tmp:
-            rig_path = None
-            if spec.vision and spec.rig == "calibrated":
-                rig_path = str(calibrated_rig_path(spec.arm))
-            elif spec.vision and spec.rig in ("perturbed", "perturbed-cams"):
-                rig_path = str(write_perturbed_rig(spec.arm, spec.seed, tmp,
-                                                   each_camera=spec.rig == "perturbed-cams"))
-            prep = prepare(run_config(spec, rig_path))  # reads the rig files now
+        rig_path, rig = None, None
+        if spec.vision and spec.rig == "calibrated":
+            rig_path = str(calibrated_rig_path(spec.arm))
+        elif spec.vision and spec.rig in ("perturbed", "perturbed-cams"):
+            true_path = default_rig_path(spec.arm)
+            rig = perturb_rig(Rig.from_yaml(true_path), spec.seed,
+                              each_camera=spec.rig == "perturbed-cams", true_rig=true_path)
+        prep = prepare(run_config(spec, rig_path), estimate_rig=rig)
         trace, s = execute(prep)
-        s["e_track_mm"] = tracking_error_mm(trace)
+        s["e_track_mm"] = trace.tracking_error_mm()
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
         return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
     return make_row(spec, s)
-
-
-def tracking_error_mm(trace) -> float | None:
-    """Median E_i over the second half of the set points in reach: the error once the initial
-    transient from the start pose is over (E_av and E_max include it)."""
-    e = trace.error_mm()
-    ok = ~np.asarray(trace.out_of_reach, bool)
-    late = e[len(e) // 2:][ok[len(e) // 2:]]
-    return float(np.median(late)) if late.size else None
 
 
 COLUMNS = ["run_id", "controller", "condition", "trajectory", "arm", "points", "seed",
@@ -479,6 +455,14 @@ def record_sweep_file(out: Path, definition: str, options: dict, specs: list[Run
 
 
 # ---------------------------------------------------------------------------- executors
+def _outcome(spec: RunSpec, future) -> dict:
+    """A finished future's row, or an error row when its worker died (reported per run)."""
+    try:
+        return future.result()
+    except Exception as exc:  # noqa: BLE001 - a dead or lost worker
+        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
+
+
 class _Local:
     """A process pool (or the calling process when workers == 1)."""
 
@@ -501,12 +485,7 @@ class _Local:
 
         futures = {self.pool.submit(run_one, s): s for s in specs}
         for fut in as_completed(futures):
-            spec = futures[fut]
-            try:
-                res = fut.result()
-            except Exception as exc:  # noqa: BLE001 - a dead worker, reported per run
-                res = {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
-            yield spec, res
+            yield futures[fut], _outcome(futures[fut], fut)
 
     def close(self, cancel: bool = False) -> None:
         if self.pool is None:
@@ -540,12 +519,7 @@ class _Dask:
                    for s in specs}
         with self.client.as_current():  # as_completed looks for the current client
             for fut in as_completed(list(futures)):
-                spec = futures[fut]
-                try:
-                    res = fut.result()
-                except Exception as exc:  # noqa: BLE001 - a lost worker, reported per run
-                    res = {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
-                yield spec, res
+                yield futures[fut], _outcome(futures[fut], fut)
 
     def close(self, cancel: bool = False) -> None:
         self.client.close()

@@ -15,11 +15,13 @@ import time
 import numpy as np
 
 from ..arm import ArmSpec, forward_kinematics
+from ..camera import Rig, default_rig_path
 from ..controllers import two_link_ik
 from ..errors import run_main
-from ..feedback import Markers
+from ..feedback import Markers, VisionFeedback
 from ..rules import load_rules
 from .. import trajectory as traj
+from ..world import World
 
 
 def _per_call_us(fn, args_list, repeat: int) -> float:
@@ -46,23 +48,16 @@ def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
         states.append(Markers(m["gripper"], m["elbow"]))
     rule_args = [(p, s, q) for p, s, q in zip(pts, states, qs)]
     # the compiled function alone (what a microcontroller port would run) and RuleBase.step
-    fn = rb._fn
-    raw_args = []
-    for p, s, q in zip(pts, states, qs):
-        g, e = s.gripper_mm, s.elbow_mm
-        raw_args.append(tuple(float(v) for v in (p[0], p[1], 0.0, g[0], g[1], g[2], e[0], e[1], e[2],
-                                                 p[0] ** 2 + p[1] ** 2, g[0] ** 2 + g[1] ** 2,
-                                                 e[0] ** 2 + e[1] ** 2, q[0], q[1], 0.5, 2.0, 0.5,
-                                                 100.0, 100.0, 100.0)))
+    raw_args = [rb.arguments(*a) for a in rule_args]
     ik_args = [(float(p[0]), float(p[1]), 100.0, 100.0) for p in pts]
     out = {
-        "rules_compiled_us": _per_call_us(fn, raw_args, repeat),
+        "rules_compiled_us": _per_call_us(rb.compiled, raw_args, repeat),
         "rules_step_us": _per_call_us(rb.step, rule_args, repeat),
         "ik_closed_form_us": _per_call_us(two_link_ik, ik_args, repeat),
     }
-    from ..world import pybullet_ik_timer
-
-    out["ik_pybullet_us"] = pybullet_ik_timer(arm, pts, repeat)
+    with World(arm) as world:
+        targets = [((p[0], p[1], arm.led_standoff_mm),) for p in pts]
+        out["ik_pybullet_us"] = _per_call_us(world.inverse_kinematics, targets, repeat)
     return out
 
 
@@ -73,23 +68,15 @@ def vision_costs(sizes=((320, 240), (640, 480), (1280, 960)), frames: int = 40,
     The two-link arm tracks ellipse T1 (180 points); the first ``settle`` set points (the start
     transient, where the LEDs jump farther than the detection window) are not timed.
     """
-    try:
-        from ..camera import Rig
-        from ..feedback import VisionFeedback
-        from ..runner import CAMERAS_DIR
-    except ImportError:
-        return []
-    from ..world import World
-
     arm = ArmSpec.from_args("two-link")
-    base = Rig.from_yaml(CAMERAS_DIR / "planar.yaml")
+    base = Rig.from_yaml(default_rig_path(arm.name))
+    rules = load_rules("table2", 2, arm.links_mm, f=0.5)
+    pts = traj.named("ellipse-t1").points_mm  # the paper's 180 points: ~2 mm per step
     rows = []
     for w, h in sizes:
         rig = base.scaled(w / base.cameras[0].image_width)
         fb = VisionFeedback(rig, rig, arm)
         fb.reset(0)
-        rules = load_rules("table2", 2, arm.links_mm, f=0.5)
-        pts = traj.named("ellipse-t1").points_mm  # the paper's 180 points: ~2 mm per step
         stage = {"render": [], "detect": [], "triangulate": [], "rules": [], "loop": []}
         with World(arm) as world:
             for p in pts[:settle]:  # the start transient (large jumps), untimed
@@ -128,17 +115,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{label:<44}{c[key]:>10.3f}{c[key] / base:>10.2f}")
         if not args.no_vision:
             rows = vision_costs(frames=args.frames)
-            if rows:
-                print("\nvision loop per iteration, two LEDs, two cameras (median ms over "
-                      f"{args.frames} set points of ellipse T1 after its start transient; one core)")
-                print(f"{'size':<11}{'render':>9}{'detect':>9}{'triang.':>9}{'rules':>9}"
-                      f"{'det+tri':>9}{'loop':>9}{'Hz':>8}")
-                for r in rows:
-                    print(f"{r['size']:<11}{r['render_ms']:>9.2f}{r['detect_ms']:>9.3f}"
-                          f"{r['triangulate_ms']:>9.3f}{r['rules_ms']:>9.4f}"
-                          f"{r['detect_ms'] + r['triangulate_ms']:>9.3f}{r['loop_ms']:>9.2f}{r['loop_hz']:>8.1f}")
-                print("det+tri per LED (one stereo pair, rendering excluded): "
-                      + ", ".join(f"{r['size']} {(r['detect_ms'] + r['triangulate_ms']) / 2:.3f} ms" for r in rows))
+            print("\nvision loop per iteration, two LEDs, two cameras (median ms over "
+                  f"{args.frames} set points of ellipse T1 after its start transient; one core)")
+            print(f"{'size':<11}{'render':>9}{'detect':>9}{'triang.':>9}{'rules':>9}"
+                  f"{'det+tri':>9}{'loop':>9}{'Hz':>8}")
+            for r in rows:
+                print(f"{r['size']:<11}{r['render_ms']:>9.2f}{r['detect_ms']:>9.3f}"
+                      f"{r['triangulate_ms']:>9.3f}{r['rules_ms']:>9.4f}"
+                      f"{r['detect_ms'] + r['triangulate_ms']:>9.3f}{r['loop_ms']:>9.2f}{r['loop_hz']:>8.1f}")
+            print("det+tri per LED (one stereo pair, rendering excluded): "
+                  + ", ".join(f"{r['size']} {(r['detect_ms'] + r['triangulate_ms']) / 2:.3f} ms" for r in rows))
         return 0
 
     return run_main(body)
