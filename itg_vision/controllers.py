@@ -4,8 +4,8 @@
   (it ignores the feedback): what most users would pick. Wrong when the arm differs from the
   model.
 - :class:`JacobianTracker`: no kinematic model; the Jacobian's columns come from the measured
-  marker positions (for a planar arm: column 1 is the gripper position turned by 90 degrees,
-  column 2 the gripper-minus-elbow vector turned by 90 degrees), solved by damped least squares.
+  marker positions (each joint's axis crossed with its lever to the gripper LED), solved by
+  damped least squares.
 
 Both return :class:`itg_vision.rules.Step`, like the rule base.
 """
@@ -40,8 +40,32 @@ def two_link_ik(x: float, y: float, l1: float, l2: float) -> tuple[tuple[float, 
     return tuple(out)
 
 
+def three_link_ik(p_mm, links_mm, standoff_mm=0.0) -> tuple[tuple[float, float, float], ...]:
+    """Closed-form solutions (q1, q2, q3) in degrees putting the three-link gripper LED at ``p``.
+
+    The LED sits ``standoff_mm`` beside the forearm's tip along the pitch axis
+    a = (sin q1, -cos q1, 0) (see :func:`itg_vision.arm.forward_kinematics`), so its horizontal
+    position is r d + h a with d = (cos q1, sin q1): |p_xy|^2 = r^2 + h^2 and
+    q1 = atan2(p_y, p_x) + atan2(h, r), for r = +-sqrt(|p_xy|^2 - h^2) (reaching forwards or
+    over the top); (r, z - L1) is then the planar two-link problem of links L2, L3.
+    """
+    x, y, z = (float(v) for v in p_mm)
+    L1, L2, L3 = links_mm
+    h = float(standoff_mm)
+    rho2 = x * x + y * y - h * h
+    if rho2 < 0.0:
+        return ()
+    out = []
+    for r in ((math.sqrt(rho2), -math.sqrt(rho2)) if rho2 > 0 else (0.0,)):
+        yaw = math.degrees(math.atan2(y, x) + math.atan2(h, r))
+        for q2, q3 in two_link_ik(r, z - L1, L2, L3):
+            out.append((yaw, q2, q3))
+    return tuple(out)
+
+
 class InverseKinematics:
-    """Open-loop closed-form IK of the nominal model; picks the branch nearest the current q."""
+    """Open-loop closed-form IK of the nominal model, aimed at the tracked point (the gripper
+    LED, stand-off included); picks the branch nearest the current q."""
 
     name = "ik"
 
@@ -50,7 +74,7 @@ class InverseKinematics:
 
     def solve(self, desired_mm, q_deg) -> np.ndarray | None:
         L = self.model.links_mm
-        x, y, z = (float(v) for v in desired_mm)
+        x, y, _ = (float(v) for v in desired_mm)
         q_now = np.asarray(q_deg, float)
         if self.model.name == "one-link":
             if abs(math.hypot(x, y) - L[0]) > 1e-6 * L[0] + 0.5:
@@ -59,12 +83,7 @@ class InverseKinematics:
         if self.model.name == "two-link":
             cands = [np.array(c) for c in two_link_ik(x, y, L[0], L[1])]
         else:
-            r = math.hypot(x, y)
-            cands = []
-            for yaw, sign in ((math.degrees(math.atan2(y, x)), 1.0),
-                              (math.degrees(math.atan2(-y, -x)), -1.0)):
-                for q2, q3 in two_link_ik(sign * r, z - L[0], L[1], L[2]):
-                    cands.append(np.array([yaw, q2, q3]))
+            cands = [np.array(c) for c in three_link_ik(desired_mm, L, self.model.led_standoff_mm)]
         if not cands:
             return None
         return min(cands, key=lambda c: float(np.sum(_wrap_deg(c - q_now) ** 2)))
@@ -76,36 +95,97 @@ class InverseKinematics:
         return Step(_wrap_deg(target - np.asarray(q_deg, float)), (), False)
 
 
+#: Below this horizontal forearm length (mm) the three-link tracker takes the pitch axis from
+#: the elbow LED and the stand-off instead of from the forearm (whose direction noise decides).
+VERTICAL_FOREARM_MM = 20.0
+
+
+def pitch_axis(g_mm, e_mm, standoff_mm: float) -> np.ndarray:
+    """The three-link arm's pitch axis a (unit, horizontal) from the two LED positions.
+
+    Positive q2/q3 turn the links about +a = (sin q1, -cos q1, 0), which is also the side on
+    which the LEDs sit, ``standoff_mm`` off the arm's plane: a . g_xy = a . e_xy = h. When the
+    forearm is not vertical, a is perpendicular to (g - e)_xy with the sign that puts the LEDs
+    on its positive side. When it is (the straight-up start is one such pose), a follows from
+    the elbow alone: e_xy = r_e d + h a with d = a turned by +90 deg and r_e = sqrt(|e_xy|^2 -
+    h^2) >= 0 (the upper arm not leaning back past vertical).
+
+    Parameters
+    ----------
+    g_mm, e_mm : shape (3,), gripper and elbow LED centres (mm).
+    standoff_mm : the LED stand-off h (mm), measured at start-up.
+
+    Returns
+    -------
+    a : shape (3,), unit, z = 0.
+    """
+    g, e = np.asarray(g_mm, float)[:2], np.asarray(e_mm, float)[:2]
+    u = g - e
+    nu = float(np.hypot(*u))
+    if nu >= VERTICAL_FOREARM_MM:
+        a = np.array([u[1], -u[0]]) / nu
+        if a @ e < 0:
+            a = -a
+        return np.array([a[0], a[1], 0.0])
+    h = float(standoff_mm)
+    ne2 = float(e @ e)
+    if ne2 < 1e-12:
+        return np.array([0.0, -1.0, 0.0])  # no information at all: the start's q1 = 0 side
+    r = math.sqrt(max(ne2 - h * h, 0.0))
+    # e = r d + h a, with d = (-a_y, a_x): solve the 2x2 rotation for a
+    a = np.array([h * e[0] + r * e[1], h * e[1] - r * e[0]]) / ne2
+    a /= np.linalg.norm(a)
+    return np.array([a[0], a[1], 0.0])
+
+
 class JacobianTracker:
     """Damped least squares on a Jacobian built from measured marker positions only.
 
-    ``dq = J^T (J J^T + lambda^2 I)^-1 (x_d - x_g)``, with J in mm/rad. The base axis position
-    (the world origin, and the shoulder height for the three-link arm) is the only fixed
-    geometry it uses: a point one measures once, not a kinematic model.
+    ``dq = J^T (J J^T + lambda^2 I)^-1 (x_d - x_g)``, with J in mm/rad. Each column is a joint's
+    axis crossed with the lever from that joint to the gripper LED: planar arms turn about z
+    through the base (q1: lever g) and through the elbow LED (q2: lever g - e); the three-link
+    arm turns its base about z through the origin and its pitch joints about the measured pitch
+    axis (:func:`pitch_axis`) through the shoulder (q2: g - shoulder) and the elbow LED
+    (q3: g - e; the LED's stand-off lies along the axis and drops out of the cross product).
+    The only geometry it uses is what :func:`itg_vision.identify.measure_geometry` measures at
+    start-up (the base axis is the world z axis; shoulder point, LED stand-off): no model.
+
+    Parameters
+    ----------
+    geometry : `itg_vision.identify.ArmGeometry`, measured (or nominal, for a model-fed run).
+    planar, n_joints : the arm's structure.
+    damping_mm : lambda.
+    max_step_deg : the servo rate limit it plans for (deg per iteration): a step whose largest
+        joint increment exceeds it is scaled down as a whole, keeping its direction (the loop
+        clips each joint on its own, which would bend the step). The runner sets it to the
+        run's ``max_step``, the limit every controller in a comparison runs under; None: no limit.
+        Measured (three-link, line-ab-reach, ideal sensors, 2 deg/iteration): with the scaling
+        the tracker settles at 0.0 mm; with per-joint clipping alone it chatters about the
+        singular start (q2/q3 alternating by 2 deg) and never leaves it (E_track 141 mm).
     """
 
     name = "jacobian"
 
-    def __init__(self, model: ArmSpec, damping_mm: float = 5.0, max_step_deg: float = 20.0):
-        self.planar = model.planar
-        self.n = model.n_joints
-        self.shoulder = model.shoulder_mm()
+    def __init__(self, geometry, planar: bool, n_joints: int, damping_mm: float = 5.0,
+                 max_step_deg: float | None = None):
+        self.planar = planar
+        self.n = n_joints
+        self.shoulder = np.asarray(geometry.shoulder_mm, float)
+        self.standoff = float(geometry.standoff_mm)
         self.damping = damping_mm
         self.max_step = max_step_deg
 
     def jacobian(self, g: np.ndarray, e: np.ndarray) -> np.ndarray:
-        def turn(v):  # 90 degrees about z
-            return np.array([-v[1], v[0]])
-
+        """d(gripper)/dq in mm/rad from the LED positions: shape (2, n) planar, (3, 3) else."""
+        g, e = np.asarray(g, float), np.asarray(e, float)
         if self.planar:
+            def turn(v):  # z x v, in the plane
+                return np.array([-v[1], v[0]])
+
             cols = [turn(g[:2])] + ([turn(g[:2] - e[:2])] if self.n == 2 else [])
             return np.column_stack(cols)
         z = np.array([0.0, 0.0, 1.0])
-        axis = np.cross([g[0], g[1], 0.0], z)  # pitch axis: horizontal, normal to the arm plane
-        n = np.linalg.norm(axis)
-        axis = axis / n if n > 1e-9 else np.array([0.0, -1.0, 0.0])
-        # pitch joints turn about -axis... sign chosen so positive q lifts the link
-        a = -axis
+        a = pitch_axis(g, e, self.standoff)
         return np.column_stack([np.cross(z, g), np.cross(a, g - self.shoulder), np.cross(a, g - e)])
 
     def step(self, desired_mm, markers, q_deg) -> Step:
@@ -115,17 +195,22 @@ class JacobianTracker:
         if not np.all(np.isfinite(err)) or (self.n > 1 and not np.all(np.isfinite(e[:dim]))):
             return Step(np.zeros(self.n), (), False)
         J = self.jacobian(g, e)
-        dq = J.T @ np.linalg.solve(J @ J.T + self.damping**2 * np.eye(dim), err)
-        dq = np.degrees(dq)
-        biggest = np.max(np.abs(dq))
-        if biggest > self.max_step:
-            dq *= self.max_step / biggest
+        dq = np.degrees(J.T @ np.linalg.solve(J @ J.T + self.damping**2 * np.eye(dim), err))
+        if self.max_step is not None:
+            biggest = np.max(np.abs(dq))
+            if biggest > self.max_step:
+                dq *= self.max_step / biggest
         return Step(dq, (), False)
 
 
-def make_controller(name: str, model: ArmSpec, **_):
+def make_controller(name: str, model: ArmSpec, geometry=None, max_step_deg: float | None = None):
+    """A baseline by name: ``ik`` (nominal model) or ``jacobian`` (``geometry``: what was
+    measured at start-up, the nominal geometry if None; ``max_step_deg``: the servo limit)."""
     if name == "ik":
         return InverseKinematics(model)
     if name == "jacobian":
-        return JacobianTracker(model)
+        from .identify import nominal_geometry
+
+        return JacobianTracker(geometry or nominal_geometry(model), model.planar, model.n_joints,
+                               max_step_deg=max_step_deg)
     raise UserError(f"unknown controller {name!r} (choose from itg, ik, jacobian)")

@@ -57,15 +57,28 @@ class ModelFeedback:
 
 
 class TruthFeedback:
-    """Ideal sensors: the simulator's LED positions."""
+    """The simulator's LED positions: ideal sensors, or with seeded Gaussian noise.
+
+    Parameters
+    ----------
+    noise_mm : std of the noise added to each coordinate of each marker (mm), drawn from the
+        generator made by :meth:`reset`; 0 for ideal sensors.
+    """
 
     name = "truth"
 
+    def __init__(self, noise_mm: float = 0.0):
+        self.noise_mm = float(noise_mm)
+        self.rng = np.random.default_rng(None)
+
     def reset(self, seed: int | None = None) -> None:
-        pass
+        self.rng = np.random.default_rng(seed)
 
     def observe(self, world) -> Markers:
         m = world.true_markers()
+        if self.noise_mm > 0:
+            return Markers(m["gripper"] + self.rng.normal(0.0, self.noise_mm, 3),
+                           m["elbow"] + self.rng.normal(0.0, self.noise_mm, 3))
         return Markers(m["gripper"], m["elbow"])
 
 

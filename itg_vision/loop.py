@@ -20,15 +20,24 @@ class Controller(Protocol):
 
 @dataclass
 class Trace:
-    """Everything recorded along a run, one entry per set point."""
+    """Everything recorded along a run, one entry per set point.
+
+    Per set point: the desired point; the estimate the controller used at the set point's last
+    iteration (``*_est_mm``) beside the simulator's truth at the same instant (``*_true_mm``:
+    compare these two for the estimation error); the truth after the set point's iterations
+    (``*_after_mm``: E_i uses it); joints, rules fired, flags.
+    """
 
     planar: bool
     n_joints: int
+    tracking_start: int = 0
     desired_mm: list = field(default_factory=list)
-    gripper_mm: list = field(default_factory=list)
+    gripper_mm: list = field(default_factory=list)  # truth after the move (E_i)
     elbow_mm: list = field(default_factory=list)
-    gripper_est_mm: list = field(default_factory=list)
+    gripper_est_mm: list = field(default_factory=list)  # estimate used for the last move
     elbow_est_mm: list = field(default_factory=list)
+    gripper_true_mm: list = field(default_factory=list)  # truth when that estimate was taken
+    elbow_true_mm: list = field(default_factory=list)
     q_deg: list = field(default_factory=list)
     fired: list = field(default_factory=list)
     flags: list = field(default_factory=list)
@@ -45,18 +54,22 @@ class Trace:
         diff = (d - g)[:, :2] if self.planar else d - g
         return np.linalg.norm(diff, axis=1)
 
-    def tracking_error_mm(self) -> float | None:
-        """Median E_i over the second half of the set points in reach: the error once the start
-        transient is over (E_av and E_max include it)."""
+    def tracking_errors_mm(self) -> np.ndarray:
+        """E_i over the tracking phase (from ``tracking_start``), set points in reach only."""
         e = self.error_mm()
-        half = len(e) // 2
-        late = e[half:][~np.asarray(self.out_of_reach, bool)[half:]]
-        return float(np.median(late)) if late.size else None
+        k = self.tracking_start
+        return e[k:][~np.asarray(self.out_of_reach, bool)[k:]]
 
     def metrics(self) -> dict:
+        """E_av, E_max, E_rms over the set points in reach (the paper's metric, start transient
+        included), and the tracking phase's median, mean, 95th percentile and max."""
         e = self.error_mm()
         ok = ~np.asarray(self.out_of_reach, bool)
         ein = e[ok]
+        late = self.tracking_errors_mm()
+
+        def stat(fn, v):
+            return float(fn(v)) if v.size else None
 
         def rms(v):
             v = np.asarray(v, float)
@@ -64,9 +77,14 @@ class Trace:
             return float(np.sqrt(np.mean(v**2))) if v.size else None
 
         return {
-            "e_av_mm": float(np.mean(ein)) if ein.size else None,
-            "e_max_mm": float(np.max(ein)) if ein.size else None,
-            "e_rms_mm": float(np.sqrt(np.mean(ein**2))) if ein.size else None,
+            "e_av_mm": stat(np.mean, ein),
+            "e_max_mm": stat(np.max, ein),
+            "e_rms_mm": rms(ein),
+            "tracking_from": int(self.tracking_start),
+            "track_median_mm": stat(np.median, late),
+            "track_mean_mm": stat(np.mean, late),
+            "track_p95_mm": stat(lambda v: np.percentile(v, 95), late),
+            "track_max_mm": stat(np.max, late),
             "n_setpoints": int(len(e)),
             "n_out_of_reach": int((~ok).sum()),
             "n_missed": int(self.n_missed),
@@ -78,15 +96,18 @@ class Trace:
     def rows(self) -> tuple[list[str], list[list]]:
         """The trace as CSV columns and rows (units in the column names)."""
         qcols = [f"q{i}_deg" for i in range(1, self.n_joints + 1)]
-        cols = (["k", "xd_mm", "yd_mm", "zd_mm", "xg_mm", "yg_mm", "zg_mm",
-                 "xg_est_mm", "yg_est_mm", "zg_est_mm", "xe_mm", "ye_mm", "ze_mm",
-                 "xe_est_mm", "ye_est_mm", "ze_est_mm"] + qcols + ["e_mm", "rules_fired", "flags"])
+        xyz = ("x", "y", "z")
+        groups = [("d", "", self.desired_mm)]
+        for m, arrs in (("g", (self.gripper_est_mm, self.gripper_true_mm, self.gripper_mm)),
+                        ("e", (self.elbow_est_mm, self.elbow_true_mm, self.elbow_mm))):
+            groups += [(m, "_est", arrs[0]), (m, "_true", arrs[1]), (m, "_after", arrs[2])]
+        cols = ["k", "tracking"] + [f"{a}{m}{s}_mm" for m, s, _ in groups for a in xyz] \
+            + qcols + ["e_mm", "rules_fired", "flags"]
         e = self.error_mm()
         out = []
         for k in range(len(e)):
-            vals = [k]
-            for arr in (self.desired_mm, self.gripper_mm, self.gripper_est_mm, self.elbow_mm,
-                        self.elbow_est_mm):
+            vals = [k, int(k >= self.tracking_start)]
+            for _, _, arr in groups:
                 vals += [_fmt(v) for v in arr[k]]
             vals += [_fmt(v) for v in self.q_deg[k]]
             vals += [_fmt(e[k]), ";".join(str(r) for r in self.fired[k]), ";".join(self.flags[k])]
@@ -101,14 +122,18 @@ def _fmt(v) -> str:
 
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
+             tracking_start: int | None = None,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) and return the trace.
 
     ``feedback.observe(world)`` is the controller's only view of the arm. ``world.true_markers()``
     is read here for evaluation only (E_i and the estimation error), never handed to the
-    controller. ``max_step_deg`` is a servo rate limit: no joint moves more per iteration.
+    controller. ``max_step_deg`` is a servo rate limit: no joint moves more per iteration,
+    whatever the controller. ``tracking_start``: first set point of the tracking phase
+    (default: the second half).
     """
-    trace = Trace(planar, world.arm.n_joints)
+    trace = Trace(planar, world.arm.n_joints,
+                  len(points_mm) // 2 if tracking_start is None else int(tracking_start))
     timing = {"render": [], "detect": [], "triangulate": [], "rules": []}
     for k, desired in enumerate(points_mm):
         fired, flags, oor = [], [], False
@@ -140,6 +165,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
         trace.elbow_mm.append(truth["elbow"])
         trace.gripper_est_mm.append(estimate.gripper_mm)
         trace.elbow_est_mm.append(estimate.elbow_mm)
+        trace.gripper_true_mm.append(seen["gripper"])
+        trace.elbow_true_mm.append(seen["elbow"])
         trace.q_deg.append(world.q_deg.copy())
         trace.fired.append(tuple(fired))
         trace.flags.append(tuple(flags))

@@ -32,7 +32,7 @@ one Python function from the tree itself.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -345,6 +345,13 @@ class RuleBase:
         except OSError as exc:
             raise UserError(f"{path}: cannot read rule file ({exc.strerror})") from None
         return cls.from_text(text, n_joints, links_mm, source=str(path), **params)
+
+    def with_links(self, links_mm) -> "RuleBase":
+        """The same compiled rules with ``L1..Ln`` bound to other lengths (measured ones)."""
+        links = tuple(float(v) for v in links_mm)
+        if len(links) != len(self.links_mm):
+            raise ValueError(f"{len(self.links_mm)} link lengths expected, got {len(links)}")
+        return replace(self, links_mm=links)
 
     # -------------------------------------------------------------- checks
     @property

@@ -48,8 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--iterations", type=int, default=1,
                     help="rule iterations per set point (default 1: the paper's one step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",
-                    help="servo rate limit: no joint moves more than DEG per iteration (default: "
-                         "none, as in the paper; the three-link composition needs one, see README)")
+                    help="servo rate limit: no joint moves more than DEG per iteration, whatever "
+                         "the controller (default: none, as in the paper; the three-link "
+                         "composition needs one, see README)")
+    ap.add_argument("--laps", type=int, default=1,
+                    help="run a closed trajectory this many times (default %(default)s); the "
+                         "tracking-phase metrics then cover the laps after the first")
     ap.add_argument("--feedback", default="vision", choices=FEEDBACKS,
                     help="vision (two cameras, LEDs), model (encoders + nominal kinematic model) "
                          "or truth (the simulator's marker positions) (default %(default)s)")
@@ -57,6 +61,15 @@ def build_parser() -> argparse.ArgumentParser:
                     help="camera rig the estimator believes: cameras/<NAME>.yaml or a path; a "
                          "calibrated rig renders with the true rig it names (default: planar or three-link)")
     ap.add_argument("--noise-px", type=float, default=0.0, help="extra Gaussian centroid noise, px std")
+    ap.add_argument("--noise-mm", type=float, default=0.0,
+                    help="with --feedback truth: Gaussian noise added to each LED coordinate, mm std")
+    ap.add_argument("--true-links", type=_links, metavar="L1,L2[,L3]",
+                    help="model error: the simulated arm's link lengths in mm (default: the "
+                         "nominal --links). Only --feedback model and --controller ik know the "
+                         "nominal model; vision and truth runs measure the lengths at start-up")
+    ap.add_argument("--joint-offset", type=_links, metavar="D1,D2[,D3]",
+                    help="model error: the simulated joints sit this many degrees off their "
+                         "commanded angles")
     ap.add_argument("--dropout", type=float, default=0.0, help="probability that an LED detection is dropped")
     ap.add_argument("--strobe", action="store_true",
                     help="light one LED per frame (as active-marker systems do) instead of telling "
@@ -75,9 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         cfg = RunConfig(arm=args.arm, links_mm=args.links, trajectory=args.trajectory,
                         points=args.points, controller=args.controller, rules=args.rules,
                         gain=args.gain, step=args.step, tolerance=args.tolerance,
-                        iterations=args.iterations, max_step=args.max_step, feedback=args.feedback, rig=args.rig,
-                        noise_px=args.noise_px, dropout=args.dropout, strobe=args.strobe,
-                        seed=args.seed)
+                        iterations=args.iterations, max_step=args.max_step, laps=args.laps,
+                        feedback=args.feedback, rig=args.rig, noise_px=args.noise_px,
+                        noise_mm=args.noise_mm, dropout=args.dropout, strobe=args.strobe,
+                        seed=args.seed, true_links_mm=args.true_links,
+                        joint_offset_deg=args.joint_offset)
         prep = prepare(cfg)
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")
@@ -118,7 +133,12 @@ def summary_table(s: dict, out: Path) -> str:
             ("controller / feedback", f"{s['controller']} / {s['feedback']}"),
             ("set points (out of reach)", f"{s['n_setpoints']} ({s['n_out_of_reach']})"),
             ("E_av", f(s["e_av_mm"], " mm")), ("E_max", f(s["e_max_mm"], " mm")),
-            ("E_rms", f(s["e_rms_mm"], " mm"))]
+            ("E_rms", f(s["e_rms_mm"], " mm")),
+            (f"tracking from set point {s['tracking_from']}: median / mean / p95 / max",
+             " / ".join(f(s[k]) for k in ("track_median_mm", "track_mean_mm", "track_p95_mm",
+                                          "track_max_mm")) + " mm"),
+            ("servo limit", "none" if s["max_step_deg"] is None else f"{s['max_step_deg']:g} deg/iteration"),
+            ("lengths the controller used", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),

@@ -14,6 +14,7 @@ from .arm import ArmSpec
 from .camera import CAMERAS_DIR, DEFAULT_RIG, default_rig_path, resolve_rig  # noqa: F401 (re-exported)
 from .errors import UserError
 from .feedback import ModelFeedback, TruthFeedback
+from .identify import measure_geometry, nominal_geometry
 from .loop import Trace, simulate
 from .rules import DEFAULT_RULES, load_rules
 from .world import World
@@ -28,7 +29,13 @@ class RunConfig:
     """Everything that defines a run. Units: mm, deg.
 
     ``true_links_mm`` / ``joint_offset_deg`` make the simulated arm differ from the nominal
-    model (model error); the rules, the model feedback and the baselines only know the model.
+    model (model error). Only ``feedback="model"`` and the open-loop ``ik`` baseline know the
+    model; under ``vision`` or ``truth`` feedback the lengths the rules and the Jacobian tracker
+    use are measured from the LEDs at start-up (:mod:`itg_vision.identify`).
+
+    ``max_step`` is the servo rate limit (deg per iteration), applied by the loop to every
+    controller alike. ``laps`` repeats a closed trajectory. ``noise_mm``: Gaussian noise (std
+    per axis, mm) added to ``truth`` feedback.
     """
 
     arm: str = "two-link"
@@ -42,9 +49,11 @@ class RunConfig:
     tolerance: float = 0.5
     iterations: int = 1
     max_step: float | None = None
+    laps: int = 1
     feedback: str = "vision"
     rig: str | None = None
     noise_px: float = 0.0
+    noise_mm: float = 0.0
     dropout: float = 0.0
     strobe: bool = False
     seed: int = 0
@@ -62,6 +71,8 @@ class RunConfig:
              f"--max-step: must be > 0 (deg per iteration), got {self.max_step}"),
             (1 <= self.iterations <= 10000, f"--iterations: must be in 1..10000, got {self.iterations}"),
             (math.isfinite(self.noise_px) and self.noise_px >= 0, f"--noise-px: must be >= 0, got {self.noise_px}"),
+            (math.isfinite(self.noise_mm) and self.noise_mm >= 0, f"--noise-mm: must be >= 0, got {self.noise_mm}"),
+            (self.noise_mm == 0 or self.feedback == "truth", "--noise-mm: applies to --feedback truth only"),
             (0 <= self.dropout <= 1, f"--dropout: must be a probability in [0, 1], got {self.dropout}"),
             (self.seed >= 0, f"--seed: must be >= 0, got {self.seed}"),
         ]
@@ -105,10 +116,17 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
     model = ArmSpec.from_args(cfg.arm, cfg.links_mm)
     true_arm = model
     if cfg.true_links_mm is not None:
-        true_arm = ArmSpec.from_args(cfg.arm, cfg.true_links_mm)
+        try:
+            true_arm = ArmSpec.from_args(cfg.arm, cfg.true_links_mm)
+        except UserError as exc:
+            raise UserError(str(exc).replace("--links", "--true-links")) from None
     if cfg.joint_offset_deg is not None:
-        true_arm = true_arm.with_joint_offset(cfg.joint_offset_deg)
-    trajectory = traj.load(cfg.trajectory_name, cfg.points)
+        if len(cfg.joint_offset_deg) != model.n_joints or not all(
+                math.isfinite(v) and abs(v) <= 180 for v in cfg.joint_offset_deg):
+            raise UserError(f"--joint-offset: arm {model.name!r} needs {model.n_joints} finite "
+                            f"offsets in deg within +-180, got {cfg.joint_offset_deg}")
+        true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
+    trajectory = traj.load(cfg.trajectory_name, cfg.points).repeated(cfg.laps)
     if not trajectory.planar and model.planar:
         raise UserError(f"trajectory {trajectory.name} has z values but arm {model.name} is planar")
     if trajectory.planar and not model.planar:
@@ -122,14 +140,14 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
     else:
         from .controllers import make_controller
 
-        controller = make_controller(cfg.controller, model, gain=cfg.gain)
+        controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step)
 
     if cfg.feedback == "model":
         def feedback_factory():
             return ModelFeedback(model)
     elif cfg.feedback == "truth":
         def feedback_factory():
-            return TruthFeedback()
+            return TruthFeedback(noise_mm=cfg.noise_mm)
     else:
         from .camera import Rig
         from .feedback import VisionFeedback
@@ -164,9 +182,14 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     feedback.reset(cfg.seed)
     t0 = time.perf_counter()
     with World(prep.true_arm) as world:
-        trace = simulate(world, prep.controller, feedback, prep.trajectory.points_mm,
+        geometry = (nominal_geometry(prep.model) if cfg.feedback == "model"
+                    else measure_geometry(world, feedback, prep.model))
+        controller = bind_geometry(prep.controller, geometry, prep.model, cfg.max_step)
+        trace = simulate(world, controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
-                         max_step_deg=cfg.max_step, progress=progress, recorder=recorder)
+                         max_step_deg=cfg.max_step,
+                         tracking_start=prep.trajectory.tracking_start, progress=progress,
+                         recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {
         **trace.metrics(),
@@ -182,7 +205,10 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "tolerance_mm": cfg.tolerance,
         "iterations": cfg.iterations,
         "max_step_deg": cfg.max_step,
+        "laps": prep.trajectory.laps,
+        "geometry": geometry.record(),
         "noise_px": cfg.noise_px,
+        "noise_mm": cfg.noise_mm,
         "dropout": cfg.dropout,
         "strobe": cfg.strobe,
         "seed": cfg.seed,
@@ -190,6 +216,19 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         **prep.info,
     }
     return trace, summary
+
+
+def bind_geometry(controller, geometry, model, max_step_deg=None):
+    """The controller with the lengths it may use: the rules' L1..Ln and the Jacobian tracker's
+    shoulder and stand-off come from ``geometry`` (measured, or the nominal model's)."""
+    from .controllers import JacobianTracker, make_controller
+    from .rules import RuleBase
+
+    if isinstance(controller, RuleBase):
+        return controller.with_links(geometry.links_mm)
+    if isinstance(controller, JacobianTracker):
+        return make_controller("jacobian", model, geometry, max_step_deg)
+    return controller  # open-loop IK: the nominal model by definition
 
 
 def config_dict(cfg: RunConfig) -> dict:

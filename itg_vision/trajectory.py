@@ -26,6 +26,9 @@ class Trajectory:
     t_s : shape (n,) or None: the time of each set point.
     param_deg : shape (n,) or None: the ellipse's radial angle of each point (experiment 5).
     planar : True when the points carry no z.
+    closed : True when the path returns to its start (the last point is followed by the
+        first): such a path can be run for several laps.
+    laps : how many times the points of one lap are repeated in ``points_mm``.
     """
 
     name: str
@@ -33,9 +36,41 @@ class Trajectory:
     t_s: np.ndarray | None = field(default=None, repr=False)
     param_deg: np.ndarray | None = field(default=None, repr=False)
     planar: bool = True
+    closed: bool = False
+    laps: int = 1
 
     def __len__(self) -> int:
         return len(self.points_mm)
+
+    @property
+    def tracking_start(self) -> int:
+        """Index of the first set point of the tracking phase: the laps after the first for a
+        path run for 2+ laps, else the second half (the start transient is over by then)."""
+        n = len(self.points_mm)
+        return n // self.laps if self.laps > 1 else n // 2
+
+    def repeated(self, laps: int) -> "Trajectory":
+        """The same closed path run ``laps`` times (set points, times and angles repeated).
+
+        Raises
+        ------
+        UserError : ``laps`` < 1, or > 1 on a path that is not closed.
+        """
+        if laps < 1 or laps > 1000:
+            raise UserError(f"--laps: must be in 1..1000, got {laps}")
+        if laps > 1 and not self.closed:
+            raise UserError(f"--laps: trajectory {self.name} is not a closed path (its last "
+                            "point is not next to its first): it runs once")
+        if laps == 1:
+            return self
+        period = None
+        if self.t_s is not None and len(self.t_s) > 1:
+            period = float(self.t_s[-1] - self.t_s[0]) + float(np.median(np.diff(self.t_s)))
+        return Trajectory(self.name, np.tile(self.points_mm, (laps, 1)),
+                          None if period is None else np.concatenate(
+                              [self.t_s + k * period for k in range(laps)]),
+                          None if self.param_deg is None else np.tile(self.param_deg, laps),
+                          self.planar, self.closed, self.laps * laps)
 
 
 def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Trajectory:
@@ -46,7 +81,17 @@ def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Traj
     u, v = a * np.cos(theta), b * np.sin(theta)
     pts = np.column_stack([centre_mm[0] + c * u - s * v, centre_mm[1] + s * u + c * v,
                            np.zeros(n)])
-    return Trajectory(name, pts, None, np.degrees(theta), True)
+    return Trajectory(name, pts, None, np.degrees(theta), True, closed=True)
+
+
+def is_closed(points_mm: np.ndarray) -> bool:
+    """Whether the last point is followed by the first: their distance is at most 1.5 times the
+    median spacing of the path (a loop sampled without repeating its start)."""
+    p = np.asarray(points_mm, float)
+    if len(p) < 4:
+        return False
+    step = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    return step > 0 and float(np.linalg.norm(p[-1] - p[0])) <= 1.5 * step
 
 
 def quintic(s: np.ndarray) -> np.ndarray:
@@ -154,7 +199,7 @@ def read_csv(path: str | Path) -> Trajectory:
     if t is not None and np.any(np.diff(t) < 0):
         bad = int(np.argmax(np.diff(t) < 0)) + 3
         raise UserError(f"{path}:{bad}: field t_s: times must not decrease")
-    return Trajectory(str(path), pts, t, None, planar)
+    return Trajectory(str(path), pts, t, None, planar, closed=is_closed(pts))
 
 
 def load(name_or_path: str, n_points: int | None = None) -> Trajectory:

@@ -44,9 +44,77 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
         assert key in s
     assert s["n_setpoints"] == 40 and s["feedback"] == "model"
     lines = (out / "trace.csv").read_text().splitlines()
-    assert len(lines) == 41 and lines[0].startswith("k,xd_mm,yd_mm")
+    assert len(lines) == 41 and lines[0].startswith("k,tracking,xd_mm,yd_mm")
     assert (out / "path.png").stat().st_size > 1000 and (out / "error.png").stat().st_size > 1000
     assert not list(tmp_path.glob(".*tmp"))
+
+
+def test_trace_puts_estimate_and_truth_of_the_same_instant_side_by_side(tmp_path):
+    """trace.csv: the estimate the controller used (*_est_mm) beside the truth it observed
+    (*_true_mm) differ by the estimation error only; the truth after the move (*_after_mm,
+    what E_i uses) differs by the move as well."""
+    import csv
+
+    from itg_vision import outputs
+
+    trace, s = execute(prepare(RunConfig(feedback="truth", noise_mm=0.3, points=60, seed=2)))
+    cols, rows = trace.rows()
+    outputs.write_text(tmp_path / "t.csv", outputs.csv_text(cols, rows))
+    with open(tmp_path / "t.csv", newline="") as f:
+        r = list(csv.DictReader(f))
+    assert {"xg_est_mm", "xg_true_mm", "xg_after_mm", "xe_est_mm", "xe_true_mm", "q2_deg",
+            "e_mm", "tracking"} <= set(r[0])
+
+    def dist(a, b):
+        return np.array([np.hypot(float(x[f"x{a}_mm"]) - float(x[f"x{b}_mm"]),
+                                  float(x[f"y{a}_mm"]) - float(x[f"y{b}_mm"])) for x in r])
+
+    est = dist("g_est", "g_true")
+    # Gaussian noise of 0.3 mm per axis: the x-y distance is Rayleigh, RMS 0.3 sqrt(2) = 0.42 mm
+    assert np.sqrt(np.mean(est**2)) == pytest.approx(0.3 * np.sqrt(2), rel=0.25)
+    assert np.median(dist("g_est", "g_after")) > 3 * np.median(est)  # the arm moved in between
+    e = np.array([float(x["e_mm"]) for x in r])
+    d = np.array([[float(x["xd_mm"]), float(x["yd_mm"])] for x in r])
+    after = np.array([[float(x["xg_after_mm"]), float(x["yg_after_mm"])] for x in r])
+    assert np.allclose(e, np.linalg.norm(d - after, axis=1), atol=2e-4)  # 4-decimal CSV
+    assert [int(x["tracking"]) for x in r] == [0] * 30 + [1] * 30
+
+
+def test_vision_and_truth_runs_use_measured_lengths_not_the_model():
+    """A true arm 5 % longer than the nominal model: the rules' L1, L2 are the measured ones
+    under truth feedback, the nominal ones under model feedback."""
+    cfg = RunConfig(points=20, true_links_mm=(105.0, 105.0))
+    truth = execute(prepare(cfg.__class__(**{**cfg.__dict__, "feedback": "truth"})))[1]
+    model = execute(prepare(cfg.__class__(**{**cfg.__dict__, "feedback": "model"})))[1]
+    assert truth["geometry"]["links_mm"] == pytest.approx([105.0, 105.0], abs=1e-3)
+    assert truth["geometry"]["source"].startswith("measured")
+    assert model["geometry"]["links_mm"] == [100.0, 100.0]
+    assert model["geometry"]["source"] == "nominal model"
+
+
+def test_three_link_start_up_measurement_recovers_the_true_arm():
+    """Shoulder height, upper arm and stand-off from a circle through the elbow LED; the arm
+    returns to its start pose exactly."""
+    from itg_vision.arm import ArmSpec
+    from itg_vision.feedback import TruthFeedback
+    from itg_vision.identify import measure_geometry
+    from itg_vision.world import World
+
+    true = ArmSpec.from_args("three-link", (96.0, 104.0, 99.0))
+    with World(true) as w:
+        g = measure_geometry(w, TruthFeedback(), ArmSpec.from_args("three-link"))
+        assert np.allclose(w.q_deg, true.start_q_deg)
+    # 1e-3 mm: PyBullet's link transforms are exact to ~1e-5 mm (see test_world)
+    assert g.links_mm == pytest.approx((96.0, 104.0, 99.0), abs=1e-3)
+    assert g.shoulder_mm == pytest.approx((0.0, 0.0, 96.0), abs=1e-3)
+    assert g.standoff_mm == pytest.approx(12.0, abs=1e-3)
+    # with vision-sized noise (0.25 mm per axis, 5 samples per pose averaged) the fit over
+    # +-40 deg of shoulder motion (a 23 mm sagitta) stays within ~1 mm
+    with World(true) as w:
+        fb = TruthFeedback(noise_mm=0.25)
+        fb.reset(0)
+        g = measure_geometry(w, fb, ArmSpec.from_args("three-link"))
+    assert g.links_mm == pytest.approx((96.0, 104.0, 99.0), abs=1.0)
 
 
 @pytest.mark.parametrize("args, expect", [

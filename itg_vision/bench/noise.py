@@ -57,18 +57,28 @@ from .. import outputs
 from ..errors import UserError, run_main
 
 # ---------------------------------------------------------------------------- the sweep
-#: Bench controller name -> (RunConfig.controller, RunConfig.feedback).
-CONTROLLERS: dict[str, tuple[str, str]] = {
-    "itg-vision": ("itg", "vision"),
-    "itg-model": ("itg", "model"),
-    "ik": ("ik", "model"),
-    "jacobian-vision": ("jacobian", "vision"),
+#: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm).
+CONTROLLERS: dict[str, tuple[str, str, float]] = {
+    "itg-vision": ("itg", "vision", 0.0),
+    "itg-model": ("itg", "model", 0.0),
+    "ik": ("ik", "model", 0.0),
+    "jacobian-vision": ("jacobian", "vision", 0.0),
 }
+#: Controllers only the ``start-tie`` sweep uses: ideal LED positions plus Gaussian noise of
+#: about vision's size, many seeds cheaply.
+TRUTH_NOISE_MM = 0.25
+EXTRA_CONTROLLERS: dict[str, tuple[str, str, float]] = {
+    "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM),
+    "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM),
+}
+ALL_CONTROLLERS = {**CONTROLLERS, **EXTRA_CONTROLLERS}
 CONTROLLER_TITLES = {
     "itg-vision": "ITG fed by vision (no model)",
     "itg-model": "ITG fed by encoders + nominal model",
     "ik": "closed-form IK of the nominal model, open loop",
     "jacobian-vision": "vision-fed Jacobian tracker (DLS, no model)",
+    "itg-truth-noise": f"ITG fed by the simulator's LED positions + {TRUTH_NOISE_MM} mm noise",
+    "jacobian-truth-noise": f"Jacobian tracker fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B.
 TRAJECTORIES: dict[str, str] = {
@@ -82,14 +92,33 @@ DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
 RIG_ANGLE_DEG = 1.0
 RIG_SHIFT_MM = 5.0
-#: Three-link runs: servo rate limit (deg per iteration) and iterations per set point.
-THREE_LINK = {"max_step": 2.0, "iterations": 5}
+#: The limits every controller runs under, per arm: the servo rate limit (deg per iteration,
+#: each joint) and the iterations per set point. The three-link composition of the paper is
+#: unstable from its straight-up start without a rate limit; 20 deg/iteration on the two-link
+#: arm cuts only the start transient.
+LIMITS = {"two-link": {"max_step": 20.0, "iterations": 1},
+          "three-link": {"max_step": 2.0, "iterations": 5}}
+#: Closed paths run this many laps; the tracking phase is the laps after the first.
+LAPS = 2
+#: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
+#: two- and three-link arms' 200 mm reach; tracking runs sit below 5 mm, diverged ones above 100.
+DIVERGED_MM = 20.0
 FULL_SEEDS = 5
 QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
+#: Named sweeps: ``robustness`` (the default: every condition) and ``start-tie`` (the
+#: three-link arm from its straight-up start, many seeds: how often does it diverge?).
+SWEEPS = {
+    "robustness": {"controllers": tuple(CONTROLLERS), "trajectories": tuple(TRAJECTORIES),
+                   "conditions": None, "seeds": FULL_SEEDS},
+    "start-tie": {"controllers": ("itg-vision", "itg-truth-noise", "jacobian-vision",
+                                  "jacobian-truth-noise"),
+                  "trajectories": ("line-ab-reach",),
+                  "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
+}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 1
+SCHEMA = 2
 
 
 @dataclass(frozen=True)
@@ -149,6 +178,7 @@ class RunSpec:
     seed: int
     rc_controller: str
     feedback: str
+    noise_mm: float
     noise_px: float
     dropout: float
     rig: str  # true | calibrated | perturbed | perturbed-cams
@@ -157,6 +187,7 @@ class RunSpec:
     offset_deg: float
     iterations: int
     max_step: float | None
+    laps: int
 
     @property
     def run_id(self) -> str:
@@ -169,7 +200,7 @@ class RunSpec:
 
     def cost_s(self) -> float:
         """A rough cost for the progress bar and the estimate (vision: ~28 ms per render)."""
-        n = (self.points or _default_points(self.trajectory)) * self.iterations
+        n = (self.points or _default_points(self.trajectory)) * self.iterations * self.laps
         return 0.6 + 0.03 * n if self.vision else 0.05 + 0.0002 * n
 
 
@@ -198,23 +229,32 @@ def calibrated_rig_path(arm: str) -> Path:
 
 
 def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
-                controllers=None, trajectories=None, points: int | None = None) -> list[RunSpec]:
-    """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller)."""
-    conds = conditions or (QUICK["conditions"] if quick else tuple(CONDITIONS))
-    ctrls = controllers or tuple(CONTROLLERS)
-    trajs = trajectories or (QUICK["trajectories"] if quick else tuple(TRAJECTORIES))
-    n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else FULL_SEEDS)
+                controllers=None, trajectories=None, points: int | None = None,
+                sweep: str = "robustness") -> list[RunSpec]:
+    """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller).
+
+    Every controller of a trajectory runs under the same limits (``LIMITS`` of its arm);
+    closed trajectories run ``LAPS`` laps.
+    """
+    base = SWEEPS[sweep]
+    conds = conditions or (QUICK["conditions"] if quick else base["conditions"] or tuple(CONDITIONS))
+    ctrls = controllers or base["controllers"]
+    trajs = trajectories or (QUICK["trajectories"] if quick else base["trajectories"])
+    n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
     if n_seeds < 1:
         raise UserError(f"--seeds: must be >= 1, got {n_seeds}")
     if points is None and quick:
         points = QUICK["points"]
     if points is not None and points < 2:
         raise UserError(f"--points: must be >= 2, got {points}")
+    from ..trajectory import named
+
     rig_sha: dict[str, str] = {}
     specs = []
     for traj_name in trajs:
         arm = TRAJECTORIES[traj_name]
-        extra = THREE_LINK if arm == "three-link" else {"max_step": None, "iterations": 1}
+        limits = LIMITS[arm]
+        laps = LAPS if named(traj_name).closed else 1
         n = points
         if n is not None and traj_name == "abcd" and n % 2:
             n += 1  # abcd needs an even number of points (two segments)
@@ -227,11 +267,11 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                 sha = rig_sha[arm]
             for seed in range(n_seeds):
                 for ctrl in ctrls:
-                    rc, fb = CONTROLLERS[ctrl]
+                    rc, fb, noise_mm = ALL_CONTROLLERS[ctrl]
                     specs.append(RunSpec(
-                        ctrl, cname, traj_name, arm, n, seed, rc, fb, cond.noise_px, cond.dropout,
-                        cond.rig, sha, cond.link_error, cond.offset_deg, extra["iterations"],
-                        extra["max_step"]))
+                        ctrl, cname, traj_name, arm, n, seed, rc, fb, noise_mm, cond.noise_px,
+                        cond.dropout, cond.rig, sha, cond.link_error, cond.offset_deg,
+                        limits["iterations"], limits["max_step"], laps))
     return specs
 
 
@@ -316,8 +356,10 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
     offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
     return RunConfig(arm=spec.arm, trajectory=spec.trajectory, points=spec.points,
                      controller=spec.rc_controller, feedback=spec.feedback,
-                     iterations=spec.iterations, max_step=spec.max_step, rig=rig_path,
-                     noise_px=spec.noise_px, dropout=spec.dropout, seed=spec.seed,
+                     iterations=spec.iterations, max_step=spec.max_step, laps=spec.laps,
+                     rig=rig_path, noise_px=spec.noise_px,
+                     noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
+                     dropout=spec.dropout, seed=spec.seed,
                      true_links_mm=true_links, joint_offset_deg=offset)
 
 
@@ -339,19 +381,21 @@ def run_one(spec: RunSpec) -> dict:
             rig = perturb_rig(Rig.from_yaml(true_path), spec.seed,
                               each_camera=spec.rig == "perturbed-cams", true_rig=true_path)
         prep = prepare(run_config(spec, rig_path), estimate_rig=rig)
-        trace, s = execute(prep)
-        s["e_track_mm"] = trace.tracking_error_mm()
+        _, s = execute(prep)
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
         return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
     return make_row(spec, s)
 
 
-COLUMNS = ["run_id", "controller", "condition", "trajectory", "arm", "points", "seed",
-           "rc_controller", "feedback", "noise_px", "dropout", "rig", "rig_sha", "link_error",
-           "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg", "iterations",
-           "max_step_deg", "gain", "e_av_mm", "e_max_mm", "e_rms_mm", "e_track_mm", "n_setpoints", "n_missed",
-           "n_out_of_reach", "est_gripper_rms_mm", "est_elbow_rms_mm", "wall_s"]
-METRICS = ("e_av_mm", "e_max_mm", "e_rms_mm", "n_missed", "n_out_of_reach", "wall_s")
+#: Per-run metrics from the run's summary (see itg_vision.loop.Trace.metrics).
+RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median_mm",
+               "track_mean_mm", "track_p95_mm", "track_max_mm", "n_setpoints", "n_missed",
+               "n_out_of_reach", "est_gripper_rms_mm", "est_elbow_rms_mm", "wall_s"]
+COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
+            "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
+            "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
+            "measured_links_mm", "iterations", "max_step_deg", "gain"] + RUN_METRICS
+           + ["diverged"])
 
 
 def _cell(v) -> str:
@@ -366,13 +410,13 @@ def _cell(v) -> str:
 
 def make_row(spec: RunSpec, s: dict) -> dict:
     row = {"run_id": spec.run_id, **dataclasses.asdict(spec)}
-    row["points"] = s["n_setpoints"]
-    row.update({k: s.get(k) for k in ("links_mm", "true_links_mm", "joint_offset_deg", "gain",
-                                      "e_av_mm", "e_max_mm", "e_rms_mm", "e_track_mm",
-                                      "n_setpoints",
-                                      "n_missed", "n_out_of_reach", "est_gripper_rms_mm",
-                                      "est_elbow_rms_mm", "wall_s")})
+    row["points"] = s["n_setpoints"] // max(1, spec.laps)
+    row.update({k: s.get(k) for k in ["links_mm", "true_links_mm", "joint_offset_deg", "gain"]
+                + RUN_METRICS})
+    row["measured_links_mm"] = s["geometry"]["links_mm"]
     row["max_step_deg"] = spec.max_step
+    med = s.get("track_median_mm")
+    row["diverged"] = "" if med is None else int(med > DIVERGED_MM)
     return {c: _cell(row.get(c)) for c in COLUMNS}
 
 
@@ -560,111 +604,146 @@ def _ratio(a: float, b: float) -> str:
     return f"{a / b:.2g}x"
 
 
+#: Per-run statistics summarised over seeds: (column, short label).
+STATS = (("e_av_mm", "E_av"), ("e_max_mm", "E_max"), ("track_median_mm", "median"),
+         ("track_mean_mm", "mean"), ("track_p95_mm", "p95"), ("track_max_mm", "max"))
+#: What the plots can show (``--plot-metrics``).
+PLOT_METRICS = {"e_av": "E_av", "track_median": "tracking median E_i",
+                "track_mean": "tracking mean E_i", "track_p95": "tracking p95 E_i",
+                "track_max": "tracking max E_i"}
+
+
 def summarize(rows: list[dict]) -> dict:
-    """(trajectory, condition, controller) -> {'e_av': (med, q1, q3), 'e_max': ..., 'n': ...}."""
+    """(trajectory, condition, controller) -> per-run statistics over seeds.
+
+    ``s["track_max"] = (median, q1, q3)`` over seeds of each run's statistic (keys: the
+    ``STATS`` columns without ``_mm``), ``worst_max`` the largest tracking-phase E_i of any
+    seed, ``diverged`` and ``n`` the number of diverged runs and of runs.
+    """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["trajectory"], r["condition"], r["controller"]), []).append(r)
     out = {}
     for key, rs in groups.items():
-        out[key] = {"e_av": _stats(_float(r["e_av_mm"]) for r in rs),
-                    "e_max": _stats(_float(r["e_max_mm"]) for r in rs),
-                    "e_track": _stats(_float(r["e_track_mm"]) for r in rs),
-                    "missed": float(np.mean([_float(r["n_missed"]) for r in rs])),
-                    "wall": float(np.sum([_float(r["wall_s"]) for r in rs])), "n": len(rs)}
+        s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in rs) for col, _ in STATS}
+        worst = [_float(r["track_max_mm"]) for r in rs]
+        s.update({"worst_max": max((w for w in worst if math.isfinite(w)), default=float("nan")),
+                  "diverged": sum(r["diverged"] == "1" for r in rs),
+                  "missed": float(np.mean([_float(r["n_missed"]) for r in rs])),
+                  "wall": float(np.sum([_float(r["wall_s"]) for r in rs])), "n": len(rs)})
+        out[key] = s
     return out
 
 
-def _table(summary, traj, conds, ctrls, metric) -> list[str]:
-    lines = ["| condition | " + " | ".join(ctrls) + " |",
-             "|---|" + "---|" * len(ctrls)]
+def _limits_line(specs: list[RunSpec], traj: str) -> str:
+    s = next(s for s in specs if s.trajectory == traj)
+    phase = (f"{s.laps} laps, tracking phase = laps 2..{s.laps}" if s.laps > 1
+             else "tracking phase = second half of the set points")
+    limit = "no servo limit" if s.max_step is None else f"servo limit {s.max_step:g} deg/iteration"
+    return (f"Every controller: {limit} (each joint), {s.iterations} iteration(s) per set point, "
+            f"{phase}.")
+
+
+def _grid(summary, traj, conds, ctrls, cell) -> list[str]:
+    """A markdown table, a row per condition and a column per controller: ``cell(s)``."""
+    lines = ["| condition | " + " | ".join(ctrls) + " |", "|---|" + "---|" * len(ctrls)]
     for c in conds:
-        cells = []
-        for k in ctrls:
-            s = summary.get((traj, c, k))
-            if s is None:
-                cells.append("-")
-                continue
-            med, q1, q3 = s[metric]
-            cells.append(f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]")
+        cells = [cell(summary[(traj, c, k)]) if (traj, c, k) in summary else "-" for k in ctrls]
         lines.append(f"| {c} | " + " | ".join(cells) + " |")
     return lines
 
 
-def conclusion(summary, trajs, conds, ctrls) -> list[str]:
-    """Plain-words findings computed from the medians."""
-    med = {k: v["e_av"][0] for k, v in summary.items()}
-    medt = {k: v["e_track"][0] for k, v in summary.items()}
+def _table(summary, traj, conds, ctrls, metric) -> list[str]:
+    """Median [IQR] over seeds of one per-run statistic."""
+    def cell(s):
+        med, q1, q3 = s[metric]
+        return f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]"
+
+    return _grid(summary, traj, conds, ctrls, cell)
+
+
+def _tail_table(summary, traj, conds, ctrls) -> list[str]:
+    """Tracking phase per cell: median / mean / p95 / max of E_i (medians over seeds), the
+    worst max of any seed, and the diverged runs."""
+    def cell(s):
+        text = " / ".join(_fmt_mm(s[m][0]) for m in ("track_median", "track_mean", "track_p95",
+                                                     "track_max"))
+        text += f" ({_fmt_mm(s['worst_max'])})"
+        return text + (f" **{s['diverged']}/{s['n']} diverged**" if s["diverged"] else "")
+
+    return _grid(summary, traj, conds, ctrls, cell)
+
+
+def _compare(med, trajs, conds, a_ctrl, b_ctrl):
+    wins, losses, ties = [], [], []
+    for t in trajs:
+        for c in conds:
+            a, b = med.get((t, c, a_ctrl)), med.get((t, c, b_ctrl))
+            if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
+                continue
+            item = (t, c, a, b)
+            if abs(a - b) <= 0.05 * max(a, b) + 0.01:
+                ties.append(item)
+            elif a < b:
+                wins.append(item)
+            else:
+                losses.append(item)
+    return wins, losses, ties
+
+
+def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> list[str]:
+    """Plain-words findings computed from the medians over seeds (thresholds stated inline)."""
     out = []
-    if "itg-vision" not in ctrls:
-        return ["(itg-vision not in this sweep: no comparison.)"]
-    for other in [c for c in ctrls if c != "itg-vision"]:
-        wins, losses, ties = [], [], []
-        for t in trajs:
-            for c in conds:
-                a, b = med.get((t, c, "itg-vision")), med.get((t, c, other))
-                if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
-                    continue
-                item = (t, c, a, b)
-                if abs(a - b) <= 0.05 * max(a, b) + 0.01:
-                    ties.append(item)
-                elif a < b:
-                    wins.append(item)
-                else:
-                    losses.append(item)
-        n = len(wins) + len(losses) + len(ties)
-        if not n:
-            continue
-        text = (f"- **vs {other}** ({CONTROLLER_TITLES[other]}): itg-vision has the lower median "
-                f"E_av in {len(wins)} of {n} (trajectory, condition) cells, the higher in "
-                f"{len(losses)}, within 5 % in {len(ties)}.")
-        if wins:
-            t, c, a, b = max(wins, key=lambda w: w[3] / max(w[2], 1e-9))
-            text += (f" Biggest win: {c} on {t}, {_fmt_mm(a)} mm against {_fmt_mm(b)} mm "
-                     f"({other} {_ratio(b, a)} worse).")
-        if losses:
-            t, c, a, b = max(losses, key=lambda w: w[2] / max(w[3], 1e-9))
-            text += (f" Biggest loss: {c} on {t}, {_fmt_mm(a)} mm against {_fmt_mm(b)} mm "
-                     f"(itg-vision {_ratio(a, b)} worse).")
-            where = sorted({c for _, c, _, _ in losses})
-            text += f" It loses under: {', '.join(where)}."
-        out.append(text)
-    # model error: how much each controller's E_av moves from clean
-    model_conds = [c for c in conds if not CONDITIONS[c].vision_only]
-    if "clean" in conds and model_conds:
+    if subject not in ctrls:
+        return [f"({subject} not in this sweep: no comparison.)"]
+    for metric, label in (("e_av", "E_av (the paper's metric, start transient included)"),
+                          ("track_mean", "tracking-phase mean E_i"),
+                          ("track_max", "tracking-phase max E_i (the tail)")):
+        med = {k: v[metric][0] for k, v in summary.items()}
+        parts = []
+        for other in [c for c in ctrls if c != subject]:
+            wins, losses, ties = _compare(med, trajs, conds, subject, other)
+            n = len(wins) + len(losses) + len(ties)
+            if not n:
+                continue
+            text = (f"vs `{other}`: lower in {len(wins)} of {n} cells, higher in "
+                    f"{len(losses)}, within 5 % + 0.01 mm in {len(ties)}")
+            if losses:
+                t, c, a, b = max(losses, key=lambda w: w[2] / max(w[3], 1e-9))
+                text += (f" (largest loss: {c} on {t}, {_fmt_mm(a)} against {_fmt_mm(b)} mm, "
+                         f"{_ratio(a, b)})")
+            parts.append(text)
+        if parts:
+            out.append(f"- **{label}**, median over seeds, `{subject}`: " + "; ".join(parts) + ".")
+    if "clean" in conds:
+        model_conds = [c for c in conds if not CONDITIONS[c].vision_only]
         for t in trajs:
             parts = []
             for k in ctrls:
-                base, baset = med.get((t, "clean", k)), medt.get((t, "clean", k))
+                base = summary.get((t, "clean", k))
                 if base is None:
                     continue
-                deltas = [f"{c} {med[(t, c, k)] - base:+.2f} / {medt[(t, c, k)] - baset:+.2f}"
-                          for c in model_conds
-                          if (t, c, k) in med and math.isfinite(med[(t, c, k)])]
+                deltas = [f"{c} {summary[(t, c, k)]['track_median'][0] - base['track_median'][0]:+.2f}"
+                          for c in model_conds if (t, c, k) in summary
+                          and math.isfinite(summary[(t, c, k)]["track_median"][0])]
                 if deltas:
                     parts.append(f"{k}: " + ", ".join(deltas))
             if parts:
-                out.append(f"- **Model error on {t}** (change from clean of the median E_av / "
-                           "median E_track, mm): " + "; ".join(parts) + ".")
-    noise_conds = [c for c in conds if CONDITIONS[c].noise_px and CONDITIONS[c].vision_only
-                   and "+" not in c]
-    if "clean" in conds and noise_conds:
-        for t in trajs:
-            parts = []
-            for k in [c for c in ctrls if CONTROLLERS[c][1] == "vision"]:
-                base = med.get((t, "clean", k))
-                worst = max(noise_conds, key=lambda c: CONDITIONS[c].noise_px)
-                if base is None or (t, worst, k) not in med:
-                    continue
-                parts.append(f"{k} {_fmt_mm(base)} -> {_fmt_mm(med[(t, worst, k)])} mm")
-            if parts:
-                out.append(f"- **Centroid noise on {t}** (median E_av, clean -> {worst}): "
-                           + "; ".join(parts) + ".")
+                out.append(f"- **Model error on {t}** (change of the median tracking E_i from "
+                           "clean, mm): " + "; ".join(parts) + ".")
+    div = [(key, s) for key, s in summary.items() if s["diverged"]]
+    if div:
+        out.append(f"- **Diverged runs** (tracking-phase median E_i > {DIVERGED_MM:g} mm): "
+                   + "; ".join(f"{k} {c} on {t}: {s['diverged']} of {s['n']}"
+                               for (t, c, k), s in sorted(div)) + ".")
+    elif summary:
+        out.append(f"- No run diverged (tracking-phase median E_i > {DIVERGED_MM:g} mm).")
     return out
 
 
 def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
-                 failures: dict[str, str]) -> list[Path]:
+                 failures: dict[str, str], plot_metrics=("e_av", "track_median", "track_max")
+                 ) -> list[Path]:
     """report.md and the plots from the rows of this sweep; returns the plot paths."""
     from .. import plot
 
@@ -686,48 +765,56 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
         L += [f"**{len(failures)} runs failed** this time (rerun to retry): "
               + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
     L += ["## Setup", "",
-          "Controllers, on the same runs (same trajectory, condition, seed):", ""]
-    L += [f"- `{k}`: {CONTROLLER_TITLES[k]} (RunConfig controller={CONTROLLERS[k][0]}, "
-          f"feedback={CONTROLLERS[k][1]})" for k in ctrls]
+          "Controllers, on the same runs (same trajectory, condition, seed, servo limit):", ""]
+    L += [f"- `{k}`: {CONTROLLER_TITLES[k]} (RunConfig controller={ALL_CONTROLLERS[k][0]}, "
+          f"feedback={ALL_CONTROLLERS[k][1]})" for k in ctrls]
     L += ["", "Trajectories: " + ", ".join(
-        f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points)" for t in trajs)
-        + ". Three-link runs use a servo rate limit of 2 deg per iteration and 5 iterations per "
-          "set point (the paper's three-link composition is unstable without a rate limit); "
-          "two-link runs use the defaults (gain 0.5 deg/mm, one iteration per set point).", "",
+        f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points per lap)"
+        for t in trajs) + ".", ""]
+    L += [f"- `{t}`: {_limits_line(specs, t)}" for t in trajs]
+    L += ["", "Under vision (or truth) feedback the rules' link lengths and the Jacobian "
+          "tracker's shoulder and LED stand-off are measured from the LEDs at start-up "
+          "(`measured_links_mm` in results.csv); only `itg-model` and `ik` use the nominal model. "
+          "The Jacobian tracker scales a step whose largest joint increment exceeds the servo "
+          "limit as a whole (keeping its direction); the loop clips every controller's joints "
+          "to the same limit.", "",
           "Conditions: `noise-Spx` adds Gaussian noise of S px std to each centroid coordinate; "
           "`dropout-P` drops each LED detection with probability P; `rig-calibrated` estimates "
           "with the calibrated rig (`cameras/<rig>.calib.yaml`); `rig-perturbed` with the true "
           "rig moved as one body by 1 degree and 5 mm (a wrong world frame, consistent stereo); "
           "`rig-perturbed-cams` with each camera turned by 1 degree and moved by 5 mm on its own "
-          "(inconsistent stereo); random directions drawn from the seed; `links+X%` makes every link of the simulated arm X % longer "
-          "than the nominal model; `offset-1deg` puts every simulated joint 1 degree off its "
-          "command; `a+b` combines both. Images are always rendered with the true rig.", "",
+          "(inconsistent stereo); random directions drawn from the seed; `links+X%` makes every "
+          "link of the simulated arm X % longer than the nominal model; `offset-1deg` puts every "
+          "simulated joint 1 degree off its command; `a+b` combines both. Images are always "
+          "rendered with the true rig.", "",
           "Vision-only conditions (noise, dropout, rig) cannot affect `itg-model` and `ik` "
           "(no rendering): they are run anyway, a few ms each, so every cell comes from real "
           "runs (their numbers equal clean). `ik` is deterministic: its IQR is zero.", "",
           "E_i = distance from the set point to the true gripper after the set point's "
-          "iterations (x-y for planar arms); E_av and E_max are its mean and maximum over the "
-          "set points in reach. Every E_av and E_max includes the initial transient from the "
-          "start pose (the paper's definition), which often dominates them; E_track, the median "
-          "E_i over the second half of the set points, shows the error once tracking. Tables: median [25th, 75th percentile] over "
-          "seeds, mm.", ""]
+          "iterations (x-y for planar arms). E_av and E_max: mean and maximum over all set "
+          "points in reach (the paper's definition, start transient included). Tracking phase: "
+          "the laps after the first on closed paths, else the second half; per run its median, "
+          "mean, 95th percentile and max of E_i. Tables give the median over seeds of each "
+          f"run's statistic, mm; a run diverged when its tracking median exceeds {DIVERGED_MM:g} mm.",
+          ""]
     L += ["## Conclusion", ""] + conclusion(summary, trajs, conds, ctrls) + [""]
     for t in trajs:
-        L += [f"## {t}: E_av (mm)", ""] + _table(summary, t, conds, ctrls, "e_av") + [""]
-        L += [f"## {t}: E_max (mm)", ""] + _table(summary, t, conds, ctrls, "e_max") + [""]
-        L += [f"## {t}: E_track (mm), median E_i over the second half", ""] \
-            + _table(summary, t, conds, ctrls, "e_track") + [""]
-    plots = _plots(out, summary, trajs, conds, ctrls, plot)
+        lim = _limits_line(specs, t)
+        L += [f"## {t}: E_av (mm), median [IQR] over seeds", "", lim, ""] \
+            + _table(summary, t, conds, ctrls, "e_av") + [""]
+        L += [f"## {t}: tracking phase (mm): median / mean / p95 / max of E_i (worst seed's max)",
+              "", lim, ""] + _tail_table(summary, t, conds, ctrls) + [""]
+    plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics)
     if plots:
         L += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in plots] + [""]
     outputs.write_text(out / "report.md", "\n".join(L))
     return plots
 
 
-def _plots(out: Path, summary, trajs, conds, ctrls, plot) -> list[Path]:
+def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]:
     made = []
 
-    def med(t, c, k, metric="e_av"):
+    def med(t, c, k, metric):
         s = summary.get((t, c, k))
         return s[metric][0] if s else float("nan")
 
@@ -754,19 +841,22 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot) -> list[Path]:
             if len(pairs) < 2:
                 continue
             pairs.sort()
-            # E_av (the paper's metric, start transient included) and E_track (settled error)
-            for metric, label in (("e_av", "E_av"), ("e_track", "E_track")):
+            for metric in metrics:
+                label = PLOT_METRICS[metric]
                 series = {k: curve(t, k, pairs, metric) for k in ctrls}
                 series = {k: v for k, v in series.items() if v[0]}
                 path = out / f"{metric}_vs_{name}-{t}.png"
-                plot.lines_figure(series, xlabel, f"median {label} (mm; < 0.001 drawn at 0.001)",
-                                  f"{t}: {label} against {xlabel}", path, logy=True)
+                plot.lines_figure(series, xlabel, f"median over seeds of {label} (mm; < 0.001 "
+                                  "drawn at 0.001)", f"{t}: {label} against {xlabel}", path,
+                                  logy=True)
                 made.append(path)
-        values = {k: [med(t, c, k) for c in conds] for k in ctrls}
-        path = out / f"e_av_by_condition-{t}.png"
-        plot.grouped_bars_figure(conds, values, "median E_av (mm)",
-                                 f"{t}: median E_av per controller and condition", path, logy=True)
-        made.append(path)
+        for metric in metrics:
+            values = {k: [med(t, c, k, metric) for c in conds] for k in ctrls}
+            path = out / f"{metric}_by_condition-{t}.png"
+            plot.grouped_bars_figure(conds, values, f"median over seeds of {PLOT_METRICS[metric]} (mm)",
+                                     f"{t}: {PLOT_METRICS[metric]} per controller and condition",
+                                     path, logy=True)
+            made.append(path)
     return made
 
 
@@ -779,7 +869,15 @@ def build_parser() -> argparse.ArgumentParser:
                     "dropout, rig errors and kinematic model errors. Writes results.csv, "
                     "report.md and plots to --out; rerun with the same --out to resume.")
     ap.add_argument("--out", default="runs/bench-noise", metavar="DIR",
-                    help="output folder (default %(default)s; --quick: runs/bench-noise-quick)")
+                    help="output folder (default %(default)s; --quick: runs/bench-noise-quick; "
+                         "--sweep start-tie: runs/bench-start-tie)")
+    ap.add_argument("--sweep", default="robustness", choices=tuple(SWEEPS),
+                    help="robustness (default: every condition, 4 trajectories, "
+                         f"{FULL_SEEDS} seeds) or start-tie (the three-link arm from its "
+                         "straight-up start, links +0/2/5 %%, 40 seeds: how often it diverges)")
+    ap.add_argument("--plot-metrics", metavar="A,B,...", default="e_av,track_median,track_max",
+                    help="what the plots show, any of " + ", ".join(PLOT_METRICS)
+                         + " (default %(default)s)")
     ap.add_argument("--quick", action="store_true",
                     help=f"reduced sweep (< 2 min on 2 cores): {QUICK['trajectories'][0]} with "
                          f"{QUICK['points']} points, {QUICK['seeds']} seeds, conditions "
@@ -794,7 +892,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--conditions", metavar="A,B,...",
                     help="only these conditions (see --list)")
     ap.add_argument("--controllers", metavar="A,B,...",
-                    help="only these controllers: " + ", ".join(CONTROLLERS))
+                    help="only these controllers: " + ", ".join(ALL_CONTROLLERS))
     ap.add_argument("--trajectories", metavar="A,B,...",
                     help="only these trajectories: " + ", ".join(TRAJECTORIES))
     ap.add_argument("--points", type=int, metavar="N",
@@ -814,29 +912,34 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
-        ctrls = _parse_names(args.controllers, CONTROLLERS, "controllers", "controller")
+        ctrls = _parse_names(args.controllers, ALL_CONTROLLERS, "controllers", "controller")
+        plot_metrics = _parse_names(args.plot_metrics, PLOT_METRICS, "plot-metrics", "metric")
         trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
         if args.workers is not None and args.workers < 1:
             raise UserError(f"--workers: must be >= 1, got {args.workers}")
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         if args.list:
-            print("controllers: " + ", ".join(CONTROLLERS))
+            print("controllers: " + ", ".join(ALL_CONTROLLERS))
             print("conditions:  " + ", ".join(CONDITIONS))
             print("trajectories: " + ", ".join(TRAJECTORIES))
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
-                            controllers=ctrls, trajectories=trajs, points=args.points)
+                            controllers=ctrls, trajectories=trajs, points=args.points,
+                            sweep=args.sweep)
         n_vision = sum(s.vision for s in specs)
         cost = sum(s.cost_s() for s in specs)
         if args.list:
             print(f"sweep: {len(specs)} runs ({n_vision} with rendering), ~{cost / 60:.1f} "
                   "min of work")
             return 0
-        out = Path(args.out if args.out != build_parser().get_default("out") or not args.quick
-                   else "runs/bench-noise-quick")
+        out = Path(args.out)
+        if args.out == build_parser().get_default("out"):
+            out = Path("runs/bench-noise-quick" if args.quick else
+                       "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
         if out.exists() and not out.is_dir():
             raise UserError(f"--out {out}: exists and is not a folder")
-        options = {"quick": args.quick, "seeds": args.seeds, "conditions": args.conditions,
+        options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
+                   "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
                    "points": args.points}
         definition = definition_hash(specs)
@@ -866,7 +969,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         executor.close()
         rows = list(results.rows.values())
-        plots = write_report(out, rows, specs, command.strip(), failures)
+        plots = write_report(out, rows, specs, command.strip(), failures, plot_metrics)
         if failures:
             outputs.write_text(out / "failures.log",
                                "".join(f"{k}\t{v}\n" for k, v in failures.items()))

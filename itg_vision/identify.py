@@ -1,0 +1,173 @@
+"""What a model-free controller may know of the arm, measured from its LEDs at start-up.
+
+Under vision (or truth) feedback nothing from the nominal kinematic model reaches the rules or
+the Jacobian tracker. The few lengths they use are measured before the trajectory starts, from
+the marker estimates alone (in the world frame, which calibration ties to the robot's base: the
+base axis is the world z axis through x = y = 0):
+
+- planar arms: L1 = |elbow_xy| (the elbow LED turns about the base axis), L2 = |gripper_xy -
+  elbow_xy|; one observation, no motion.
+- three-link arm: the shoulder joint (q2) is moved alone through a few angles about the start
+  pose and the elbow LED's positions are fitted with a circle (:func:`fit_circle`). The circle's
+  centre is the shoulder offset sideways by the LED stand-off, along the pitch axis: its height
+  is L1, its distance from the base axis the stand-off, its radius L2; L3 = |gripper - elbow|.
+  The arm then returns to its start pose exactly (the same increments, reversed).
+
+The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibrate`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import UserError
+
+#: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
+SHOULDER_SWEEP_DEG = (-40.0, -20.0, 0.0, 20.0, 40.0)
+#: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
+#: (a dropped or rejected detection is tried again, as on a real rig).
+SAMPLES_PER_POSE = 5
+MAX_TRIES_PER_POSE = 50
+
+
+@dataclass(frozen=True)
+class ArmGeometry:
+    """The arm as a model-free controller knows it (mm).
+
+    Attributes
+    ----------
+    links_mm : link lengths bound to the rules' ``L1..Ln``; three-link: base height (the
+        shoulder's height above the base), upper arm, forearm.
+    shoulder_mm : shape (3,), the shoulder joint on the base axis ((0, 0, 0) for planar arms).
+    standoff_mm : the LEDs' offset from the links along the pitch axis (three-link), else 0.
+    source : where the numbers come from: "nominal model" or how they were measured.
+    residual_mm : RMS residual of the fit that produced them (0 for a single observation).
+    """
+
+    links_mm: tuple[float, ...]
+    shoulder_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    standoff_mm: float = 0.0
+    source: str = "nominal model"
+    residual_mm: float = 0.0
+    samples: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def record(self) -> dict:
+        """Plain values for ``summary.json``."""
+        return {"links_mm": [round(v, 4) for v in self.links_mm],
+                "shoulder_mm": [round(v, 4) for v in self.shoulder_mm],
+                "standoff_mm": round(self.standoff_mm, 4), "source": self.source,
+                "residual_mm": round(self.residual_mm, 4)}
+
+
+def nominal_geometry(arm) -> ArmGeometry:
+    """The nominal model's geometry (what ``--feedback model`` and open-loop IK use)."""
+    standoff = 0.0 if arm.planar else arm.led_standoff_mm
+    return ArmGeometry(tuple(arm.links_mm), tuple(float(v) for v in arm.shoulder_mm()),
+                       standoff, "nominal model")
+
+
+# ---------------------------------------------------------------------------- fits
+def fit_plane(points_mm) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares plane through points.
+
+    Parameters
+    ----------
+    points_mm : array-like, shape (n, 3), n >= 3, not all on a line.
+
+    Returns
+    -------
+    centroid : (3,); normal : (3,) unit (sign arbitrary); rms_mm : RMS distance to the plane.
+    """
+    P = np.asarray(points_mm, float)
+    c = P.mean(axis=0)
+    _, s, Vt = np.linalg.svd(P - c, full_matrices=False)
+    return c, Vt[2], float(s[2] / np.sqrt(len(P)))
+
+
+def fit_circle(points_mm) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Least-squares circle through 3-D points: plane fit, then an algebraic (Kasa) fit in it.
+
+    Parameters
+    ----------
+    points_mm : array-like, shape (n, 3), n >= 3, not all on a line.
+
+    Returns
+    -------
+    centre : (3,); normal : (3,) unit normal of the circle's plane (sign arbitrary);
+    radius_mm : float; rms_mm : RMS distance of the points from the fitted circle.
+    """
+    P = np.asarray(points_mm, float)
+    c, n, _ = fit_plane(P)
+    u = np.cross(n, [1.0, 0.0, 0.0])
+    if np.linalg.norm(u) < 0.5:
+        u = np.cross(n, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    x, y = (P - c) @ u, (P - c) @ v
+    # x^2 + y^2 = 2 a x + 2 b y + k: linear in (a, b, k)
+    A = np.column_stack([2 * x, 2 * y, np.ones_like(x)])
+    (a, b, k), *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
+    radius = float(np.sqrt(max(k + a * a + b * b, 0.0)))
+    centre = c + a * u + b * v
+    d = P - centre
+    in_plane = d - np.outer(d @ n, n)
+    resid = np.hypot(np.linalg.norm(in_plane, axis=1) - radius, d @ n)
+    return centre, n, radius, float(np.sqrt(np.mean(resid**2)))
+
+
+# ---------------------------------------------------------------------------- start-up
+def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
+    """The median of ``SAMPLES_PER_POSE`` observations in which every marker was measured."""
+    got: list = []
+    for _ in range(MAX_TRIES_PER_POSE):
+        m = feedback.observe(world)
+        if not any(n in m.missed or not np.all(np.isfinite(m.get(n))) for n in names):
+            got.append({n: m.get(n) for n in names})
+            if len(got) == SAMPLES_PER_POSE:
+                return {n: np.median([g[n] for g in got], axis=0) for n in names}
+    raise UserError(f"start-up measurement: the LEDs were measured in only {len(got)} of "
+                    f"{MAX_TRIES_PER_POSE} observations {where}; the arm's lengths cannot be "
+                    "measured (check the rig)")
+
+
+def measure_geometry(world, feedback, arm) -> ArmGeometry:
+    """Measure the lengths the rules and the Jacobian tracker use, from the LEDs alone.
+
+    Parameters
+    ----------
+    world : `itg_vision.world.World` at the start pose (left there on return).
+    feedback : the run's feedback source (its estimates are all this function reads).
+    arm : the arm's structure (which joints and markers it has; its lengths are not read).
+
+    Raises
+    ------
+    UserError : a marker was not seen.
+    """
+    if arm.planar:
+        m = _observe(world, feedback, arm.marker_names, "at the start pose")
+        g = m["gripper"][:2]
+        if arm.n_joints == 1:
+            return ArmGeometry((float(np.linalg.norm(g)),), source="measured: |gripper_xy|")
+        e = m["elbow"][:2]
+        links = (float(np.linalg.norm(e)), float(np.linalg.norm(g - e)))
+        return ArmGeometry(links, source="measured: |elbow_xy|, |gripper_xy - elbow_xy|")
+    elbows, forearm = [], []
+    at = 0.0
+    for rel in SHOULDER_SWEEP_DEG:
+        world.move([0.0, rel - at, 0.0])
+        at = rel
+        m = _observe(world, feedback, arm.marker_names,
+                     f"with the shoulder moved {rel:+g} deg from the start")
+        elbows.append(m["elbow"])
+        forearm.append(float(np.linalg.norm(m["gripper"] - m["elbow"])))
+    world.move([0.0, -at, 0.0])
+    centre, _, radius, rms = fit_circle(elbows)
+    standoff = float(np.linalg.norm(centre[:2]))
+    L1 = float(centre[2])
+    links = (L1, radius, float(np.median(forearm)))
+    return ArmGeometry(links, (0.0, 0.0, L1), standoff,
+                       "measured: circle through the elbow LED with the shoulder moved "
+                       f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
+                       "|gripper - elbow|", rms, {"elbow_mm": np.array(elbows)})
