@@ -113,3 +113,14 @@ def test_jacobian_tracker_tracks_a_clean_run_on_every_arm(name):
     # one iteration per set point lags one set-point spacing (~2 mm on the ellipse) times the
     # damping ratio lambda^2 / (sigma^2 + lambda^2) ~ 0 here: well below 1 mm
     assert s["track_max_mm"] < 1.0, s
+
+
+def test_three_link_jacobian_tracker_follows_line_ab_reach_under_vision_sized_noise():
+    """The fixed tracker follows the reachable line from the singular straight-up start with
+    LED estimates as noisy as vision's (0.25 mm per axis): its tracking error is of the order
+    of that noise (measured 0.39 mm median, 0.78 mm max, seed 0), not a failure (255 mm)."""
+    cfg = RunConfig(arm="three-link", controller="jacobian", feedback="truth", noise_mm=0.25,
+                    max_step=2.0, iterations=5)
+    _, s = execute(prepare(cfg))
+    # 0.25 mm per axis is 0.43 mm RMS in 3-D; DLS with 5 iterations averages little of it
+    assert s["track_median_mm"] < 2 * 0.43 and s["track_max_mm"] < 5 * 0.43
