@@ -24,13 +24,16 @@ Method
 5. **Stereo.** ``cv2.stereoCalibrate`` with ``CALIB_FIX_INTRINSIC`` on the views in which both
    cameras found the full board: camera 2 relative to camera 1 (R, T).
 6. **Base frame.** Stereo calibration leaves the rig floating in camera 1's frame. It is tied to
-   the robot's base frame as on a real robot: the arm is moved to a few known joint angles
-   (seeded random poses), the LEDs are detected (:func:`itg_vision.detect.find_led` with the
-   *calibrated* cameras) and triangulated in camera-1 coordinates, their world positions come
-   from the nominal forward kinematics, and a rigid least-squares fit (Kabsch) gives the world
-   pose of camera 1 (camera 2 follows through R, T). Its error is the fit's RMS residual
-   (``base_fit_rms_mm``) and, since the truth is known, the cameras' rotation and position
-   errors. It assumes the nominal kinematic model (link lengths, joint zeros) is right.
+   the robot's base by what the LEDs trace when one joint moves at a time
+   (:func:`base_frame_from_axes`): the LEDs are detected (:func:`itg_vision.detect.find_led`
+   with the *calibrated* cameras) and triangulated in camera-1 coordinates along each sweep,
+   and circle fits give each joint's axis and centre. The base joint's axis is world z, its
+   zero (commanded q1 = 0) world x; the three-link shoulder axis fixes the height of the
+   shoulder. No link length is used (the LED stand-off is a mounting dimension; the three-link
+   arm's base height places the unseen floor), so a wrong nominal model cannot move the frame;
+   a joint-zero offset of q1 turns it (that is what q1 = 0 means). Its error: the fits' RMS
+   residual (``base_frame.fit_rms_mm``) and, since the truth is known, the cameras' rotation
+   and position errors.
 7. **Check.** At other seeded arm poses the LEDs are triangulated with the true rig and with the
    calibrated rig from the same images; both RMS errors against the simulator's LED positions
    and their ratio are reported.
@@ -52,7 +55,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from trimesh.registration import procrustes
 from trimesh.transformations import quaternion_from_matrix
 
 from . import outputs
@@ -513,22 +515,6 @@ def place_rig(rig_c1: Rig, R_w: np.ndarray, t_w: np.ndarray, name: str) -> Rig:
     return Rig(name, (cams[0], cams[1]))
 
 
-def rigid_fit(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rigid motion (Kabsch, no scale or reflection): ``B ~ R @ A + t``.
-
-    Parameters
-    ----------
-    A, B : shape (n, 3), n >= 3 points not all on a line.
-
-    Returns
-    -------
-    R : (3, 3), t : (3,).
-    """
-    M, _, _ = procrustes(np.asarray(A, float), np.asarray(B, float), reflection=False,
-                         translation=True, scale=False)
-    return M[:3, :3], M[:3, 3]
-
-
 # ---------------------------------------------------------------------------- LEDs
 def random_arm_poses(arm, n: int, rng: np.random.Generator) -> np.ndarray:
     """Seeded joint angles (deg) that keep the LEDs in view of the shipped rigs, (n, joints)."""
@@ -573,30 +559,114 @@ def triangulate_leds(rig: Rig, arm, images) -> dict[str, np.ndarray]:
     return out
 
 
-def base_frame_fit(rig_c1: Rig, arm, shots) -> tuple[np.ndarray, np.ndarray, float, int]:
-    """World pose of camera 1 from LEDs at known joint angles (Kabsch on FK positions).
+def axis_sweeps(arm) -> dict[int, tuple[np.ndarray, tuple[str, ...]]]:
+    """Poses that turn one joint at a time, and the LEDs that joint moves.
 
     Returns
     -------
-    R_w, t_w : ``x_cam1 = R_w X_world + t_w``.
-    rms_mm : RMS residual of the fit.
-    n : number of LED positions used.
+    {joint index (0-based): (joint angles in deg, shape (n, n_joints), marker names)}; the
+    angles increase along each sweep, and every pose keeps the LEDs in view of the arm's rig.
     """
-    from .arm import forward_kinematics
+    if arm.name == "three-link":
+        yaw = np.column_stack([np.linspace(-170, 170, 21), np.full(21, 60.0), np.full(21, -60.0)])
+        pitch = np.column_stack([np.zeros(25), np.linspace(0, 150, 25), np.full(25, -60.0)])
+        return {0: (yaw, ("elbow", "gripper")), 1: (pitch, ("elbow", "gripper"))}
+    n = arm.n_joints
+    base = np.column_stack([np.linspace(-165, 165, 23)] + [np.full(23, 30.0)] * (n - 1))
+    sweeps = {0: (base, arm.marker_names)}
+    if n == 2:
+        sweeps[1] = (np.column_stack([np.full(23, 90.0), np.linspace(-150, 150, 23)]),
+                     ("gripper",))
+    return sweeps
 
-    A, B = [], []
+
+def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names) -> dict[str, dict]:
+    """Circle fits of the LEDs one joint's sweep moved (camera-1 coordinates)."""
+    from .identify import coaxial_normal, fit_circle, rotation_sense_axis
+
+    pts: dict[str, list] = {n: [] for n in names}
+    angles: dict[str, list] = {n: [] for n in names}
     for q, imgs, _ in shots:
-        fk = forward_kinematics(arm, q)
-        for name, X in triangulate_leds(rig_c1, arm, imgs).items():
-            A.append(fk[name])
-            B.append(X)
-    if len(A) < 4:
-        raise UserError(f"base frame: only {len(A)} LED positions seen by both cameras "
-                        f"(need 4)")
-    A, B = np.array(A), np.array(B)
-    R, t = rigid_fit(A, B)
-    rms = float(np.sqrt(np.mean(np.sum((A @ R.T + t - B) ** 2, axis=1))))
-    return R, t, rms, len(A)
+        X = triangulate_leds(rig_c1, arm, imgs)
+        for n in names:
+            if n in X:
+                pts[n].append(X[n])
+                angles[n].append(float(q[joint]))
+    out = {}
+    for n in names:
+        if len(pts[n]) < 0.75 * len(shots):
+            raise UserError(f"base frame: joint q{joint + 1}'s sweep: the {n} LED was seen by "
+                            f"both cameras in only {len(pts[n])} of {len(shots)} poses")
+    axis = coaxial_normal([pts[n] for n in names])  # every LED turns about the same axis
+    for n in names:
+        centre, normal, radius, rms = fit_circle(pts[n], axis)
+        out[n] = {"centre": centre, "axis": rotation_sense_axis(centre, normal, pts[n]),
+                  "radius_mm": radius, "rms_mm": rms, "points": np.array(pts[n]),
+                  "angles_deg": np.array(angles[n])}
+    return out
+
+
+def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+    """World (base) frame in camera-1 coordinates from the joint axes the LEDs trace.
+
+    Each sweep turns one joint; every LED it moves runs on a circle about that joint's axis
+    (:func:`itg_vision.identify.fit_circle`), oriented by the commanded angles' order. The base
+    joint's axis is the world z axis through the origin; its zero is where link 1 points at
+    q1 = 0 (the elbow LED, or the one-link gripper, lies on link 1). Planar arms: the origin
+    is the circles' common centre moved down by the LED stand-off (the LEDs' mounting height
+    above the links). Three-link arm: the shoulder axis (a pitch joint's circle) gives the
+    arm's plane at q1 = 0 (world y = minus the pitch axis) and the shoulder point on the base
+    axis; the origin is the nominal base height L1 below it (the floor itself is not seen).
+    No link length enters otherwise: a wrong nominal model cannot move the frame.
+
+    Parameters
+    ----------
+    rig_c1 : the calibrated pair in camera-1 coordinates.
+    arm : the nominal arm (its structure, stand-off and, three-link only, L1).
+    sweeps : {joint: (shots, marker names)}, shots from :func:`led_images`.
+
+    Returns
+    -------
+    R_w, t_w : ``x_cam1 = R_w X_world + t_w``; record : the fits, for the calibration file.
+    """
+    from .identify import zero_direction
+
+    fits = {j: _joint_fits(rig_c1, arm, j, shots, names) for j, (shots, names) in sweeps.items()}
+    base = fits[0]
+    z = np.sum([f["axis"] for f in base.values()], axis=0)
+    z /= np.linalg.norm(z)
+    c = np.mean([f["centre"] for f in base.values()], axis=0)
+    record = {"method": "joint axes traced by the LEDs, one joint at a time (circle fits)",
+              "arm": arm.name,
+              "sweeps": {f"q{j + 1}": {"poses": len(shots), "markers": list(names)}
+                         for j, (shots, names) in sweeps.items()},
+              "fit_rms_mm": max(f["rms_mm"] for fj in fits.values() for f in fj.values())}
+    if arm.planar:
+        on_link1 = base["elbow"] if "elbow" in base else base["gripper"]
+        x = zero_direction(c, z, on_link1["points"], on_link1["angles_deg"])
+        origin = c - arm.led_standoff_mm * z
+        measured = [on_link1["radius_mm"]]
+        if 1 in fits:
+            measured.append(fits[1]["gripper"]["radius_mm"])
+        record["nominal_used"] = f"LED stand-off {arm.led_standoff_mm:g} mm (the LEDs' height above the links)"
+    else:
+        shoulder = fits[1]
+        a = np.sum([f["axis"] for f in shoulder.values()], axis=0)
+        a -= (a @ z) * z
+        a /= np.linalg.norm(a)
+        x = np.cross(-a, z)  # at q1 = 0 the pitch axis is world -y: x = y x z
+        C2 = np.mean([f["centre"] for f in shoulder.values()], axis=0)
+        S = c + ((C2 - c) @ z) * z
+        origin = S - arm.links_mm[0] * z
+        record["standoff_mm"] = float(np.linalg.norm(C2 - S))
+        measured = [shoulder["elbow"]["radius_mm"], float(np.median(np.linalg.norm(
+            shoulder["gripper"]["points"] - shoulder["elbow"]["points"], axis=1)))]
+        record["nominal_used"] = (f"base height L1 = {arm.links_mm[0]:g} mm below the measured "
+                                  "shoulder (the floor is not seen)")
+    y = np.cross(z, x)
+    R_w = np.column_stack([x, y, z])
+    record["measured_links_mm"] = measured
+    return R_w, origin, record
 
 
 def led_errors(rig: Rig, arm, shots) -> dict[tuple[int, str], float]:
@@ -648,7 +718,12 @@ def rig_errors(true: Rig, est: Rig) -> dict:
     Tt = t2.t_mm - Rt @ t1.t_mm
     Re = e2.R @ e1.R.T
     Te = e2.t_mm - Re @ e1.t_mm
+    # the true world's origin and axes as the calibrated rig sees them, through camera 1
+    origin = e1.R.T @ (t1.t_mm - e1.t_mm)
     return {"cameras": cams,
+            "base_frame": {"origin_mm": float(np.linalg.norm(origin)),
+                           "origin_vector_mm": origin.tolist(),
+                           "rotation_deg": _rot_angle_deg(e1.R.T @ t1.R)},
             "baseline_mm": float(np.linalg.norm(Te) - np.linalg.norm(Tt)),
             "baseline_vector_mm": float(np.linalg.norm(Te - Tt)),
             "relative_rotation_deg": _rot_angle_deg(Re @ Rt.T)}
@@ -687,25 +762,27 @@ def _plain(obj, digits: int = 6):
 
 
 def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
-              board: Board = Board(), tilt_deg: float = 45.0, base_poses: int = 10,
+              board: Board = Board(), tilt_deg: float = 45.0,
               check_poses: int = 20, supersample: int = 2, name: str | None = None,
-              progress=None) -> Result:
+              true_arm=None, progress=None) -> Result:
     """Calibrate ``true_rig`` from rendered board views and tie it to the arm's base frame.
 
     Parameters
     ----------
     true_rig : the rig that renders (the simulator's cameras).
-    arm : `itg_vision.arm.ArmSpec` whose LEDs tie the rig to the base frame (nominal model).
+    arm : `itg_vision.arm.ArmSpec` whose LEDs tie the rig to the base frame (nominal model:
+        only its structure, LED stand-off and, three-link, base height are used).
     views : board poses shown.
     seed : seeds one generator for the board poses, the sensor noise and the arm poses.
     tilt_deg : largest board tilt about each in-plane axis (0: fronto-parallel, degenerate).
-    base_poses : arm poses for the base-frame fit; ``check_poses``: for the LED check.
+    check_poses : arm poses for the LED check.
+    true_arm : the simulated arm, if it differs from ``arm`` (model error); default ``arm``.
     supersample : rendering factor of the board views.
     progress : optional callable(stage: str), called once per rendered view or arm pose.
 
     Raises
     ------
-    UserError : see :func:`calibrate_views`, :func:`base_frame_fit`.
+    UserError : see :func:`calibrate_views`, :func:`base_frame_from_axes`.
     """
     from .world import World
 
@@ -714,7 +791,8 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
                                target_mm=workspace_centre_mm(arm.name), tilt_deg=tilt_deg)
     tick = (lambda stage: (lambda: progress(stage))) if progress else (lambda stage: None)
     t0 = time.perf_counter()
-    with World(arm) as world:
+    sweep_poses = axis_sweeps(arm)
+    with World(true_arm or arm) as world:
         vs = render_views(world, true_rig, board, poses, rng, supersample=supersample,
                           progress=tick("board"))
         t1 = time.perf_counter()
@@ -723,12 +801,12 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)
-        q_fit = random_arm_poses(arm, base_poses, rng)
+        sweeps = {j: (led_images(world, true_rig, arm, q, rng, progress=tick("arm")), names)
+                  for j, (q, names) in sweep_poses.items()}
         q_check = random_arm_poses(arm, check_poses, rng)
-        shots_fit = led_images(world, true_rig, arm, q_fit, rng, progress=tick("arm"))
         shots_check = led_images(world, true_rig, arm, q_check, rng, progress=tick("arm"))
     t3 = time.perf_counter()
-    R_w, t_w, fit_rms, n_fit = base_frame_fit(rig_c1, arm, shots_fit)
+    R_w, t_w, base_record = base_frame_from_axes(rig_c1, arm, sweeps)
     rig = place_rig(rig_c1, R_w, t_w, name)
     err_true = led_errors(true_rig, arm, shots_check)
     err_cal = led_errors(rig, arm, shots_check)
@@ -740,9 +818,9 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
     c1, c2 = true_rig.cameras
     record = {
         "method": "checkerboard views -> cv2.calibrateCamera per camera (k3 fixed), "
-                  "cv2.stereoCalibrate (CALIB_FIX_INTRINSIC); base frame from LEDs at known "
-                  "joint angles (nominal forward kinematics) triangulated with the calibrated "
-                  "pair, rigid (Kabsch) fit",
+                  "cv2.stereoCalibrate (CALIB_FIX_INTRINSIC); base frame from the joint axes "
+                  "the LEDs trace, one joint at a time, triangulated with the calibrated pair "
+                  "(circle fits)",
         "board": {"inner_corners": [board.cols, board.rows], "square_mm": board.square_mm},
         "seed": seed,
         "sensor_noise_sigma_gray": [c1.noise_sigma_gray, c2.noise_sigma_gray],
@@ -755,8 +833,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         "reprojection_rms_px": {c1.name: cal.rms_px[0], c2.name: cal.rms_px[1]},
         "stereo_rms_px": cal.stereo_rms_px,
         "per_view_rms_px": {c1.name: cal.per_view_rms_px[0], c2.name: cal.per_view_rms_px[1]},
-        "base_frame": {"method": "LEDs at known joint angles, Kabsch fit", "arm": arm.name,
-                       "poses": base_poses, "points": n_fit, "fit_rms_mm": fit_rms},
+        "base_frame": base_record,
         "error_vs_true": rig_errors(true_rig, rig),
         "led_triangulation": {"poses": check_poses, "points": len(common),
                               "true_rig_rms_mm": rms_true, "calibrated_rig_rms_mm": rms_cal,
@@ -823,8 +900,11 @@ def summary_table(r: dict) -> str:
             ("stereo RMS (px)", f"{r['stereo_rms_px']:.3f}"),
             ("baseline error (mm)", f"{e['baseline_mm']:+.3f}"),
             ("relative rotation error (deg)", f"{e['relative_rotation_deg']:.4f}"),
-            ("base frame fit RMS (mm)", f"{r['base_frame']['fit_rms_mm']:.3f} "
-                                        f"({r['base_frame']['points']} LED positions)"),
+            ("base frame error: origin (mm), rotation (deg)",
+             f"{e['base_frame']['origin_mm']:.2f}, {e['base_frame']['rotation_deg']:.3f}"),
+            ("base frame: joint-axis circle fits RMS (mm)",
+             f"{r['base_frame']['fit_rms_mm']:.3f} (measured links "
+             + ", ".join(f"{v:.2f}" for v in r["base_frame"]["measured_links_mm"]) + " mm)"),
             ("LED triangulation RMS (mm)", f"true rig {led['true_rig_rms_mm']:.3f}, calibrated "
                                            f"{led['calibrated_rig_rms_mm']:.3f}, ratio "
                                            f"{led['ratio']:.2f} ({led['points']} points)")]
@@ -861,8 +941,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "0 shows the board fronto-parallel, which is degenerate)")
     ap.add_argument("--sensor-noise", type=float, metavar="SIGMA",
                     help="override the rig's sensor noise (grey levels std) while rendering")
-    ap.add_argument("--base-poses", type=int, default=10, metavar="N",
-                    help="arm poses for the base-frame fit (default %(default)s)")
+    ap.add_argument("--true-links", metavar="L1,L2[,L3]",
+                    help="model error: the simulated arm's link lengths in mm (the base frame "
+                         "comes from the joint axes, not from the lengths: try 105,105)")
     ap.add_argument("--check-poses", type=int, default=20, metavar="N",
                     help="arm poses for the LED triangulation check (default %(default)s)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no table")
@@ -887,8 +968,6 @@ def main(argv: list[str] | None = None) -> int:
                   (0 <= args.tilt <= 75, f"--tilt: must be in 0..75 deg, got {args.tilt}"),
                   (args.sensor_noise is None or 0 <= args.sensor_noise <= 100,
                    f"--sensor-noise: must be in 0..100, got {args.sensor_noise}"),
-                  (2 <= args.base_poses <= 1000, f"--base-poses: must be in 2..1000, got "
-                                                 f"{args.base_poses}"),
                   (1 <= args.check_poses <= 1000, f"--check-poses: must be in 1..1000, got "
                                                   f"{args.check_poses}")]
         for ok, msg in checks:
@@ -904,15 +983,26 @@ def main(argv: list[str] | None = None) -> int:
                 dataclasses.replace(c, noise_sigma_gray=float(args.sensor_noise))
                 for c in true_rig.cameras))
         arm = ArmSpec.from_args(args.arm or ARM_OF_RIG.get(true_rig.name, "two-link"))
+        true_arm = arm
+        if args.true_links is not None:
+            try:
+                links = tuple(float(v) for v in args.true_links.split(","))
+            except ValueError:
+                raise UserError(f"--true-links: expected lengths in mm separated by commas, "
+                                f"got {args.true_links!r}") from None
+            try:
+                true_arm = ArmSpec.from_args(arm.name, links)
+            except UserError as exc:
+                raise UserError(str(exc).replace("--links", "--true-links")) from None
         out = Path(args.out) if args.out else default_out(rig_path)
         if out.resolve() == Path(rig_path).resolve():
             raise UserError(f"--out: {out} would overwrite the true rig")
-        total = args.views + args.base_poses + args.check_poses
+        total = args.views + sum(len(q) for q, _ in axis_sweeps(arm).values()) + args.check_poses
         bar = tqdm(total=total, desc="calibrate", unit="view", disable=args.quiet,
                    file=sys.stderr)
         try:
             result = calibrate(true_rig, arm, views=args.views, seed=args.seed,
-                               tilt_deg=args.tilt, base_poses=args.base_poses,
+                               tilt_deg=args.tilt, true_arm=true_arm,
                                check_poses=args.check_poses,
                                name=f"{Path(out).name.removesuffix('.yaml')}",
                                progress=lambda stage: bar.update())

@@ -25,7 +25,7 @@ import numpy as np
 from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
-SHOULDER_SWEEP_DEG = (-40.0, -20.0, 0.0, 20.0, 40.0)
+SHOULDER_SWEEP_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
 #: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
 #: (a dropped or rejected detection is tried again, as on a real rig).
 SAMPLES_PER_POSE = 5
@@ -86,12 +86,21 @@ def fit_plane(points_mm) -> tuple[np.ndarray, np.ndarray, float]:
     return c, Vt[2], float(s[2] / np.sqrt(len(P)))
 
 
-def fit_circle(points_mm) -> tuple[np.ndarray, np.ndarray, float, float]:
+def coaxial_normal(point_sets) -> np.ndarray:
+    """The common normal of several circles about one axis (parallel planes): the least-squares
+    plane normal of all the points, each set centred on its own mean. Unit, shape (3,)."""
+    centred = np.vstack([np.asarray(p, float) - np.mean(p, axis=0) for p in point_sets])
+    return np.linalg.svd(centred, full_matrices=False)[2][2]
+
+
+def fit_circle(points_mm, normal=None) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Least-squares circle through 3-D points: plane fit, then an algebraic (Kasa) fit in it.
 
     Parameters
     ----------
     points_mm : array-like, shape (n, 3), n >= 3, not all on a line.
+    normal : optional, shape (3,): the plane's normal when it is known (e.g. from
+        :func:`coaxial_normal`); the plane then passes through the points' mean.
 
     Returns
     -------
@@ -99,7 +108,10 @@ def fit_circle(points_mm) -> tuple[np.ndarray, np.ndarray, float, float]:
     radius_mm : float; rms_mm : RMS distance of the points from the fitted circle.
     """
     P = np.asarray(points_mm, float)
-    c, n, _ = fit_plane(P)
+    if normal is None:
+        c, n, _ = fit_plane(P)
+    else:
+        c, n = P.mean(axis=0), np.asarray(normal, float) / np.linalg.norm(normal)
     u = np.cross(n, [1.0, 0.0, 0.0])
     if np.linalg.norm(u) < 0.5:
         u = np.cross(n, [0.0, 1.0, 0.0])
@@ -115,6 +127,34 @@ def fit_circle(points_mm) -> tuple[np.ndarray, np.ndarray, float, float]:
     in_plane = d - np.outer(d @ n, n)
     resid = np.hypot(np.linalg.norm(in_plane, axis=1) - radius, d @ n)
     return centre, n, radius, float(np.sqrt(np.mean(resid**2)))
+
+
+def rotation_sense_axis(centre_mm, normal, points_mm) -> np.ndarray:
+    """The circle's normal oriented so the points, in the order given (increasing joint
+    angle), turn counter-clockwise about it (the right-hand rule of a positive joint step)."""
+    d = np.asarray(points_mm, float) - np.asarray(centre_mm, float)
+    turn = float(np.sum(np.cross(d[:-1], d[1:]) @ np.asarray(normal, float)))
+    return np.asarray(normal, float) * (1.0 if turn >= 0 else -1.0)
+
+
+def turn_about(axis, angle_deg: float) -> np.ndarray:
+    """Rotation matrix by ``angle_deg`` about the unit ``axis`` (right-hand rule), (3, 3)."""
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(axis, float) * np.radians(angle_deg))[0]
+
+
+def zero_direction(centre_mm, axis, points_mm, angles_deg) -> np.ndarray:
+    """Where a point turning about ``axis`` points at joint angle 0: each point's direction
+    from the centre, turned back by its commanded angle, averaged. Unit vector ⟂ axis, (3,)."""
+    axis = np.asarray(axis, float)
+    acc = np.zeros(3)
+    for p, q in zip(np.asarray(points_mm, float), angles_deg):
+        d = p - centre_mm
+        d -= (d @ axis) * axis
+        acc += turn_about(axis, -float(q)) @ (d / np.linalg.norm(d))
+    acc -= (acc @ axis) * axis
+    return acc / np.linalg.norm(acc)
 
 
 # ---------------------------------------------------------------------------- start-up

@@ -35,13 +35,64 @@ def test_quaternion_round_trip():
         assert min(np.abs(got - q).max(), np.abs(got + q).max()) < 1e-9
 
 
-def test_rigid_fit_recovers_a_motion_from_coplanar_points():
+def test_circle_fit_recovers_centre_axis_and_radius():
+    from itg_vision.identify import fit_circle, rotation_sense_axis, zero_direction
+
     rng = np.random.default_rng(1)
     R, _ = _rotation(rng)
-    t = rng.uniform(-500, 500, 3)
-    A = np.c_[rng.uniform(-200, 200, (20, 2)), np.full(20, 12.0)]  # planar LEDs: one plane
-    R_fit, t_fit = cal.rigid_fit(A, A @ R.T + t)
-    assert np.allclose(R_fit, R, atol=1e-9) and np.allclose(t_fit, t, atol=1e-6)
+    centre = rng.uniform(-300, 300, 3)
+    q = np.linspace(-150, 150, 23)  # a joint sweep, increasing
+    ring = np.c_[80 * np.cos(np.radians(q + 20)), 80 * np.sin(np.radians(q + 20)), np.zeros(23)]
+    P = ring @ R.T + centre
+    c, n, r, rms = fit_circle(P)
+    assert np.allclose(c, centre, atol=1e-9) and r == pytest.approx(80, abs=1e-9) and rms < 1e-9
+    axis = rotation_sense_axis(c, n, P)
+    assert np.allclose(axis, R[:, 2], atol=1e-9)  # counter-clockwise with increasing angle
+    # at q = 0 the point sat 20 deg past the ring's x axis
+    assert np.allclose(zero_direction(c, axis, P, q),
+                       R @ [np.cos(np.radians(20)), np.sin(np.radians(20)), 0], atol=1e-9)
+    # 0.3 mm noise per coordinate on 23 points: the centre within ~0.3 / sqrt(23 / 2) ~ 0.1 mm
+    c2, _, r2, rms2 = fit_circle(P + rng.normal(0, 0.3, P.shape))
+    assert np.linalg.norm(c2 - centre) < 0.4 and abs(r2 - 80) < 0.4 and 0.1 < rms2 < 0.6
+
+
+def _camera1_frame(rig):
+    """The rig re-expressed with camera 1 at the origin (what stereo calibration yields)."""
+    from itg_vision.camera import Camera
+
+    c1, c2 = rig.cameras
+    R = c2.R @ c1.R.T
+    cams = [Camera.from_arrays(c1.name, c1.size, c1.K, c1.dist_coeffs, np.eye(3), np.zeros(3)),
+            Camera.from_arrays(c2.name, c2.size, c2.K, c2.dist_coeffs, R, c2.t_mm - R @ c1.t_mm)]
+    return Rig("c1", tuple(cams))
+
+
+@pytest.mark.parametrize("arm_name, rig_name", [("two-link", "planar"), ("three-link", "three-link")])
+def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name):
+    """The base frame from the joint axes the LEDs trace, with the true pair: within 1 mm /
+    0.1 deg of the truth, whether the simulated links are nominal or 5 % long. The three-link
+    origin sits the nominal base height below the measured shoulder: it moves by the base
+    height's own error (5 mm up), and only in z."""
+    true_rig = Rig.from_yaml(ROOT / "cameras" / f"{rig_name}.yaml")
+    rig_c1 = _camera1_frame(true_rig)
+    nominal = ArmSpec.from_args(arm_name)
+    cam1 = true_rig.cameras[0]
+    for scale in (1.0, 1.05):
+        true_arm = ArmSpec.from_args(arm_name, tuple(scale * v for v in nominal.links_mm))
+        rng = np.random.default_rng(0)
+        with World(true_arm) as world:
+            sweeps = {j: (cal.led_images(world, true_rig, nominal, q, rng), names)
+                      for j, (q, names) in cal.axis_sweeps(nominal).items()}
+        R_w, t_w, rec = cal.base_frame_from_axes(rig_c1, nominal, sweeps)
+        angle = np.degrees(np.linalg.norm(__import__("cv2").Rodrigues(R_w @ cam1.R.T)[0]))
+        origin_shift = R_w.T @ (t_w - cam1.t_mm)  # true-world coordinates of the found origin
+        expect = [0, 0, (scale - 1) * nominal.links_mm[0] if arm_name == "three-link" else 0]
+        # LEDs triangulated to ~0.3 mm; 19-23 poses per circle: the fits average it down
+        assert angle < 0.1, (scale, angle)
+        assert np.linalg.norm(origin_shift - expect) < 1.0, (scale, origin_shift)
+        assert rec["fit_rms_mm"] < 1.0
+        assert rec["measured_links_mm"][0] == pytest.approx(
+            true_arm.links_mm[0 if arm_name == "two-link" else 1], abs=0.5)
 
 
 def test_board_texture_has_the_pattern_and_an_asymmetric_corner():
@@ -85,7 +136,7 @@ def planar_result():
     to 0.37 %, above the 0.2 % target."""
     rig = Rig.from_yaml(PLANAR)
     return rig, cal.calibrate(rig, ArmSpec.from_args("two-link"), views=cal.DEFAULT_VIEWS,
-                              seed=0, base_poses=6, check_poses=15)
+                              seed=0, check_poses=15)
 
 
 @pytest.mark.slow
@@ -108,8 +159,22 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
     assert led["points"] >= 20
     assert led["ratio"] <= 1.2                                              # target
     assert r["base_frame"]["fit_rms_mm"] < 1.0
+    assert e["base_frame"]["origin_mm"] < 1.0 and e["base_frame"]["rotation_deg"] < 0.1
     # the calibrated rig differs from the true one (it was estimated, not copied)
     assert res.rig.cameras[0].fx != true_rig.cameras[0].fx
+
+
+@pytest.mark.slow
+def test_calibration_with_links_five_percent_long_keeps_the_base_frame():
+    """The simulated arm 5 % longer than the nominal model: the base frame comes from the joint
+    axes, not from the lengths, so it stays within 1 mm / 0.1 deg of the truth, and the
+    joint-axis fits measure the true lengths."""
+    rig = Rig.from_yaml(PLANAR)
+    res = cal.calibrate(rig, ArmSpec.from_args("two-link"), views=cal.DEFAULT_VIEWS, seed=0,
+                        check_poses=5, true_arm=ArmSpec.from_args("two-link", (105.0, 105.0)))
+    frame = res.record["error_vs_true"]["base_frame"]
+    assert frame["origin_mm"] < 1.0 and frame["rotation_deg"] < 0.1
+    assert res.record["base_frame"]["measured_links_mm"] == pytest.approx([105, 105], abs=0.5)
 
 
 @pytest.mark.slow

@@ -109,7 +109,7 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     assert g.shoulder_mm == pytest.approx((0.0, 0.0, 96.0), abs=1e-3)
     assert g.standoff_mm == pytest.approx(12.0, abs=1e-3)
     # with vision-sized noise (0.25 mm per axis, 5 samples per pose averaged) the fit over
-    # +-40 deg of shoulder motion (a 23 mm sagitta) stays within ~1 mm
+    # +-60 deg of shoulder motion (a 50 mm sagitta) stays within ~1 mm
     with World(true) as w:
         fb = TruthFeedback(noise_mm=0.25)
         fb.reset(0)
