@@ -1,8 +1,11 @@
 """python -m itg_vision.paper --out DIR: the paper's experiments 1 to 6, measured beside its claims.
 
 Each experiment runs with the paper's setup (the arm's kinematic model as feedback, one rule
-iteration per set point, start fully extended) unless ``--feedback`` says otherwise, and writes
-a figure; ``report.md`` puts each measured figure beside the paper's claim.
+iteration per set point, start fully extended, no servo limit) unless ``--feedback`` says
+otherwise, and writes a figure; ``report.md`` puts each measured figure beside the paper's
+claim, with a verdict computed from a threshold written beside it. Where the paper is open we
+choose, and the report says so (experiment 1's corners, the units of f, what "acceptable" is).
+Mechanisms offered in the report are tested by changing the suspected cause and measuring again.
 """
 
 from __future__ import annotations
@@ -16,13 +19,31 @@ import numpy as np
 
 from . import outputs, plot
 from . import trajectory as traj
-from .errors import UserError, run_main
+from .errors import run_main
+from .feedback import Markers, TruthFeedback
+from .identify import nominal_geometry
 from .loop import simulate
-from .runner import RunConfig, execute, prepare
+from .runner import RunConfig, bind_geometry, execute, prepare
 from .world import World
 
 PAPER_F = 0.001  # the paper's f (experiment 1), units not stated
-PAPER_F_AS_DEG_PER_MM = np.degrees(PAPER_F)  # read as rad/mm: 0.0573 deg/mm
+PAPER_F_AS_DEG_PER_MM = float(np.degrees(PAPER_F))  # read as rad/mm: 0.0573 deg/mm
+PAPER_EXP6_E_AV_MM = 0.4
+
+#: Thresholds of the verdicts (written into the report beside each number).
+JUMP_FORGOTTEN_AGREE = 5     # exp. 1: set points after the jump until E_i is within 0.1 mm of control
+JUMP_FORGOTTEN_PARTLY = 50
+FOLLOWS_CLOSELY_MM = 5.0     # exp. 2: settled E_av, 2.5 % of the arm's 200 mm reach
+SLOPE_RANGE = (-1.2, -0.8)   # exp. 3: "inversely proportional" (log-log slope -1)
+GOOD_F_FACTOR = 1.5          # exp. 4: f whose E_av is within 1.5x of the minimum
+PEAK_ANGLE_TOL_DEG = 20.0    # exp. 5: a peak "at 0/180/360 deg"
+ACCEPTABLE_MM = 10.0         # exp. 5: "within acceptable limits": settled-lap E_max, 5 % of reach
+FLAIL_MM = 20.0              # exp. 5: a set point of a flail
+EXP6_FACTOR = 2.0            # exp. 6: agrees if E_av within 2x of the paper's 0.4 mm, all in reach
+
+
+def verdict(ok: bool, partly: bool = False) -> str:
+    return "agrees" if ok else ("partly" if partly else "disagrees")
 
 
 def _run(base: RunConfig, **kw):
@@ -44,7 +65,8 @@ def _simulate_points(base: RunConfig, points_mm: np.ndarray, **kw):
     fb = prep.feedback_factory()
     fb.reset(base.seed)
     with World(prep.true_arm) as w:
-        return simulate(w, prep.controller, fb, points_mm, iterations=prep.config.iterations,
+        ctl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model)
+        return simulate(w, ctl, fb, points_mm, iterations=prep.config.iterations,
                         planar=prep.model.planar, max_step_deg=prep.config.max_step)
 
 
@@ -62,7 +84,8 @@ def exp1(base, out) -> dict:
     plot.lines_figure({"with the jump": (np.arange(n), cd), "control: B-C crossed by 100 set points": (np.arange(n), control)},
                       "set point on C-D", "E_i (mm)", "experiment 1: E_i along C-D", out / "exp1_error.png",
                       logy=True, marker="")
-    return {"e_av_mm": s["e_av_mm"], "e_av_ab_last_half_mm": float(e[n // 2:n].mean()),
+    return {"corners_mm": [list(c) for c in traj.ABCD_MM],
+            "e_av_mm": s["e_av_mm"], "e_av_ab_last_half_mm": float(e[n // 2:n].mean()),
             "e_av_cd_mm": float(cd.mean()), "e_av_cd_control_mm": float(control.mean()),
             "jump_e_mm": float(cd[0]), "forgotten_after_setpoints": int(after),
             "e_av_cd_after_mm": float(cd[after:].mean()) if after < n else float("nan"),
@@ -75,25 +98,28 @@ def exp2(base, out) -> dict:
     i0 = settle_index(e, 10.0)
     plot.paths_figure([("experiment 2: ellipse T1, 180 points", trace)], "Fig. 4.2", out / "exp2_path.png")
     return {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"], "settled_at": i0,
-            "e_av_after_settling_mm": float(np.mean(e[i0:]))}
+            "e_av_after_settling_mm": float(np.mean(e[i0:])),
+            "e_max_after_settling_mm": float(np.max(e[i0:]))}
+
+
+EXP3_GAINS = (0.1, 0.2, 0.5)
 
 
 def exp3(base, out) -> dict:
+    """E_av against n_t, for several gains f: the slope depends on f."""
     ns = np.arange(100, 1001, 100)
-    eav, near_axis = [], []
-    for n in ns:
-        trace, summ = _run(base, arm="two-link", trajectory="ellipse-t1", points=int(n))
-        e, yd = trace.error_mm(), np.asarray(trace.desired_mm)[:, 1]
-        eav.append(summ["e_av_mm"])
-        near_axis.append(float(e[np.abs(yd) < 15.0].sum() / e.sum()))
-    eav = np.array(eav)
-    slope = float(np.polyfit(np.log(ns), np.log(eav), 1)[0])
-    fit = np.exp(np.mean(np.log(eav * ns))) / ns
-    plot.lines_figure({"measured E_av": (ns, eav), "c / n_t": (ns, fit)}, "n_t (set points)",
-                      "E_av (mm)", f"Fig. 4.3: E_av against n_t (log-log slope {slope:.2f})",
-                      out / "exp3_eav_vs_nt.png", logx=True, logy=True)
-    return {"n_t": ns.tolist(), "e_av_mm": eav.tolist(), "loglog_slope": slope,
-            "share_of_error_near_y0": near_axis}
+    res, series = {}, {}
+    for f in EXP3_GAINS:
+        eav = np.array([_run(base, arm="two-link", trajectory="ellipse-t1", points=int(n),
+                             gain=f)[1]["e_av_mm"] for n in ns])
+        slope = float(np.polyfit(np.log(ns), np.log(eav), 1)[0])
+        res[f"{f:g}"] = {"e_av_mm": eav.tolist(), "loglog_slope": slope}
+        series[f"f = {f:g} deg/mm (slope {slope:.2f})"] = (ns, eav)
+    fit = {f"c / n_t (through f = {EXP3_GAINS[0]:g})": (
+        ns, np.exp(np.mean(np.log(np.asarray(res[f"{EXP3_GAINS[0]:g}"]["e_av_mm"]) * ns))) / ns)}
+    plot.lines_figure({**series, **fit}, "n_t (set points)", "E_av (mm)",
+                      "Fig. 4.3: E_av against n_t", out / "exp3_eav_vs_nt.png", logx=True, logy=True)
+    return {"n_t": ns.tolist(), "by_gain": res}
 
 
 def exp4(base, out) -> dict:
@@ -102,31 +128,60 @@ def exp4(base, out) -> dict:
     for name in ("ellipse-t1", "ellipse-t2"):
         eav = np.array([_run(base, arm="two-link", trajectory=name, gain=float(f))[1]["e_av_mm"] for f in fs])
         best = float(fs[int(np.argmin(eav))])
-        good = fs[eav <= 1.5 * eav.min()]
+        good = fs[eav <= GOOD_F_FACTOR * eav.min()]
         res[name] = {"f": fs.tolist(), "e_av_mm": eav.tolist(), "best_f": best,
                      "good_range": [float(good.min()), float(good.max())], "min_e_av_mm": float(eav.min())}
         series[name.replace("ellipse-", "").upper()] = (fs, eav)
-    paper = _run(base, arm="two-link", trajectory="ellipse-t1", gain=PAPER_F_AS_DEG_PER_MM)[1]["e_av_mm"]
-    res["paper_f_as_rad_per_mm_e_av_t1_mm"] = paper
+    # the paper's f = 0.001 read as rad/mm, with a few iterations per set point (its 3.2(i))
+    res["paper_f_as_rad_per_mm_e_av_t1_mm"] = {
+        str(k): _run(base, arm="two-link", trajectory="ellipse-t1", gain=PAPER_F_AS_DEG_PER_MM,
+                     iterations=k)[1]["e_av_mm"] for k in (1, 10, 20)}
     plot.lines_figure(series, "f (deg/mm)", "E_av (mm)", "Fig. 4.4: E_av against f",
                       out / "exp4_eav_vs_f.png", logx=True, logy=True)
     return res
 
 
+def _inverted(trace) -> np.ndarray:
+    """Per set point: both joints' levers inverted against Table 2's pairing (q1 moves the
+    gripper mostly in y, q2 mostly in x), from the true LED positions."""
+    g, e = np.asarray(trace.gripper_mm), np.asarray(trace.elbow_mm)
+    return (g[:, 0] ** 2 > g[:, 1] ** 2) & ((g[:, 1] - e[:, 1]) ** 2 > (g[:, 0] - e[:, 0]) ** 2)
+
+
+def _two_laps(base, n, rules=None):
+    t1 = traj.named("ellipse-t1", n)
+    kw = {"points": n} if rules is None else {"points": n, "rules": rules}
+    return _simulate_points(base, np.vstack([t1.points_mm, t1.points_mm]), **kw), t1
+
+
 def exp5(base, out) -> dict:
+    """Deviation against the radial angle; the settled lap's flails and their mechanism."""
     res, series_first, series_second = {}, {}, {}
     for n in (180, 360, 720):
-        t1 = traj.named("ellipse-t1", n)
+        trace, t1 = _two_laps(base, n)
         pts, ang = t1.points_mm, t1.param_deg
-        e = _simulate_points(base, np.vstack([pts, pts]), points=n).error_mm()  # two laps
+        e = trace.error_mm()
         first, second = e[:n], e[n:]
         series_first[f"n_t={n}"] = (ang, first)
         series_second[f"n_t={n}"] = (ang, second)
         peaks = _peaks(ang, second)
+        # flail onsets on the settled lap: E_i crosses FLAIL_MM; the pose one set point before
+        k = np.flatnonzero((e[n:] > FLAIL_MM) & (e[n - 1:-1] <= FLAIL_MM)) + n
+        inv = _inverted(trace)
+        variants = {}
+        for label, rules in (("sign of y_g instead of y_d", "table2-sign-of-yg"),
+                             ("pairing swapped where both levers are inverted", "table2-pairing-swap")):
+            e2 = _two_laps(base, n, rules)[0].error_mm()[n:]
+            variants[label] = {"rules": rules, "second_lap_e_av_mm": float(e2.mean()),
+                               "second_lap_e_max_mm": float(e2.max())}
         res[n] = {"first_lap_max_at_deg": float(ang[int(np.argmax(first))]),
                   "second_lap_peaks_deg": peaks,
                   "second_lap_peak_yd_mm": [float(pts[int(np.argmin(np.abs(ang - a))), 1]) for a in peaks],
-                  "second_lap_e_av_mm": float(second.mean()), "second_lap_e_max_mm": float(second.max())}
+                  "second_lap_e_av_mm": float(second.mean()), "second_lap_e_max_mm": float(second.max()),
+                  "flail_onsets": int(len(k)),
+                  "flail_onsets_from_inverted_pose": int(inv[k - 1].sum()) if len(k) else 0,
+                  "inverted_share_of_settled_lap": float(inv[n:].mean()),
+                  "variants": variants}
     plot.lines_figure(series_first, "radial angle (deg)", "E_i (mm)",
                       "Fig. 4.5: set point deviation, first lap (as the paper: from the start pose)",
                       out / "exp5_first_lap.png", logy=True, marker="")
@@ -143,6 +198,51 @@ def _peaks(ang, e, k=3) -> list[float]:
     return sorted(float(ang[i]) for i in idx)
 
 
+class BiasedElbow(TruthFeedback):
+    """Ideal LED positions, the elbow moved ``bias_mm`` away from the base axis (horizontally):
+    a deterministic stand-in for vision's sub-0.1 mm bias, to decide the straight-up tie."""
+
+    def __init__(self, bias_mm: float):
+        super().__init__()
+        self.bias_mm = float(bias_mm)
+
+    def observe(self, world) -> Markers:
+        m = super().observe(world)
+        e = m.elbow_mm.copy()
+        r = float(np.hypot(e[0], e[1]))
+        if r > 0:
+            e[:2] *= (r + self.bias_mm) / r
+        return Markers(m.gripper_mm, e)
+
+
+TIE_BIAS_MM = 0.05
+TIE_LINKS_MM = ((100.0, 100.0, 100.0), (105.0, 105.0, 105.0))
+
+
+def tie_experiment(max_step: float = 2.0, iterations: int = 5) -> list[dict]:
+    """Three-link, line-ab-reach, ideal sensors: the straight-up start's rg2 == re2 tie decided
+    by a deterministic +-0.05 mm elbow bias, for nominal and 5 % long links."""
+    rows = []
+    for links in TIE_LINKS_MM:
+        for bias in (+TIE_BIAS_MM, -TIE_BIAS_MM, 0.0):
+            prep = prepare(RunConfig(arm="three-link", feedback="truth", max_step=max_step,
+                                     iterations=iterations, true_links_mm=links))
+            with World(prep.true_arm) as w:
+                from .identify import measure_geometry
+
+                geometry = measure_geometry(w, TruthFeedback(), prep.model)
+                ctl = bind_geometry(prep.controller, geometry, prep.model)
+                fb = BiasedElbow(bias)
+                m0 = fb.observe(w)
+                tie = float(np.sum(m0.gripper_mm[:2] ** 2) - np.sum(m0.elbow_mm[:2] ** 2))
+                tr = simulate(w, ctl, fb, prep.trajectory.points_mm, iterations=iterations,
+                              planar=False, max_step_deg=max_step)
+            rows.append({"links_mm": list(links), "elbow_bias_mm": bias, "rg2_minus_re2_mm2": tie,
+                         "first_q3_rule": next((r for r in tr.fired[0] if r in (6, 7)), None),
+                         **{k: tr.metrics()[k] for k in ("track_median_mm", "track_max_mm")}})
+    return rows
+
+
 def exp6(base, out) -> dict:
     res = {}
     t_full, s_full = _run(base, arm="three-link", trajectory="line-ab")
@@ -154,13 +254,19 @@ def exp6(base, out) -> dict:
         trace, s = _run(base, arm="three-link", trajectory="line-ab-reach", **kw)
         e = trace.error_mm()
         res[label] = {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"],
-                      "e_av_second_half_mm": float(e[len(e) // 2:].mean())}
+                      "e_av_second_half_mm": float(e[len(e) // 2:].mean()),
+                      "e_max_second_half_mm": float(e[len(e) // 2:].max())}
         panels.append((label, trace))
         plot.path_figure(trace, f"experiment 6, line-ab-reach, {label}: E_av {s['e_av_mm']:.2f} mm",
                          out / f"exp6_path_{'paper' if not kw else 'limited'}.png")
     plot.path_figure(t_full, f"experiment 6, the paper's line: {s_full['n_out_of_reach']} of "
                              f"{s_full['n_setpoints']} set points out of reach", out / "exp6_line_ab.png")
+    res["start_tie"] = tie_experiment()
     return res
+
+
+def _fmt(v, d=2) -> str:
+    return "n/a" if v is None or not np.isfinite(v) else f"{v:.{d}f}"
 
 
 def report(r: dict, base: RunConfig) -> str:
@@ -168,77 +274,130 @@ def report(r: dict, base: RunConfig) -> str:
     t1, t2 = e4["ellipse-t1"], e4["ellipse-t2"]
     lim = e6["servo limit 2 deg/iteration, 5 iterations"]
     asis = e6["as the paper (1 iteration, no rate limit)"]
-    lines = [
+    pf = e4["paper_f_as_rad_per_mm_e_av_t1_mm"]
+    L = [
         "# The paper's experiments, reproduced",
         "",
         f"Command: `python -m itg_vision.paper --out DIR` (feedback `{base.feedback}`, gain f = {base.gain} deg/mm "
-        f"unless swept, {base.iterations} iteration per set point, start fully extended, two-link 100/100 mm, "
-        "three-link 100/100/100 mm). All numbers below were measured by this run.",
+        f"unless swept, {base.iterations} iteration per set point, no servo limit, start fully extended, "
+        "two-link 100/100 mm, three-link 100/100/100 mm). All numbers below were measured by this run; each "
+        "verdict is computed from the threshold written beside it.",
         "",
-        "**Units of f.** The paper uses f = 0.001 without units. Read as rad/mm (0.0573 deg/mm) it tracks far "
-        f"behind on T1 (E_av {e4['paper_f_as_rad_per_mm_e_av_t1_mm']:.1f} mm); the measured optimum is near "
-        f"{t1['best_f']:.2f} deg/mm, and the loop turns unstable above about 0.8 deg/mm (the q1 loop gain is "
-        "f * |y_g| * pi/180 per step, unstable past 2). We use f in deg/mm, default 0.5.",
+        "**Units of f.** The paper gives f = 0.001 without units. Two readings: (a) rad/mm, i.e. "
+        f"{PAPER_F_AS_DEG_PER_MM:.4f} deg/mm, with one iteration per set point E_av on T1 is "
+        f"{_fmt(pf['1'], 1)} mm; with the few iterations per set point of its section 3.2(i), 10 and 20 "
+        f"iterations give {_fmt(pf['10'], 1)} and {_fmt(pf['20'], 1)} mm; (b) deg/mm with one iteration, "
+        f"tuned: the measured optimum is near {t1['best_f']:.2f} deg/mm and the loop turns unstable above "
+        "about 0.8 deg/mm (the q1 loop gain is f |y_g| pi/180 per step). We use f in deg/mm, default 0.5.",
         "",
-        "| exp. | the paper's claim | measured here | verdict |",
-        "| --- | --- | --- | --- |",
-        f"| 1 | the sudden 100 mm jump B-C does not affect tracking quality (Fig. 4.1) | E_i right after the jump "
-        f"{e1['jump_e_mm']:.1f} mm; from set point {e1['forgotten_after_setpoints']} of C-D on, E_i is within 0.1 mm of a "
-        f"control run that crosses B-C with 100 set points (E_av there {e1['e_av_cd_after_mm']:.2f} vs "
-        f"{e1['e_av_cd_control_after_mm']:.2f} mm); E_av on all of C-D {e1['e_av_cd_mm']:.2f} vs {e1['e_av_cd_control_mm']:.2f} mm | "
-        + (f"partly: the jump costs a transient of {e1['forgotten_after_setpoints']} set points (E_i from "
-           f"{e1['jump_e_mm']:.0f} mm down), after which the tracking is the same as without the jump |"
-           if e1['forgotten_after_setpoints'] < 50 else "disagrees: the jump's effect lasts |"),
-        f"| 2 | the ITG closely follows the nonlinear ellipse T1 (Fig. 4.2) | E_av {e2['e_av_mm']:.2f} mm over all 180 points "
-        f"(E_max {e2['e_max_mm']:.1f} mm, the start transient from (0, 200)); after settling (set point {e2['settled_at']}) "
-        f"E_av {e2['e_av_after_settling_mm']:.2f} mm | agrees in shape; the paper gives no number |",
-        f"| 3 | E_av is inversely proportional to n_t (Fig. 4.3) | log-log slope {e3['loglog_slope']:.2f} over "
-        f"n_t = 100..1000 (E_av {e3['e_av_mm'][0]:.2f} -> {e3['e_av_mm'][-1]:.2f} mm); set points with |y_d| < 15 mm carry "
-        f"{100 * e3['share_of_error_near_y0'][0]:.0f} % of the error at n_t = 100 and {100 * e3['share_of_error_near_y0'][-1]:.0f} % at 1000 | "
-        + ("agrees |" if -1.2 <= e3['loglog_slope'] <= -0.8 else
-           "disagrees: E_av falls, but more slowly than 1/n_t. The lag behind the moving set point does scale as 1/n_t; the "
-           "error where the ellipse crosses y = 0 does not, because Table 2 picks q1's direction from the sign of y_d and "
-           "turns the wrong way until y_g changes sign too |"),
-        f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f']:.3f}, T2 "
-        f"{t2['best_f']:.3f} deg/mm; E_av within 1.5x of the minimum for f in [{t1['good_range'][0]:.3f}, "
-        f"{t1['good_range'][1]:.3f}] (T1) and [{t2['good_range'][0]:.3f}, {t2['good_range'][1]:.3f}] (T2) | "
-        f"{'agrees' if min(t1['good_range'][1], t2['good_range'][1]) >= max(t1['good_range'][0], t2['good_range'][0]) else 'disagrees'}: the ranges overlap; the upper end is set by the arm (stability), not the path |",
+        "| exp. | the paper's claim | measured here | threshold (ours) | verdict |",
+        "| --- | --- | --- | --- | --- |",
     ]
+    fa = e1["forgotten_after_setpoints"]
+    L.append(
+        f"| 1 | the sudden 100 mm jump B-C does not affect tracking quality (Fig. 4.1) | corners A{tuple(e1['corners_mm'][0])}, "
+        f"B{tuple(e1['corners_mm'][1])}, C{tuple(e1['corners_mm'][2])}, D{tuple(e1['corners_mm'][3])} mm are our choice (the paper "
+        f"gives only the 100 mm jump). E_i right after the jump {e1['jump_e_mm']:.1f} mm; from set point {fa} of C-D on, E_i is "
+        f"within 0.1 mm of a control run that crosses B-C with 100 set points (E_av there {_fmt(e1['e_av_cd_after_mm'])} vs "
+        f"{_fmt(e1['e_av_cd_control_after_mm'])} mm); E_av on all of C-D {e1['e_av_cd_mm']:.2f} vs {e1['e_av_cd_control_mm']:.2f} mm | "
+        f"agrees if the jump is forgotten within {JUMP_FORGOTTEN_AGREE} set points, partly within {JUMP_FORGOTTEN_PARTLY} | "
+        f"{verdict(fa <= JUMP_FORGOTTEN_AGREE, fa <= JUMP_FORGOTTEN_PARTLY)}: a transient of {fa} set points |")
+    L.append(
+        f"| 2 | the ITG closely follows the nonlinear ellipse T1 (Fig. 4.2), no number given | E_av {e2['e_av_mm']:.2f} mm over all "
+        f"180 points (E_max {e2['e_max_mm']:.1f} mm, the start transient from (0, 200)); from set point {e2['settled_at']} on, "
+        f"E_av {e2['e_av_after_settling_mm']:.2f} mm, E_max {e2['e_max_after_settling_mm']:.1f} mm | agrees if settled "
+        f"E_av <= {FOLLOWS_CLOSELY_MM:g} mm and settled E_max <= {ACCEPTABLE_MM:g} mm; partly if only the E_av holds | "
+        f"{verdict(e2['e_av_after_settling_mm'] <= FOLLOWS_CLOSELY_MM and e2['e_max_after_settling_mm'] <= ACCEPTABLE_MM, e2['e_av_after_settling_mm'] <= FOLLOWS_CLOSELY_MM)} |")
+    slopes = {f: v["loglog_slope"] for f, v in e3["by_gain"].items()}
+    ok3 = {f: SLOPE_RANGE[0] <= s <= SLOPE_RANGE[1] for f, s in slopes.items()}
+    L.append(
+        f"| 3 | E_av is inversely proportional to n_t (Fig. 4.3) | log-log slope over n_t = 100..1000: "
+        + ", ".join(f"{s:.2f} at f = {f} deg/mm" for f, s in slopes.items())
+        + f" | slope in [{SLOPE_RANGE[0]}, {SLOPE_RANGE[1]}], per f | "
+        + "; ".join(f"f = {f}: {verdict(ok)}" for f, ok in ok3.items())
+        + ": the slope depends on f, so the claim holds at most for some gains |")
+    overlap = min(t1["good_range"][1], t2["good_range"][1]) >= max(t1["good_range"][0], t2["good_range"][0])
+    L.append(
+        f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f']:.3f}, T2 "
+        f"{t2['best_f']:.3f} deg/mm; good f [{t1['good_range'][0]:.3f}, {t1['good_range'][1]:.3f}] (T1), "
+        f"[{t2['good_range'][0]:.3f}, {t2['good_range'][1]:.3f}] (T2) | good f: E_av within {GOOD_F_FACTOR}x of the "
+        f"minimum; agrees if the two ranges overlap | {verdict(overlap)} |")
+    # experiment 5
+    firsts = ", ".join(f"{v['first_lap_max_at_deg']:.0f}" for v in e5.values())
     peaks = "; ".join(f"n_t={n}: " + ", ".join(f"{a:.0f} deg (y_d {y:.0f} mm)" for a, y in
                                               zip(v["second_lap_peaks_deg"], v["second_lap_peak_yd_mm"]))
                       for n, v in e5.items())
-    firsts = ", ".join(f"{v['first_lap_max_at_deg']:.0f}" for v in e5.values())
-    at_ends = all(min(abs(a - 0), abs(a - 180), abs(a - 360)) <= 20 for v in e5.values()
+    at_ends = all(min(abs(a - 0), abs(a - 180), abs(a - 360)) <= PEAK_ANGLE_TOL_DEG for v in e5.values()
                   for a in v["second_lap_peaks_deg"][:1])
-    near_y0 = sum(abs(y) < 15 for v in e5.values() for y in v["second_lap_peak_yd_mm"])
-    total = sum(len(v["second_lap_peak_yd_mm"]) for v in e5.values())
-    lines.append(
-        f"| 5 | the largest deviation is at radial angles 0, 180, 360 deg (Fig. 4.5) | first lap (from the start pose, as "
-        f"the paper): largest at {firsts} deg, the start transient. Settled second lap, the three largest peaks: {peaks} | "
-        + ("agrees |" if at_ends else
-           f"partly: the first lap's maximum is at 0/360 deg, but only because the arm starts far from the first set point; "
-           f"once settled, {near_y0} of the {total} largest peaks sit where |y_d| < 15 mm, i.e. where the path crosses the "
-           f"x axis and Table 2's sign-of-y_d quirk turns q1 the wrong way, not where the path bends most |"))
-    lines.append(
-        f"| 6 | line A(50, 30, 220) to B(250, 200, 400), 100 points, average error about 0.4 mm | the paper's line: "
-        f"{e6['line-ab']['n_out_of_reach']} of {e6['line-ab']['n_setpoints']} set points out of reach (B is 439 mm "
-        f"from the shoulder, reach 200 mm): RULE 0 flags them. Reachable variant (`line-ab-reach`): as the paper, "
-        f"E_av {asis['e_av_mm']:.1f} mm; with a 2 deg/iteration servo limit and 5 iterations E_av {lim['e_av_mm']:.2f} mm, "
-        f"{lim['e_av_second_half_mm']:.2f} mm on the second half | "
-        + ("disagrees as given: from the singular straight-up start the variable step throws the arm over the top, "
-           "where the r^2 comparisons lose the sign of r, and the Table 1 rule turns the base while the arm is still "
-           "upright. With a servo rate limit the composition tracks; an error near the paper's 0.4 mm holds only after "
-           "the start transient |" if asis["e_av_mm"] > 2 * lim["e_av_mm"] or lim["e_av_second_half_mm"] > 1 else
-           "agrees |"))
-    lines += ["", "## Figures", ""]
+    emax = {n: v["second_lap_e_max_mm"] for n, v in e5.items()}
+    acceptable = all(m <= ACCEPTABLE_MM for m in emax.values())
+    L.append(
+        f"| 5a | the largest deviation is at radial angles 0, 180, 360 deg (Fig. 4.5) | first lap (from the start pose, as the "
+        f"paper): largest at {firsts} deg, the start transient. Settled second lap, the three largest peaks: {peaks} | the "
+        f"settled lap's largest peak within {PEAK_ANGLE_TOL_DEG:g} deg of 0, 180 or 360 for every n_t | {verdict(at_ends)} |")
+    L.append(
+        f"| 5b | the deviation remains within acceptable limits even for small n_t | settled-lap E_max "
+        + ", ".join(f"{m:.0f} mm (n_t {n})" for n, m in emax.items())
+        + f"; settled-lap E_av " + ", ".join(f"{v['second_lap_e_av_mm']:.1f}" for v in e5.values())
+        + f" mm | acceptable: settled-lap E_max <= {ACCEPTABLE_MM:g} mm (5 % of the 200 mm reach) | "
+        f"{verdict(acceptable)} |")
+    # experiment 6
+    n_oor = e6["line-ab"]["n_out_of_reach"]
+    ok6 = n_oor == 0 and lim["e_av_mm"] <= EXP6_FACTOR * PAPER_EXP6_E_AV_MM
+    L.append(
+        f"| 6 | line A(50, 30, 220) to B(250, 200, 400), 100 points, average error about {PAPER_EXP6_E_AV_MM} mm | the paper's line: "
+        f"{n_oor} of {e6['line-ab']['n_setpoints']} set points out of reach (B is 439 mm from the shoulder, z = 400 mm above "
+        f"the 300 mm the arm reaches; RULE 0 flags them). Reachable variant (`line-ab-reach`): as the paper, E_av "
+        f"{asis['e_av_mm']:.1f} mm; with a 2 deg/iteration servo limit and 5 iterations E_av {lim['e_av_mm']:.2f} mm "
+        f"(E_max {lim['e_max_mm']:.0f} mm, the start), {lim['e_av_second_half_mm']:.2f} mm on the second half | agrees if "
+        f"every point is in reach and E_av <= {EXP6_FACTOR:g} x {PAPER_EXP6_E_AV_MM} mm | {verdict(ok6)} as given |")
+    L += ["", "## Experiment 5: where the settled lap flails, and why", ""]
+    L.append(
+        "A first explanation (ours, earlier) blamed Table 2's choice of q1's direction from the sign of y_d instead of "
+        "y_g. Changing that cause does not remove the flail: with y_g (`data/rules/table2-sign-of-yg.rules`) the settled "
+        "lap's E_max is " + ", ".join(f"{v['variants']['sign of y_g instead of y_d']['second_lap_e_max_mm']:.0f}"
+                                        for v in e5.values())
+        + f" mm against " + ", ".join(f"{m:.0f}" for m in emax.values()) + " mm (n_t 180, 360, 720): refuted.")
+    L.append("")
+    onsets = sum(v["flail_onsets"] for v in e5.values())
+    from_inv = sum(v["flail_onsets_from_inverted_pose"] for v in e5.values())
+    share = np.mean([v["inverted_share_of_settled_lap"] for v in e5.values()])
+    swap = {n: v["variants"]["pairing swapped where both levers are inverted"] for n, v in e5.items()}
+    L.append(
+        "The measured mechanism: Table 2 pairs q1 with the x error and q2 with the y error. q1 moves the gripper along "
+        "(-y_g, x_g), mostly in y once |x_g| > |y_g|; q2 moves it along (-(y_g - y_e), x_g - x_e), mostly in x once the "
+        "forearm is nearer vertical than horizontal. Where both hold (near the x axis with the forearm steep), each rule's "
+        "|error|-proportional step pushes the other coordinate, and the error runs away. Measured: of the "
+        f"{onsets} flail onsets on the settled laps (E_i crossing {FLAIL_MM:g} mm), {from_inv} start from such an inverted "
+        f"pose, which covers {100 * share:.0f} % of the settled laps' set points. Changing that cause, with the pairing "
+        "swapped in exactly those poses (`data/rules/table2-pairing-swap.rules`), removes the flails: settled-lap E_max "
+        + ", ".join(f"{s['second_lap_e_max_mm']:.1f}" for s in swap.values())
+        + " mm (E_av " + ", ".join(f"{s['second_lap_e_av_mm']:.2f}" for s in swap.values())
+        + " mm) for n_t 180, 360, 720: confirmed.")
+    L += ["", "## Experiment 6: the three-link composition's straight-up tie", ""]
+    tie = e6["start_tie"]
+    L.append(
+        "At the paper's straight-up start the gripper and elbow LEDs are equally far from the base axis (rg2 == re2: both "
+        "carry only the 12 mm stand-off), so Table 2's elbow rules (RULES 6/7 of `three-link.rules`) face a tie, which the "
+        "paper resolves as 'no update'. Any measurement error decides it. Deciding it on purpose, with ideal LED "
+        f"positions and the elbow moved {TIE_BIAS_MM} mm outwards (+) or inwards (-), 2 deg/iteration, 5 iterations:")
+    L += ["", "| links (mm) | elbow bias (mm) | rg2 - re2 at the start (mm^2) | first q3 rule | tracking median / max (mm) |",
+          "| --- | --- | --- | --- | --- |"]
+    for row in tie:
+        L.append(f"| {'/'.join(f'{v:g}' for v in row['links_mm'])} | {row['elbow_bias_mm']:+g} | "
+                 f"{row['rg2_minus_re2_mm2']:+.2f} | {row['first_q3_rule']} | "
+                 f"{_fmt(row['track_median_mm'])} / {_fmt(row['track_max_mm'])} |")
+    L += ["", "The sign of rg2 - re2 at the start, not the link lengths, decides whether the arm tracks or diverges. "
+          "How often noise decides it badly: `python -m itg_vision.bench noise --sweep start-tie` (40 seeds per cell).", ""]
+    L += ["## Figures", ""]
     for name, cap in (("exp1_path.png", "Experiment 1 (Fig. 4.1)"), ("exp1_error.png", "Experiment 1: E_i"),
                       ("exp2_path.png", "Experiment 2 (Fig. 4.2)"), ("exp3_eav_vs_nt.png", "Experiment 3 (Fig. 4.3)"),
                       ("exp4_eav_vs_f.png", "Experiment 4 (Fig. 4.4)"), ("exp5_first_lap.png", "Experiment 5 (Fig. 4.5), first lap"),
                       ("exp5_second_lap.png", "Experiment 5, second lap"), ("exp6_line_ab.png", "Experiment 6, the paper's line"),
                       ("exp6_path_paper.png", "Experiment 6, reachable variant, as the paper"),
                       ("exp6_path_limited.png", "Experiment 6, reachable variant, servo limit")):
-        lines.append(f"![{cap}]({name})")
-    return "\n".join(lines) + "\n"
+        L.append(f"![{cap}]({name})")
+    return "\n".join(L) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
