@@ -3,6 +3,11 @@
 E_i is the Euclidean distance between the desired point and the *true* gripper after the
 iterations of set point i (planar arms: in the x-y plane). E_av is their mean over the set
 points in reach (the paper's definition; out-of-reach points are counted and skipped).
+
+:class:`Session` is the one place where a run advances: it observes through the feedback,
+applies a joint step under the servo limit and records each finished set point in the
+:class:`Trace`. :func:`simulate` drives it with a controller; :class:`itg_vision.env.TrackingEnv`
+drives the same session with a user's actions.
 """
 
 from __future__ import annotations
@@ -13,14 +18,45 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from .feedback import Markers
+from .rules import Step
+
 
 class Controller(Protocol):
-    def step(self, desired_mm: np.ndarray, markers, q_deg: np.ndarray): ...
+    def step(self, desired_mm: np.ndarray, markers: Markers, q_deg: np.ndarray) -> Step: ...
+
+
+@dataclass(frozen=True)
+class SetPointRecord:
+    """What one set point left behind (mm, deg).
+
+    Attributes
+    ----------
+    desired_mm : (3,) the set point.
+    estimate : the marker estimates the controller used at the set point's last iteration.
+    true_at_estimate_mm : {"gripper", "elbow"} -> (3,): the simulator's truth at that instant.
+    true_after_mm : {"gripper", "elbow"} -> (3,): the truth after the set point's iterations
+        (E_i uses it).
+    q_deg : (n_joints,) commanded joint angles after the iterations.
+    fired : rules fired over the iterations (first firing order).
+    flags : "out_of_reach", "missed:<marker>".
+    out_of_reach : whether the controller flagged the set point out of reach.
+    """
+
+    desired_mm: np.ndarray
+    estimate: Markers
+    true_at_estimate_mm: dict
+    true_after_mm: dict
+    q_deg: np.ndarray
+    fired: tuple[int, ...]
+    flags: tuple[str, ...]
+    out_of_reach: bool
 
 
 @dataclass
 class Trace:
-    """Everything recorded along a run, one entry per set point.
+    """Everything recorded along a run: one :class:`SetPointRecord` per set point, and per
+    observation the estimation error and the stage timings.
 
     Per set point: the desired point; the estimate the controller used at the set point's last
     iteration (``*_est_mm``) beside the simulator's truth at the same instant (``*_true_mm``:
@@ -31,40 +67,71 @@ class Trace:
     planar: bool
     n_joints: int
     tracking_start: int = 0
-    desired_mm: list = field(default_factory=list)
-    gripper_mm: list = field(default_factory=list)  # truth after the move (E_i)
-    elbow_mm: list = field(default_factory=list)
-    gripper_est_mm: list = field(default_factory=list)  # estimate used for the last move
-    elbow_est_mm: list = field(default_factory=list)
-    gripper_true_mm: list = field(default_factory=list)  # truth when that estimate was taken
-    elbow_true_mm: list = field(default_factory=list)
-    q_deg: list = field(default_factory=list)
-    fired: list = field(default_factory=list)
-    flags: list = field(default_factory=list)
-    out_of_reach: list = field(default_factory=list)
-    # per observation (every iteration), for estimation error and timing
-    est_err_gripper_mm: list = field(default_factory=list)
-    est_err_elbow_mm: list = field(default_factory=list)
+    records: list[SetPointRecord] = field(default_factory=list)
+    est_err_mm: dict = field(default_factory=lambda: {"gripper": [], "elbow": []})
     n_missed: int = 0
     timing_ms: dict = field(default_factory=dict)
 
+    def record(self, rec: SetPointRecord) -> None:
+        self.records.append(rec)
+
+    def observed(self, estimate: Markers, truth: dict) -> None:
+        """One observation: its timings, missed markers and error against the truth it saw."""
+        for stage, ms in estimate.timing_ms.items():
+            self.time(stage, ms)
+        self.n_missed += len(estimate.missed)
+        for name, out in self.est_err_mm.items():
+            if name in estimate.missed:
+                continue
+            err = float(np.linalg.norm(estimate.get(name) - truth[name]))
+            if np.isfinite(err):
+                out.append(err)
+
+    def time(self, stage: str, ms: float) -> None:
+        self.timing_ms.setdefault(stage, []).append(float(ms))
+
+    # ------------------------------------------------------------------ arrays
+    @property
+    def desired_mm(self) -> np.ndarray:
+        """Set points, shape (n, 3)."""
+        return np.array([r.desired_mm for r in self.records]).reshape(-1, 3)
+
+    @property
+    def gripper_mm(self) -> np.ndarray:
+        """True gripper after each set point's iterations, shape (n, 3)."""
+        return np.array([r.true_after_mm["gripper"] for r in self.records]).reshape(-1, 3)
+
+    @property
+    def elbow_mm(self) -> np.ndarray:
+        return np.array([r.true_after_mm["elbow"] for r in self.records]).reshape(-1, 3)
+
+    @property
+    def q_deg(self) -> np.ndarray:
+        return np.array([r.q_deg for r in self.records]).reshape(-1, self.n_joints)
+
+    @property
+    def fired(self) -> list[tuple[int, ...]]:
+        return [r.fired for r in self.records]
+
+    @property
+    def out_of_reach(self) -> np.ndarray:
+        return np.array([r.out_of_reach for r in self.records], bool)
+
     def error_mm(self) -> np.ndarray:
         """E_i per set point, shape (n,)."""
-        d, g = np.asarray(self.desired_mm), np.asarray(self.gripper_mm)
-        diff = (d - g)[:, :2] if self.planar else d - g
-        return np.linalg.norm(diff, axis=1)
+        diff = self.desired_mm - self.gripper_mm
+        return np.linalg.norm(diff[:, :2] if self.planar else diff, axis=1)
 
     def tracking_errors_mm(self) -> np.ndarray:
         """E_i over the tracking phase (from ``tracking_start``), set points in reach only."""
-        e = self.error_mm()
         k = self.tracking_start
-        return e[k:][~np.asarray(self.out_of_reach, bool)[k:]]
+        return self.error_mm()[k:][~self.out_of_reach[k:]]
 
     def metrics(self) -> dict:
         """E_av, E_max, E_rms over the set points in reach (the paper's metric, start transient
         included), and the tracking phase's median, mean, 95th percentile and max."""
         e = self.error_mm()
-        ok = ~np.asarray(self.out_of_reach, bool)
+        ok = ~self.out_of_reach
         ein = e[ok]
         late = self.tracking_errors_mm()
 
@@ -88,8 +155,8 @@ class Trace:
             "n_setpoints": int(len(e)),
             "n_out_of_reach": int((~ok).sum()),
             "n_missed": int(self.n_missed),
-            "est_gripper_rms_mm": rms(self.est_err_gripper_mm),
-            "est_elbow_rms_mm": rms(self.est_err_elbow_mm),
+            "est_gripper_rms_mm": rms(self.est_err_mm["gripper"]),
+            "est_elbow_rms_mm": rms(self.est_err_mm["elbow"]),
             "timing_ms": {k: float(np.median(v)) for k, v in self.timing_ms.items() if v},
         }
 
@@ -97,20 +164,21 @@ class Trace:
         """The trace as CSV columns and rows (units in the column names)."""
         qcols = [f"q{i}_deg" for i in range(1, self.n_joints + 1)]
         xyz = ("x", "y", "z")
-        groups = [("d", "", self.desired_mm)]
-        for m, arrs in (("g", (self.gripper_est_mm, self.gripper_true_mm, self.gripper_mm)),
-                        ("e", (self.elbow_est_mm, self.elbow_true_mm, self.elbow_mm))):
-            groups += [(m, "_est", arrs[0]), (m, "_true", arrs[1]), (m, "_after", arrs[2])]
+        groups = [("d", "", lambda r: r.desired_mm)]
+        for m, name in (("g", "gripper"), ("e", "elbow")):
+            groups += [(m, "_est", lambda r, n=name: r.estimate.get(n)),
+                       (m, "_true", lambda r, n=name: r.true_at_estimate_mm[n]),
+                       (m, "_after", lambda r, n=name: r.true_after_mm[n])]
         cols = ["k", "tracking"] + [f"{a}{m}{s}_mm" for m, s, _ in groups for a in xyz] \
             + qcols + ["e_mm", "rules_fired", "flags"]
         e = self.error_mm()
         out = []
-        for k in range(len(e)):
+        for k, r in enumerate(self.records):
             vals = [k, int(k >= self.tracking_start)]
-            for _, _, arr in groups:
-                vals += [_fmt(v) for v in arr[k]]
-            vals += [_fmt(v) for v in self.q_deg[k]]
-            vals += [_fmt(e[k]), ";".join(str(r) for r in self.fired[k]), ";".join(self.flags[k])]
+            for _, _, get in groups:
+                vals += [_fmt(v) for v in get(r)]
+            vals += [_fmt(v) for v in r.q_deg]
+            vals += [_fmt(e[k]), ";".join(str(n) for n in r.fired), ";".join(r.flags)]
             out.append(vals)
         return cols, out
 
@@ -120,68 +188,121 @@ def _fmt(v) -> str:
     return "" if not np.isfinite(v) else f"{v:.4f}"
 
 
+class Session:
+    """One tracking run in progress: where the loop and the Gymnasium environment meet.
+
+    Call :meth:`observe` (what the controller may see), then :meth:`apply` with the joint step;
+    after ``iterations`` such steps the set point is recorded in :attr:`trace` and the next one
+    becomes :attr:`desired_mm`. ``world.true_markers()`` is read for evaluation only (E_i, the
+    estimation error), never handed to the controller.
+
+    Parameters
+    ----------
+    world : `itg_vision.world.World`.
+    feedback : a feedback source (``observe(world) -> Markers``).
+    points_mm : shape (n, 3), the set points.
+    iterations : steps per set point.
+    planar : E_i in the x-y plane.
+    max_step_deg : the servo rate limit: no joint moves more per iteration, whatever the
+        controller (None: no limit).
+    tracking_start : first set point of the tracking phase (default: the second half).
+    progress : called with 1 when a set point is done.
+    recorder : optional video recorder (``frame(feedback, desired_mm)`` per set point).
+    """
+
+    def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool = True,
+                 max_step_deg: float | None = None, tracking_start: int | None = None,
+                 progress: Callable[[int], None] | None = None, recorder=None):
+        self.world = world
+        self.feedback = feedback
+        self.points_mm = np.asarray(points_mm, float).reshape(-1, 3)
+        self.iterations = int(iterations)
+        self.max_step_deg = max_step_deg
+        self.progress = progress
+        self.recorder = recorder
+        n = len(self.points_mm)
+        self.trace = Trace(planar, world.arm.n_joints,
+                           n // 2 if tracking_start is None else int(tracking_start))
+        self.k = 0
+        self.last_error_mm = float("nan")
+        self._iteration = 0
+        self._estimate: Markers | None = None
+        self._seen: dict | None = None
+        self._fired: list[int] = []
+        self._flags: list[str] = []
+        self._oor = False
+
+    @property
+    def done(self) -> bool:
+        return self.k >= len(self.points_mm)
+
+    @property
+    def desired_mm(self) -> np.ndarray:
+        """The current set point, shape (3,) (the last one once done)."""
+        return self.points_mm[min(self.k, len(self.points_mm) - 1)]
+
+    def observe(self) -> Markers:
+        """The feedback's estimate of the markers now (the controller's only view)."""
+        self._seen = self.world.true_markers()  # evaluation only
+        self._estimate = self.feedback.observe(self.world)
+        self.trace.observed(self._estimate, self._seen)
+        for m in self._estimate.missed:
+            if f"missed:{m}" not in self._flags:
+                self._flags.append(f"missed:{m}")
+        return self._estimate
+
+    def apply(self, step: Step, decide_ms: float | None = None) -> float:
+        """Move the joints by ``step.dq_deg`` (clipped to the servo limit); return E_i (mm)
+        after the move. Records the set point after its last iteration."""
+        if self.done:
+            raise RuntimeError("the trajectory is finished")
+        if decide_ms is not None:
+            self.trace.time("rules", decide_ms)
+        dq = np.asarray(step.dq_deg, float)
+        if self.max_step_deg:
+            dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
+        self.world.move(dq)
+        self._fired += [r for r in step.fired if r not in self._fired]
+        self._oor |= bool(step.out_of_reach)
+        truth = self.world.true_markers()
+        d = self.desired_mm - truth["gripper"]
+        self.last_error_mm = float(np.linalg.norm(d[:2] if self.trace.planar else d))
+        self._iteration += 1
+        if self._iteration == self.iterations:
+            self._finish_set_point(truth)
+        return self.last_error_mm
+
+    def _finish_set_point(self, truth: dict) -> None:
+        if self.recorder is not None:
+            self.recorder.frame(self.feedback, self.desired_mm)
+        flags = (["out_of_reach"] if self._oor else []) + self._flags
+        estimate = self._estimate if self._estimate is not None else Markers(
+            np.full(3, np.nan), np.full(3, np.nan), tuple(truth))
+        self.trace.record(SetPointRecord(
+            self.desired_mm.copy(), estimate, self._seen or truth, truth,
+            self.world.q_deg.copy(), tuple(self._fired), tuple(flags), self._oor))
+        self.k += 1
+        self._iteration = 0
+        self._fired, self._flags, self._oor = [], [], False
+        if self.progress is not None:
+            self.progress(1)
+
+
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
              tracking_start: int | None = None,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
-    """Track ``points_mm`` (shape (n, 3)) and return the trace.
+    """Track ``points_mm`` (shape (n, 3)) with ``controller`` and return the trace.
 
-    ``feedback.observe(world)`` is the controller's only view of the arm. ``world.true_markers()``
-    is read here for evaluation only (E_i and the estimation error), never handed to the
-    controller. ``max_step_deg`` is a servo rate limit: no joint moves more per iteration,
-    whatever the controller. ``tracking_start``: first set point of the tracking phase
-    (default: the second half).
+    See :class:`Session` for the parameters. The loop, top to bottom: observe through the
+    feedback, let the controller decide, apply the step under the servo limit.
     """
-    trace = Trace(planar, world.arm.n_joints,
-                  len(points_mm) // 2 if tracking_start is None else int(tracking_start))
-    timing = {"render": [], "detect": [], "triangulate": [], "rules": []}
-    for k, desired in enumerate(points_mm):
-        fired, flags, oor = [], [], False
-        for _ in range(iterations):
-            seen = world.true_markers()  # evaluation only: what the feedback looked at
-            estimate = feedback.observe(world)
-            t0 = time.perf_counter()
-            step = controller.step(desired, estimate, world.q_deg)
-            timing["rules"].append((time.perf_counter() - t0) * 1e3)
-            dq = step.dq_deg
-            if max_step_deg:
-                dq = np.clip(dq, -max_step_deg, max_step_deg)
-            world.move(dq)
-
-            for stage, ms in estimate.timing_ms.items():
-                timing.setdefault(stage, []).append(ms)
-            trace.n_missed += len(estimate.missed)
-            flags += [f"missed:{m}" for m in estimate.missed if f"missed:{m}" not in flags]
-            fired += [r for r in step.fired if r not in fired]
-            oor |= step.out_of_reach
-            _record_estimate_error(trace, estimate, seen)
-        truth = world.true_markers()
-        if recorder is not None:
-            recorder.frame(feedback, desired)
-        if oor:
-            flags.insert(0, "out_of_reach")
-        trace.desired_mm.append(np.asarray(desired, float))
-        trace.gripper_mm.append(truth["gripper"])
-        trace.elbow_mm.append(truth["elbow"])
-        trace.gripper_est_mm.append(estimate.gripper_mm)
-        trace.elbow_est_mm.append(estimate.elbow_mm)
-        trace.gripper_true_mm.append(seen["gripper"])
-        trace.elbow_true_mm.append(seen["elbow"])
-        trace.q_deg.append(world.q_deg.copy())
-        trace.fired.append(tuple(fired))
-        trace.flags.append(tuple(flags))
-        trace.out_of_reach.append(oor)
-        if progress is not None:
-            progress(1)
-    trace.timing_ms = {k: v for k, v in timing.items() if v}
-    return trace
-
-
-def _record_estimate_error(trace: Trace, estimate, seen: dict) -> None:
-    """Estimation error of the observation just made, against the truth it observed."""
-    for name, out in (("gripper", trace.est_err_gripper_mm), ("elbow", trace.est_err_elbow_mm)):
-        if name in estimate.missed:
-            continue
-        err = np.linalg.norm(estimate.get(name) - seen[name])
-        if np.isfinite(err):
-            out.append(float(err))
+    session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
+                      max_step_deg=max_step_deg, tracking_start=tracking_start,
+                      progress=progress, recorder=recorder)
+    while not session.done:
+        estimate = session.observe()
+        t0 = time.perf_counter()
+        step = controller.step(session.desired_mm, estimate, world.q_deg)
+        session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0))
+    return session.trace

@@ -1,0 +1,133 @@
+"""``TrackingEnv``: the simulator as a Gymnasium environment, for controllers of your own.
+
+The environment runs the same :class:`itg_vision.loop.Session` as ``python -m itg_vision.run``:
+one arm, one rig, one trajectory and one feedback source, built from a
+:class:`itg_vision.runner.RunConfig` (validated as the command line validates it). Each
+``step`` is one iteration: the action (joint increments in degrees) is clipped to the servo
+limit and applied, the reward is minus E_i (mm) after the move, and the next observation is
+what the feedback measures. The episode ends with the trajectory.
+
+Observation (a dict of float64 arrays, mm): ``desired_mm`` (the current set point),
+``gripper_mm`` and, for arms that carry one, ``elbow_mm`` (the feedback's estimates; a marker
+that was not measured keeps its last estimate, as in the loop). The encoders' joint angles are
+in ``info["q_deg"]``: a model-free controller does not read them.
+
+``reset(seed=...)`` rebuilds the world at the start pose and reseeds the feedback: the same
+seed and the same actions give the same observations and rewards, bit for bit. The lengths the
+start-up measurement found (what a model-free controller may know) are in
+``info["geometry"]`` (an :class:`itg_vision.identify.ArmGeometry`) after ``reset``.
+
+Example::
+
+    from itg_vision import TrackingEnv
+    env = TrackingEnv(arm="two-link", trajectory="ellipse-t1", feedback="truth")
+    obs, info = env.reset(seed=0)
+    done = False
+    while not done:
+        g, d = obs["gripper_mm"], obs["desired_mm"]
+        action = my_controller(d, g)            # joint increments, deg
+        obs, reward, done, _, info = env.step(action)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+
+from .identify import measure_geometry, nominal_geometry
+from .loop import Session
+from .rules import Step
+from .runner import RunConfig, prepare
+from .world import World
+
+#: Servo limit (deg per iteration) when the configuration sets none: an action space needs bounds.
+DEFAULT_MAX_STEP_DEG = 20.0
+#: Bounds of the observed positions (mm): far beyond any arm of the paper.
+POSITION_BOUND_MM = 1.0e4
+
+
+class TrackingEnv(gym.Env):
+    """Track a trajectory with your own controller (see the module docstring).
+
+    Parameters
+    ----------
+    config : a :class:`itg_vision.runner.RunConfig`; or its fields as keyword arguments
+        (``arm``, ``trajectory``, ``feedback``, ``rig``, ``iterations``, ``max_step``, ``laps``,
+        ``noise_px``, ``true_links_mm``, ...). Its ``controller`` and rule settings are not used:
+        you are the controller.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: RunConfig | None = None, **fields):
+        super().__init__()
+        cfg = config if config is not None else RunConfig(**fields)
+        if config is not None and fields:
+            cfg = dataclasses.replace(config, **fields)
+        if cfg.max_step is None:
+            cfg = dataclasses.replace(cfg, max_step=DEFAULT_MAX_STEP_DEG)
+        self.config = cfg
+        self._prep = prepare(cfg)
+        model = self._prep.model
+        self.marker_names = model.marker_names
+        box = gym.spaces.Box(-POSITION_BOUND_MM, POSITION_BOUND_MM, (3,), np.float64)
+        self.observation_space = gym.spaces.Dict(
+            {"desired_mm": box, **{f"{m}_mm": box for m in self.marker_names}})
+        self.action_space = gym.spaces.Box(-cfg.max_step, cfg.max_step, (model.n_joints,),
+                                           np.float64)
+        self._world: World | None = None
+        self._session: Session | None = None
+        self._feedback = None
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.close()
+        prep, cfg = self._prep, self.config
+        run_seed = cfg.seed if seed is None else int(seed)
+        self._feedback = prep.feedback_factory()
+        self._feedback.reset(run_seed)
+        self._world = World(prep.true_arm)
+        geometry = (nominal_geometry(prep.model) if cfg.feedback == "model"
+                    else measure_geometry(self._world, self._feedback, prep.model))
+        self._session = Session(self._world, self._feedback, prep.trajectory.points_mm,
+                                iterations=cfg.iterations, planar=prep.model.planar,
+                                max_step_deg=cfg.max_step,
+                                tracking_start=prep.trajectory.tracking_start)
+        return self._observation(self._session.observe()), {
+            "geometry": geometry, "q_deg": self._world.q_deg.copy(), "k": 0}
+
+    def step(self, action):
+        if self._session is None:
+            raise RuntimeError("call reset() before step()")
+        dq = np.asarray(action, float).reshape(self.action_space.shape)
+        k = self._session.k
+        e = self._session.apply(Step(dq, (), False))
+        terminated = self._session.done
+        obs = self._observation(self._session.observe())
+        info = {"e_mm": e, "k": k, "q_deg": self._world.q_deg.copy(),
+                "missed": self._session.trace.records[-1].flags if terminated else ()}
+        if terminated:
+            info["metrics"] = self._session.trace.metrics()
+        return obs, -e, terminated, False, info
+
+    def close(self) -> None:
+        if self._world is not None:
+            self._world.close()
+        self._world = None
+        self._session = None
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def trace(self):
+        """The run's :class:`itg_vision.loop.Trace` so far (for plots and metrics)."""
+        return None if self._session is None else self._session.trace
+
+    def _observation(self, markers) -> dict:
+        obs = {"desired_mm": np.array(self._session.desired_mm, np.float64)}
+        for m in self.marker_names:
+            obs[f"{m}_mm"] = np.clip(np.asarray(markers.get(m), np.float64),
+                                     -POSITION_BOUND_MM, POSITION_BOUND_MM)
+        return obs
