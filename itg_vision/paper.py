@@ -311,7 +311,7 @@ def report(r: dict, base: RunConfig) -> str:
     slopes = {f: v["loglog_slope"] for f, v in e3["by_gain"].items()}
     ok3 = {f: SLOPE_RANGE[0] <= s <= SLOPE_RANGE[1] for f, s in slopes.items()}
     L.append(
-        f"| 3 | E_av is inversely proportional to n_t (Fig. 4.3) | log-log slope over n_t = 100..1000: "
+        "| 3 | E_av is inversely proportional to n_t (Fig. 4.3) | log-log slope over n_t = 100..1000: "
         + ", ".join(f"{s:.2f} at f = {f} deg/mm" for f, s in slopes.items())
         + f" | slope in [{SLOPE_RANGE[0]}, {SLOPE_RANGE[1]}], per f | "
         + "; ".join(f"f = {f}: {verdict(ok)}" for f, ok in ok3.items())
@@ -336,9 +336,9 @@ def report(r: dict, base: RunConfig) -> str:
         f"paper): largest at {firsts} deg, the start transient. Settled second lap, the three largest peaks: {peaks} | the "
         f"settled lap's largest peak within {PEAK_ANGLE_TOL_DEG:g} deg of 0, 180 or 360 for every n_t | {verdict(at_ends)} |")
     L.append(
-        f"| 5b | the deviation remains within acceptable limits even for small n_t | settled-lap E_max "
+        "| 5b | the deviation remains within acceptable limits even for small n_t | settled-lap E_max "
         + ", ".join(f"{m:.0f} mm (n_t {n})" for n, m in emax.items())
-        + f"; settled-lap E_av " + ", ".join(f"{v['second_lap_e_av_mm']:.1f}" for v in e5.values())
+        + "; settled-lap E_av " + ", ".join(f"{v['second_lap_e_av_mm']:.1f}" for v in e5.values())
         + f" mm | acceptable: settled-lap E_max <= {ACCEPTABLE_MM:g} mm (5 % of the 200 mm reach) | "
         f"{verdict(acceptable)} |")
     # experiment 6
@@ -357,7 +357,7 @@ def report(r: dict, base: RunConfig) -> str:
         "y_g. Changing that cause does not remove the flail: with y_g (`data/rules/table2-sign-of-yg.rules`) the settled "
         "lap's E_max is " + ", ".join(f"{v['variants']['sign of y_g instead of y_d']['second_lap_e_max_mm']:.0f}"
                                         for v in e5.values())
-        + f" mm against " + ", ".join(f"{m:.0f}" for m in emax.values()) + " mm (n_t 180, 360, 720): refuted.")
+        + " mm against " + ", ".join(f"{m:.0f}" for m in emax.values()) + " mm (n_t 180, 360, 720): refuted.")
     L.append("")
     onsets = sum(v["flail_onsets"] for v in e5.values())
     from_inv = sum(v["flail_onsets_from_inverted_pose"] for v in e5.values())

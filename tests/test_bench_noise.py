@@ -1,7 +1,6 @@
 """`python -m itg_vision.bench noise`: the sweep end to end, resume, Dask, and the claims.
 
-Budget: the whole file runs in about 2 minutes on 2 cores (the quick sweep ~40 s, the Dask
-sweep ~20 s, the model-error runs ~15 s, the rest a few seconds).
+Timings are not asserted here (they belong to the benchmarks).
 """
 
 from __future__ import annotations
@@ -32,10 +31,7 @@ def _one_line_error(capsys, what: str):
 @pytest.mark.slow
 def test_quick_sweep_end_to_end(tmp_path):
     out = tmp_path / "q"
-    t0 = time.perf_counter()
     assert main(["--quick", "--out", str(out), "--workers", "2", "--quiet"]) == 0
-    wall = time.perf_counter() - t0
-    assert wall < 180, f"--quick took {wall:.0f} s (measured 38 s on 2 idle cores; limit 2 min)"
     rows = _rows(out)
     specs = build_sweep(quick=True)
     assert len(rows) == len(specs) and len({r["run_id"] for r in rows}) == len(rows)

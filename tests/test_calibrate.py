@@ -2,7 +2,6 @@
 the known rig, the failure cases and tracking on a calibrated rig."""
 
 import json
-import shutil
 
 import numpy as np
 import pytest

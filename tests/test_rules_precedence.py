@@ -1,0 +1,35 @@
+"""Property test: the rule language's logical precedence (NOT over AND over OR, parentheses
+first) against Python's own, on generated conditions."""
+
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from itg_vision.feedback import Markers
+from itg_vision.rules import RuleBase
+
+_atoms = st.sampled_from(["xd", "yd", "xg", "yg", "1", "2", "-3"])
+_ops = st.sampled_from(["<", "<=", ">", ">=", "==", "!="])
+_cmp = st.tuples(_atoms, _ops, _atoms).map(" ".join)
+
+
+def _cond(depth):
+    if depth == 0:
+        return _cmp
+    sub = _cond(depth - 1)
+    return (_cmp
+            | st.tuples(sub, st.sampled_from(["AND", "OR"]), sub).map(" ".join)
+            | sub.map(lambda c: f"NOT {c}")
+            | sub.map(lambda c: f"({c})"))
+
+
+@settings(max_examples=300, deadline=None)
+@given(_cond(4), st.lists(st.integers(-3, 3).map(float), min_size=4, max_size=4))
+def test_conditions_follow_not_and_or_precedence(cond, vals):
+    xd, yd, xg, yg = vals
+    rb = RuleBase.from_text(f"RULE 1: IF {cond} THEN q1 += 1", 1, (100.0,))
+    fired = rb.step(np.array([xd, yd, 0.0]), Markers(np.array([xg, yg, 0.0]), np.full(3, np.nan)),
+                    [0.0]).fired == (1,)
+    # Python's not/and/or have the same precedence; our generated text only, as a reference
+    py = cond.replace("AND", "and").replace("OR", "or").replace("NOT", "not")
+    expected = bool(eval(py, {"__builtins__": {}}, dict(xd=xd, yd=yd, xg=xg, yg=yg)))
+    assert fired == expected, (cond, vals)
