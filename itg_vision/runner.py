@@ -50,6 +50,7 @@ class RunConfig:
     seed: int = 0
     true_links_mm: tuple[float, ...] | None = None
     joint_offset_deg: tuple[float, ...] | None = None
+    allow_unseen: bool = False  # skip the start-up check that the cameras can see the arm
 
     def validate(self) -> None:
         checks = [
@@ -133,12 +134,15 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
     else:
         from .camera import Rig
         from .feedback import VisionFeedback
+        from .visibility import check_visible
 
         if estimate_rig is None:
             estimate_rig = Rig.from_yaml(cfg.rig_path)
         render_rig = estimate_rig
         if estimate_rig.true_rig:
             render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
+        if not cfg.allow_unseen:
+            check_visible(render_rig, true_arm, trajectory.points_mm)
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
 
