@@ -807,7 +807,7 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
     from .outputs import check_path, probe_folder
     from .runner import resolve_relative
 
-    check_path(out)
+    check_path(out, what="file")
     if out.is_dir():
         raise UserError(f"--out {out}: is a folder; give the calibrated rig's file name, e.g. "
                         f"{out / default_out(rig_path).name}")
@@ -827,10 +827,10 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
             truth = old.true_rig and resolve_relative(old.true_rig, out)
             ours = bool(truth) and Path(truth).resolve() == Path(rig_path).resolve()
             if not ours and not force:
-                what = (f"a calibration of {old.true_rig}" if old.true_rig
-                        else f"the rig {old.name!r} (not a calibration)")
-                raise UserError(f"--out {out}: is {what}, not a calibration of {rig_path}; "
-                                "choose another --out, or add --force to replace it")
+                what = (f"a calibration of {old.true_rig}, not of {rig_path}" if old.true_rig
+                        else f"the rig file {old.name!r}, not a calibration of {rig_path}")
+                raise UserError(f"--out {out}: is {what}; choose another --out, or add --force "
+                                "to replace it")
     pic = picture_path(out)
     if pic.exists() and not ours and not force:
         raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "

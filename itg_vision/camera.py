@@ -51,10 +51,14 @@ MAX_IMAGE_PIXELS = 4096 * 4096
 BYTES_PER_PIXEL = 60
 #: Largest focal length accepted (px): 1e6 px is a 0.04 degree field of view at 640 px.
 MAX_FOCAL_PX = 1e6
+#: Largest half field of view accepted (deg) about the principal point: a pinhole camera.
+MAX_HALF_FOV_DEG = 80.0
 #: Largest coordinate of a camera position accepted (mm).
 MAX_POSITION_MM = 1e6
 #: Cameras of a rig closer than this (mm) are at the same place: no stereo.
 MIN_BASELINE_MM = 1.0
+#: Largest sensor gain accepted (the image saturates long before).
+MAX_EXPOSURE = 1000.0
 #: Largest |coefficient| of plumb_bob distortion accepted.
 MAX_DISTORTION = 100.0
 #: Where the shipped rigs and their calibrations live.
@@ -344,11 +348,15 @@ class Rig:
             mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
             where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else path
             what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            context, cmark = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+            if context and cmark is not None and cmark is not mark:
+                what += f", {context} at {cmark.line + 1}:{cmark.column + 1}"
             raise UserError(f"{where}: not valid YAML ({what})") from None
         except ValueError as exc:  # an integer of more than 4300 digits (int's str limit)
             m = re.search(r"\d{4300,}", text)
             where = f"{path}:{':'.join(map(str, position(text, m.start())))}" if m else path
-            raise UserError(f"{where}: not valid YAML ({clip(str(exc), 60)})") from None
+            raise UserError(f"{where}: not valid YAML (a number of more than 4300 digits)") \
+                from None
         except RecursionError:
             raise UserError(f"{path}: nested too deeply to be a rig file") from None
         return rig_from_dict(doc, path)
@@ -486,6 +494,11 @@ def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
         F.fail(km, f"cy must be inside the image [0, {H - 1}], got {cy:g}")
     if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
         F.fail(km, "must be [fx, 0, cx, 0, fy, cy, 0, 0, 1] (no skew)")
+    for label, f, c, n in (("fx", fx, cx, W), ("fy", fy, cy, H)):
+        half = np.degrees(np.arctan(max(c + 0.5, n - 0.5 - c) / f))
+        if half > MAX_HALF_FOV_DEG:
+            F.fail(km, f"{label} = {f:g} px gives a field of view of {2 * half:.0f} deg; a "
+                       f"pinhole camera here cannot exceed {2 * MAX_HALF_FOV_DEG:g} deg")
     model = d.get("distortion_model", "plumb_bob")
     if model != "plumb_bob":
         F.fail(f"{where}.distortion_model", f"only plumb_bob is supported, got {model!r}")
@@ -494,17 +507,67 @@ def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
     if np.max(np.abs(dist)) > MAX_DISTORTION:
         F.fail(f"{where}.distortion_coefficients", f"each must be within +-{MAX_DISTORTION:g}, "
                                                    f"got {np.max(np.abs(dist)):g}")
+    problem, margin = _distortion_check(fx, fy, cx, cy, W, H, dist)
+    if problem:
+        F.fail(f"{where}.distortion_coefficients", problem)
+    rendered = (W + 2 * margin) * (H + 2 * margin)
+    if rendered > MAX_IMAGE_PIXELS:
+        F.fail(where, f"this lens needs a {W + 2 * margin} x {H + 2 * margin} px render for a "
+                      f"{W} x {H} px image, about {rendered * BYTES_PER_PIXEL / 1e9:.3g} GB per "
+                      f"frame; the limit is {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx")
     R, t = _pose_from_dict(F, F.get(d, "pose", where), f"{where}.pose")
     sensor = d.get("sensor", {}) or {}
     if not isinstance(sensor, dict):
         F.fail(f"{where}.sensor", "must be a mapping")
     sigma = F.number(sensor.get("noise_sigma_gray", 2.0), f"{where}.sensor.noise_sigma_gray")
-    if sigma < 0:
-        F.fail(f"{where}.sensor.noise_sigma_gray", f"must be >= 0, got {sigma:g}")
+    if not 0 <= sigma <= 255:
+        F.fail(f"{where}.sensor.noise_sigma_gray", f"must be in [0, 255] grey levels, got {sigma:g}")
     exposure = F.number(sensor.get("exposure", 1.0), f"{where}.sensor.exposure")
-    if exposure <= 0:
-        F.fail(f"{where}.sensor.exposure", f"must be > 0, got {exposure:g}")
+    if not 0 < exposure <= MAX_EXPOSURE:
+        F.fail(f"{where}.sensor.exposure", f"must be in (0, {MAX_EXPOSURE:g}], got {exposure:g}")
     return Camera.from_arrays(name, (W, H), K, dist, R, t, sigma, exposure)
+
+
+def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
+                      n_steps: int = 3000) -> tuple[str, int]:
+    """Whether plumb_bob distortion ``dist`` can be simulated on this image: ('', margin_px)
+    or (problem, 0).
+
+    Along 72 rays from the principal point, the distorted image of the pinhole ray must move
+    outwards monotonically until it leaves the image (otherwise the lens folds back inside the
+    frame: not invertible, and rendering it blows up), and leave it within three times the
+    image's half-diagonal. ``margin_px``: how far beyond the frame the pinhole rendering must
+    reach (about what :func:`itg_vision.imaging.render_plan` adds on each side).
+    """
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    corners = np.array([[-0.5 - cx, -0.5 - cy], [W - 0.5 - cx, -0.5 - cy],
+                        [-0.5 - cx, H - 0.5 - cy], [W - 0.5 - cx, H - 0.5 - cy]]) / [fx, fy]
+    t = np.linspace(0.0, 3.0 * float(np.max(np.hypot(*corners.T))), n_steps)[:, None]
+    a = np.linspace(0.0, 2 * np.pi, n_angles, endpoint=False)[None, :]
+    x, y = t * np.cos(a), t * np.sin(a)
+    with np.errstate(all="ignore"):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        u, v = fx * xd + cx, fy * yd + cy
+        along = xd * np.cos(a) + yd * np.sin(a)
+    outside = ~((u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5))
+    margin = 0.0
+    for j in range(n_angles):
+        exits = np.flatnonzero(outside[:, j])
+        if not exits.size:
+            return ("the lens squeezes more than three times the field of view into the image: "
+                    "the simulator cannot render it", 0)
+        k = exits[0]
+        back = np.flatnonzero(~(np.diff(along[: k + 1, j]) > 0))
+        if back.size:
+            r = float(np.hypot(u[back[0], j] - cx, v[back[0], j] - cy))
+            return (f"the lens model folds back inside the image (not invertible, within {r:.0f} "
+                    "px of the centre): the simulator cannot render it", 0)
+        pu, pv = fx * x[k, j] + cx, fy * y[k, j] + cy
+        margin = max(margin, -pu, pu - (W - 1), -pv, pv - (H - 1))
+    return "", int(np.ceil(margin)) + 2
 
 
 def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -532,6 +595,8 @@ def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndar
             F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
     elif "rotation_deg" in d:
         rv = F.numbers(d["rotation_deg"], 3, f"{where}.rotation_deg")
+        if np.max(np.abs(rv)) > 3600:
+            F.fail(f"{where}.rotation_deg", "each must be within +-3600 deg")
         R, _ = cv2.Rodrigues(np.radians(rv))
     else:
         F.fail(where, "needs look_at_mm, rotation_deg or rotation_matrix + translation_mm")

@@ -119,8 +119,9 @@ def _last_component(text: str) -> str:
     return text.rstrip("/" + os.sep).rsplit("/", 1)[-1].rsplit(os.sep, 1)[-1]
 
 
-def check_path(out: str | Path, option: str = "--out") -> Path:
-    """Refuse an output path that can never be swapped in (no writes).
+def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> Path:
+    """Refuse an output path (of a ``what``: folder or file) that can never be swapped in (no
+    writes).
 
     Empty, ``.``, ``..`` or ending in ``/..`` or ``/.``, the root, the current folder or one
     of its ancestors, or below an existing file.
@@ -129,7 +130,7 @@ def check_path(out: str | Path, option: str = "--out") -> Path:
     if not text.strip():
         raise UserError(f"{option}: empty path")
     if _last_component(text) in ("", ".", ".."):
-        raise UserError(f"{option} {text}: name a folder (not '.', '..' or the root)")
+        raise UserError(f"{option} {text}: name a {what} (not '.', '..' or the root)")
     path = Path(text)
     resolved = path.resolve()
     cwd = Path.cwd().resolve()
@@ -170,8 +171,9 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
                         f"`{command}`; choose another {option}, or add --force to replace it")
     shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
-    raise UserError(f"{option} {out}: is a folder that {command} did not make ({len(entries)} "
-                    f"entries: {shown}); choose another {option}, or add --force to replace it")
+    n = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
+    raise UserError(f"{option} {out}: is a folder that {command} did not make ({n}: {shown}); "
+                    f"choose another {option}, or add --force to replace it")
 
 
 def _pid_alive(pid: int) -> bool:

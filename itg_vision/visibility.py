@@ -129,7 +129,7 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
         score = min(255.0, 255.0 * cam.exposure)
         need = MIN_SCORE + 3.0 * cam.noise_sigma_gray
         if score < need:
-            raise UserError(f"{who}: exposure {cam.exposure:g} makes an LED at most {score:.2g} "
+            raise UserError(f"{who}: exposure {cam.exposure:g} makes an LED at most {score:.3g} "
                             f"grey levels bright; the detector needs {need:g} (threshold "
                             f"{MIN_SCORE} + 3 x noise {cam.noise_sigma_gray:g}){hint}")
         if not cam.position_mm[2] > 0:
