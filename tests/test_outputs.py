@@ -5,6 +5,7 @@ import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -216,3 +217,55 @@ def test_progress_in_a_log_is_plain_lines(capsys):
     assert 2 <= len(lines) <= 12 and lines[-1].startswith("run x: 100/100 pt (100%)")
     progress(100, "quiet", quiet=True).update(5)
     assert capsys.readouterr().err == ""
+
+
+# ----------------------------------------------------------------------------- run's folders
+def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
+    from itg_vision import run
+    from itg_vision.rules import RULES_DIR
+
+    monkeypatch.chdir(tmp_path)
+    base = ["--quiet", "--feedback", "model", "--points", "6"]
+    assert run.main(base) == 0
+    assert run.main(base + ["--seed", "3", "--gain", "0.3"]) == 0
+    assert run.main(base + ["--controller", "ik"]) == 0
+    names = sorted(p.name for p in (tmp_path / "runs").iterdir())
+    assert names == ["two-link-ellipse-t1-ik-model-n6", "two-link-ellipse-t1-itg-model-n6",
+                     "two-link-ellipse-t1-itg-model-n6-f0.3-seed3"]
+    # the same command again replaces its own result (same settings, same bytes)
+    before = _tree(tmp_path / "runs" / names[1])
+    assert run.main(base) == 0
+    after = _tree(tmp_path / "runs" / names[1])
+    assert {k for k in before} == {k for k in after}
+    assert before["trace.csv"] == after["trace.csv"]
+    # an edited rule file under the same name: its default folder is not replaced silently
+    rules = tmp_path / "mine.rules"
+    rules.write_text((RULES_DIR / "table2.rules").read_text())
+    assert run.main(base + ["--rules", str(rules)]) == 0
+    folder = tmp_path / "runs" / "two-link-ellipse-t1-itg-model-rulesmine-n6"
+    kept = _tree(folder)
+    rules.write_text(rules.read_text().replace("f * |xd - xg|", "0.5 * f * |xd - xg|"))
+    capsys.readouterr()
+    assert run.main(base + ["--rules", str(rules)]) == 2
+    err = capsys.readouterr().err
+    assert "holds an earlier run with other settings (content of the rules file)" in err
+    assert _tree(folder) == kept
+    assert run.main(base + ["--rules", str(rules), "--force"]) == 0
+    assert _tree(folder) != kept
+
+
+def test_calibrate_output_checks(tmp_path):
+    from itg_vision.calibrate import check_out, default_out
+    from itg_vision.camera import CAMERAS_DIR
+
+    planar = CAMERAS_DIR / "planar.yaml"
+    assert default_out(planar) == Path("runs/calibrate/planar.calib.yaml")
+    check_out(CAMERAS_DIR / "planar.calib.yaml", planar)  # this rig's calibration: may refresh
+    check_out(tmp_path / "new" / "p.calib.yaml", planar)
+    assert list(tmp_path.iterdir()) == []  # the check made nothing
+    with pytest.raises(UserError, match="is a calibration of planar.yaml, not of"):
+        check_out(CAMERAS_DIR / "planar.calib.yaml", CAMERAS_DIR / "three-link.yaml")
+    check_out(CAMERAS_DIR / "planar.calib.yaml", CAMERAS_DIR / "three-link.yaml", force=True)
+    (tmp_path / "p.calib.png").write_bytes(b"a user's picture")
+    with pytest.raises(UserError, match="p.calib.png exists and would be replaced"):
+        check_out(tmp_path / "p.calib.yaml", planar)
