@@ -35,9 +35,10 @@ Method
    calibrated rig from the same images; both RMS errors against the simulator's LED positions
    and their ratio are reported.
 
-Outputs: the calibrated rig (``cameras/<rig>.calib.yaml`` by default), in the rig schema with a
-``calibration`` section and ``true_rig`` (the rig that rendered, relative to the file's folder),
-and a picture of the detected corners of one view (``cameras/<rig>.calib.png``).
+Outputs: the calibrated rig (``runs/calibrate/<rig>.calib.yaml`` by default: the shipped
+``cameras/<rig>.calib.yaml`` is rewritten only when named with ``--out``), in the rig schema with
+a ``calibration`` section and ``true_rig`` (the rig that rendered, relative to the file's folder),
+and a picture of the detected corners of one view (``<name>.calib.png`` beside it).
 """
 
 from __future__ import annotations

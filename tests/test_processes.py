@@ -110,3 +110,25 @@ def test_a_damaged_middle_row_is_redone_and_named_on_stderr(tmp_path, capsys):
     rows = path.read_text().splitlines()
     assert len(rows) == 1 + len(build_sweep(quick=True, controllers=("ik",), seeds=1))
     assert all(len(r.split(",")) == len(COLUMNS) for r in rows)
+
+
+def test_a_run_killed_mid_way_keeps_the_old_result_and_the_next_run_cleans_its_staging(cli, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = tmp_path / "r"
+    assert cli("itg_vision.run", "--feedback", "model", "--points", "5", "--quiet", "--out", out).returncode == 0
+    old = (out / "summary.json").read_bytes()
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.run", "--points", "400", "--quiet",
+                             "--out", str(out)], cwd=ROOT, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not list(tmp_path.glob(".r.staging-*")):
+            time.sleep(0.1)
+        time.sleep(0.5)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert len(list(tmp_path.glob(".r.staging-*"))) == 1  # what SIGKILL leaves
+    assert (out / "summary.json").read_bytes() == old  # the old result is whole
+    assert cli("itg_vision.run", "--feedback", "model", "--points", "5", "--quiet", "--out", out).returncode == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
