@@ -265,8 +265,8 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
     wrong before the swap (a bad input, an error, Ctrl-C) leaves ``out`` as it was and no staging
     folder behind.
     """
+    clean_stale(check_path(out, option))  # first: a killed swap's old folder comes back
     out = check_out_dir(out, command, force=force, option=option)
-    clean_stale(out)
     created: list[Path] = []
     try:
         created = _make_parents(out.parent)

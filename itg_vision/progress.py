@@ -22,7 +22,7 @@ class LineProgress:
         self.n, self.postfix = 0, ""
         self.steps, self.min_interval_s, self.max_interval_s = steps, min_interval_s, max_interval_s
         self.t0 = self._last_t = time.monotonic()
-        self._last_step = 0
+        self._last_step = self._last_n = 0
         self.closed = False
 
     def _line(self) -> str:
@@ -33,7 +33,7 @@ class LineProgress:
 
     def _emit(self) -> None:
         print(self._line(), file=self.file, flush=True)
-        self._last_t = time.monotonic()
+        self._last_t, self._last_n = time.monotonic(), self.n
 
     def update(self, n: int = 1) -> None:
         self.n += n
@@ -53,7 +53,7 @@ class LineProgress:
     def close(self) -> None:
         if not self.closed:
             self.closed = True
-            if self.n:
+            if self.n != self._last_n:
                 self._emit()
 
 

@@ -215,6 +215,7 @@ def test_progress_in_a_log_is_plain_lines(capsys):
     assert "\r" not in err
     lines = err.splitlines()
     assert 2 <= len(lines) <= 12 and lines[-1].startswith("run x: 100/100 pt (100%)")
+    assert len(set(lines)) == len(lines)  # the last line once
     progress(100, "quiet", quiet=True).update(5)
     assert capsys.readouterr().err == ""
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from itg_vision.bench.noise import COLUMNS, Results, build_sweep, main
+from itg_vision.errors import UserError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -132,3 +133,17 @@ def test_a_run_killed_mid_way_keeps_the_old_result_and_the_next_run_cleans_its_s
     assert (out / "summary.json").read_bytes() == old  # the old result is whole
     assert cli("itg_vision.run", "--feedback", "model", "--points", "5", "--quiet", "--out", out).returncode == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_a_torn_header_is_dropped_and_rewritten_whole(tmp_path):
+    path = tmp_path / "results.csv"
+    path.write_text(",".join(COLUMNS)[:17])
+    r = Results(path)
+    assert r.rows == {} and r.problems == [f"{path}:1: torn header (an interrupted first write): dropped"]
+    r.repair()
+    r.append({c: ("0123456789abcdef" if c == "run_id" else "1") for c in COLUMNS})
+    assert path.read_text() == ",".join(COLUMNS) + "\n" + _row("0123456789abcdef")
+    path.write_text("x_mm,y_mm\n1,2\n")  # somebody else's CSV: refused, untouched
+    with pytest.raises(UserError, match="its columns are not this benchmark.s"):
+        Results(path)
+    assert path.read_text() == "x_mm,y_mm\n1,2\n"

@@ -406,6 +406,11 @@ class Results:
             return
         lines = data.split(b"\n")
         last = lines.pop()  # b"" when the file ends with a newline
+        if not lines and ",".join(COLUMNS).encode().startswith(last):
+            self.problems.append(f"{self.path}:1: torn header (an interrupted first write): "
+                                 "dropped")
+            self._repaired = ""
+            return
         header = lines[0] if lines else last
         if next(csv.reader([header.decode("utf-8", errors="replace")]), None) != COLUMNS:
             raise UserError(f"{self.path}: its columns are not this benchmark's (another tool's "
