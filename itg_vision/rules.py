@@ -51,6 +51,7 @@ one Python function from the tree itself.
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from dataclasses import dataclass, field
@@ -367,6 +368,7 @@ def _pow(a: float, b: float) -> float:
 
 
 _HELPERS = {"_div": _div, "_pow": _pow, "abs": abs, "__builtins__": {}}
+_TEMPS = itertools.count()  # names of temporaries in compiled code
 
 
 def _names_in(node) -> list[tuple[str, Token]]:
@@ -394,6 +396,11 @@ def _py(node) -> str:
     op, a, b = node[1], _py(node[2]), _py(node[3])
     if op == "/":
         return f"_div({a}, {b})"
+    if op == "^" and node[3][:2] == ("num", 2.0):  # squares (RULE 0's r^2): no call, same value
+        if node[2][0] in ("name", "num"):
+            return f"({a} * {a})"
+        t = f"_t{next(_TEMPS)}"
+        return f"(({t} := {a}) * {t})"
     if op == "^":
         return f"_pow({a}, {b})"
     return f"({a} {op} {b})"

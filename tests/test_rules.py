@@ -278,3 +278,20 @@ def test_binary_and_oversized_rule_files_are_one_line(tmp_path):
     f.write_bytes(b"# " + b"x" * (1 << 20))
     with pytest.raises(UserError, match="larger than 1024 KiB"):
         RuleBase.from_file(f, 2, TWO)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-1e200, 1e200), st.floats(-50, 50))
+def test_squares_and_powers_equal_python_floats(x, y):
+    """Squares compile to a product (no call), other powers to a checked pow: same numbers."""
+    rb = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 += ((xd - yd)^2)^2 + |xd|^1.5 + 2^yd\n"
+                            "RULE 2: IF 1 > 0 THEN q2 += xd^2", 2, TWO)
+    d = np.array([x, y, 0.0])
+    try:
+        expected = [((x - y) ** 2) ** 2 + abs(x) ** 1.5 + 2.0 ** y, x ** 2]
+    except OverflowError:  # Python raises; the rules give inf, and then a UserError (above)
+        return
+    if not all(map(math.isfinite, expected)):
+        return
+    got = rb.step(d, markers([0, 0, 0], [0, 0, 0]), [0, 0]).dq_deg
+    assert list(got) == expected
