@@ -38,9 +38,10 @@ Method
    calibrated rig from the same images; both RMS errors against the simulator's LED positions
    and their ratio are reported.
 
-Outputs: the calibrated rig (``cameras/<rig>.calib.yaml`` by default), in the rig schema with a
-``calibration`` section and ``true_rig`` (the rig that rendered, relative to the file's folder),
-and a picture of the detected corners of one view (``cameras/<rig>.calib.png``).
+Outputs: the calibrated rig (``runs/calibrate/<rig>.calib.yaml`` by default: the shipped
+``cameras/<rig>.calib.yaml`` is rewritten only when named with ``--out``), in the rig schema with
+a ``calibration`` section and ``true_rig`` (the rig that rendered, relative to the file's folder),
+and a picture of the detected corners of one view (``<name>.calib.png`` beside it).
 """
 
 from __future__ import annotations
@@ -853,13 +854,71 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
 
 
 # ---------------------------------------------------------------------------- command line
+#: Where calibrations go by default (relative to the current folder, like ``runs/`` of run).
+DEFAULT_OUT_DIR = Path("runs") / "calibrate"
+
+
 def default_out(rig_path: Path) -> Path:
-    """``cameras/planar.yaml`` -> ``cameras/planar.calib.yaml``."""
-    return rig_path.with_name(f"{rig_path.stem}.calib.yaml")
+    """``cameras/planar.yaml`` -> ``runs/calibrate/planar.calib.yaml``.
+
+    Not beside the rig: the shipped ``cameras/<rig>.calib.yaml`` is a tracked file (the
+    reference calibration the README's figures and ``bench noise``'s ``rig-calibrated`` use);
+    following the README must not rewrite it. ``--out cameras/planar.calib.yaml`` refreshes it
+    on purpose (allowed: that file is this rig's calibration).
+    """
+    return DEFAULT_OUT_DIR / f"{Path(rig_path).stem}.calib.yaml"
+
+
+def picture_path(out: Path) -> Path:
+    """The corner picture beside the calibrated rig: ``x.calib.yaml`` -> ``x.calib.png``."""
+    return out.with_name(out.name.removesuffix(".yaml").removesuffix(".yml") + ".png")
+
+
+def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
+    """Refuse, before any work, an ``--out`` the calibration must not write (`UserError`).
+
+    ``out`` must name a ``.yaml``/``.yml`` file (not a folder) in a folder that can be written,
+    and not the true rig. An existing file there is replaced only if it is a calibration of
+    this rig (its ``true_rig`` names ``rig_path``), or with ``force``; the same holds for the
+    corner picture beside it.
+    """
+    from .outputs import check_path, probe_folder
+    from .runner import resolve_relative
+
+    check_path(out, what="file")
+    if out.is_dir():
+        raise UserError(f"--out {out}: is a folder; give the calibrated rig's file name, e.g. "
+                        f"{out / default_out(rig_path).name}")
+    if out.suffix not in (".yaml", ".yml"):
+        raise UserError(f"--out {out}: must name a .yaml file (the calibrated rig)")
+    if out.resolve() == Path(rig_path).resolve():
+        raise UserError(f"--out: {out} would overwrite the true rig")
+    ours = False
+    if out.exists():
+        try:
+            old = Rig.from_yaml(out)
+        except UserError as exc:
+            if not force:
+                raise UserError(f"--out {out}: exists and is not a rig file ({exc}); choose "
+                                "another --out, or add --force to replace it") from None
+        else:
+            truth = old.true_rig and resolve_relative(old.true_rig, out)
+            ours = bool(truth) and Path(truth).resolve() == Path(rig_path).resolve()
+            if not ours and not force:
+                what = (f"a calibration of {old.true_rig}, not of {rig_path}" if old.true_rig
+                        else f"the rig file {old.name!r}, not a calibration of {rig_path}")
+                raise UserError(f"--out {out}: is {what}; choose another --out, or add --force "
+                                "to replace it")
+    pic = picture_path(out)
+    if pic.exists() and not ours and not force:
+        raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "
+                        "picture; choose another --out, or add --force")
+    probe_folder(out.parent)
 
 
 def write_result(result: Result, out: Path, true_rig_path: Path) -> Path | None:
-    """Write the calibrated rig (and the corner picture beside it); return the picture's path."""
+    """Write the calibrated rig (and the corner picture beside it), each to a temporary name
+    then renamed; return the picture's path."""
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         rel = os.path.relpath(Path(true_rig_path).resolve(), out.parent.resolve())
@@ -867,7 +926,7 @@ def write_result(result: Result, out: Path, true_rig_path: Path) -> Path | None:
         rel = str(Path(true_rig_path).resolve())
     pic = None
     if result.picture is not None:
-        pic = out.with_name(out.name.removesuffix(".yaml").removesuffix(".yml") + ".png")
+        pic = picture_path(out)
         ok, buf = cv2.imencode(".png", cv2.cvtColor(result.picture, cv2.COLOR_RGB2BGR))
         if ok:
             outputs.write_bytes(pic, buf.tobytes())
@@ -917,11 +976,14 @@ def summary_table(r: dict) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    from .errors import ArgumentParser  # one-line option errors
+
+    ap = ArgumentParser(
         prog="python -m itg_vision.calibrate",
         description="Calibrate a stereo rig from rendered views of a checkerboard (intrinsics, "
                     "distortion, the pair), tie it to the robot's base frame with the LEDs at "
-                    "known joint angles, and write the calibrated rig beside the true one.")
+                    "known joint angles, and write the calibrated rig (default "
+                    "runs/calibrate/<rig>.calib.yaml).")
     ap.add_argument("--rig", metavar="NAME|PATH",
                     help="the true rig that renders: cameras/<NAME>.yaml or a path "
                          "(default: planar)")
@@ -931,8 +993,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0,
                     help="seed of the board poses, sensor noise and arm poses (default 0)")
     ap.add_argument("--out", metavar="PATH",
-                    help="calibrated rig file (default: beside the rig, <rig>.calib.yaml); "
-                         "the corner picture goes beside it as <name>.calib.png")
+                    help="calibrated rig file, .yaml (default: runs/calibrate/<rig>.calib.yaml; "
+                         "the shipped cameras/<rig>.calib.yaml is only rewritten when named "
+                         "here); the corner picture goes beside it as <name>.png. An existing "
+                         "file is replaced only if it is a calibration of this rig")
+    ap.add_argument("--force", action="store_true",
+                    help="replace --out even if it is not a calibration of this rig")
     ap.add_argument("--arm", choices=("one-link", "two-link", "three-link"),
                     help="arm whose LEDs tie the rig to the base frame (default: three-link for "
                          "the three-link rig, else two-link)")
@@ -951,7 +1017,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
     # OpenCV's threaded reductions sum in a varying order (results differ at ~1e-10); one
     # thread makes the same seed give the same file, bit for bit.
     cv2.setNumThreads(1)
@@ -959,9 +1024,10 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         import dataclasses
 
-        from tqdm import tqdm
+        args = build_parser().parse_args(argv)
 
         from .arm import ArmSpec
+        from .progress import progress
 
         checks = [(1 <= args.views <= 1000, f"--views: must be in 1..1000, got {args.views}"),
                   (args.seed >= 0, f"--seed: must be >= 0, got {args.seed}"),
@@ -995,11 +1061,9 @@ def main(argv: list[str] | None = None) -> int:
             except UserError as exc:
                 raise UserError(str(exc).replace("--links", "--true-links")) from None
         out = Path(args.out) if args.out else default_out(rig_path)
-        if out.resolve() == Path(rig_path).resolve():
-            raise UserError(f"--out: {out} would overwrite the true rig")
+        check_out(out, rig_path, args.force)  # before the work, not after it
         total = args.views + sum(len(q) for q, _ in axis_sweeps(arm).values()) + args.check_poses
-        bar = tqdm(total=total, desc="calibrate", unit="view", disable=args.quiet,
-                   file=sys.stderr)
+        bar = progress(total, "calibrate", quiet=args.quiet, unit="view")
         try:
             result = calibrate(true_rig, arm, views=args.views, seed=args.seed,
                                tilt_deg=args.tilt, true_arm=true_arm,

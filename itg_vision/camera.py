@@ -28,7 +28,9 @@ Rig files (``cameras/*.yaml``) use ROS ``camera_info`` names where natural::
 
 from __future__ import annotations
 
+import math
 import os
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -39,8 +41,26 @@ import numpy as np
 import yaml
 
 from .errors import UserError
+from .inputs import clip, position, read_text
 
 _MM = 1e-3
+#: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
+MAX_IMAGE_PIXELS = 4096 * 4096
+#: Peak memory of rendering one frame, per pixel (measured: 60 to 100 bytes at 640x480 and
+#: 2560x1920: TinyRenderer's RGBA and depth buffers, the distortion margin, the remap).
+BYTES_PER_PIXEL = 60
+#: Largest focal length accepted (px): 1e6 px is a 0.04 degree field of view at 640 px.
+MAX_FOCAL_PX = 1e6
+#: Largest half field of view accepted (deg) about the principal point: a pinhole camera.
+MAX_HALF_FOV_DEG = 80.0
+#: Largest coordinate of a camera position accepted (mm).
+MAX_POSITION_MM = 1e6
+#: Cameras of a rig closer than this (mm) are at the same place: no stereo.
+MIN_BASELINE_MM = 1.0
+#: Largest sensor gain accepted (the image saturates long before).
+MAX_EXPOSURE = 1000.0
+#: Largest |coefficient| of plumb_bob distortion accepted.
+MAX_DISTORTION = 100.0
 #: Where the shipped rigs and their calibrations live.
 CAMERAS_DIR = Path(__file__).resolve().parent.parent / "cameras"
 #: The shipped rig that sees each arm.
@@ -321,13 +341,24 @@ class Rig:
     def from_yaml(cls, path) -> "Rig":
         """Read and validate a rig file; any bad field raises `UserError` naming it."""
         path = str(path)
+        text = read_text(path, "rig file")
         try:
-            with open(path, encoding="utf-8") as f:
-                doc = yaml.safe_load(f)
-        except OSError as exc:
-            raise UserError(f"{path}: cannot read rig file ({exc.strerror})") from None
+            doc = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            raise UserError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+            mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+            where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else path
+            what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            context, cmark = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+            if context and cmark is not None and cmark is not mark:
+                what += f", {context} at {cmark.line + 1}:{cmark.column + 1}"
+            raise UserError(f"{where}: not valid YAML ({what})") from None
+        except ValueError:  # an integer of more than 4300 digits (int's str limit)
+            m = re.search(r"\d{4300,}", text)
+            where = f"{path}:{':'.join(map(str, position(text, m.start())))}" if m else path
+            raise UserError(f"{where}: not valid YAML (a number of more than 4300 digits)") \
+                from None
+        except RecursionError:
+            raise UserError(f"{path}: nested too deeply to be a rig file") from None
         return rig_from_dict(doc, path)
 
     def to_yaml(self, path) -> None:
@@ -339,13 +370,11 @@ class Rig:
             doc["calibration"] = self.calibration
         if self.true_rig is not None:
             doc["true_rig"] = self.true_rig
+        from .outputs import write_text
+
         header = ("# Stereo rig (itg_vision). OpenCV conventions, mm; pose as R world->camera\n"
                   "# rows and t in x_cam = R X_world + t. See itg_vision/camera.py.\n")
-        tmp = f"{path}.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(header)
-            yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
-        os.replace(tmp, path)
+        write_text(path, header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))
 
 
 def _camera_to_dict(c: Camera) -> dict:
@@ -383,21 +412,27 @@ class _Fields:
         return d[key]
 
     def number(self, v: Any, where: str) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-            self.fail(where, f"must be a finite number, got {v!r}")
-        return float(v)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(where, f"must be a finite number, got {clip(repr(v))}")
+        try:
+            x = float(v)
+        except OverflowError:  # an integer beyond the doubles
+            x = math.inf
+        if not math.isfinite(x):
+            self.fail(where, f"must be a finite number, got {clip(repr(v))}")
+        return x
 
     def numbers(self, v: Any, n: int, where: str) -> np.ndarray:
         if isinstance(v, dict) and "data" in v:  # ROS matrix form
             v = v["data"]
         if not isinstance(v, (list, tuple)) or len(v) != n:
-            got = f"{len(v)} values" if isinstance(v, (list, tuple)) else repr(v)
+            got = f"{len(v)} values" if isinstance(v, (list, tuple)) else clip(repr(v))
             self.fail(where, f"must be a list of {n} numbers, got {got}")
         return np.array([self.number(x, f"{where}[{i}]") for i, x in enumerate(v)])
 
     def integer(self, v: Any, where: str) -> int:
         if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(where, f"must be an integer, got {v!r}")
+            self.fail(where, f"must be an integer, got {clip(repr(v))}")
         return int(v)
 
 
@@ -415,6 +450,10 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     cameras = tuple(_camera_from_dict(F, c, f"cameras[{i}]") for i, c in enumerate(cams))
     if cameras[0].name == cameras[1].name:
         F.fail("cameras[1].name", f"duplicates cameras[0].name {cameras[0].name!r}")
+    baseline = float(np.linalg.norm(cameras[0].position_mm - cameras[1].position_mm))
+    if baseline < MIN_BASELINE_MM:
+        F.fail("cameras[1].pose", f"at the same place as cameras[0] ({baseline:.2g} mm apart): "
+                                  "stereo needs two viewpoints")
     calibration = doc.get("calibration")
     if calibration is not None and not isinstance(calibration, dict):
         F.fail("calibration", "must be a mapping")
@@ -436,35 +475,99 @@ def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
         F.fail(f"{where}.image_width", f"must be > 0, got {W}")
     if H <= 0:
         F.fail(f"{where}.image_height", f"must be > 0, got {H}")
+    if W * H > MAX_IMAGE_PIXELS:
+        F.fail(where, f"a {W} x {H} px image needs about {W * H * BYTES_PER_PIXEL / 1e9:.3g} GB "
+                      f"to render a frame ({BYTES_PER_PIXEL} bytes per pixel); the limit is "
+                      f"{MAX_IMAGE_PIXELS / 1e6:.1f} Mpx (4096 x 4096)")
     km = f"{where}.camera_matrix"
     K = F.numbers(F.get(d, "camera_matrix", where), 9, km).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    if fx <= 0:
-        F.fail(km, "fx must be > 0")
-    if fy <= 0:
-        F.fail(km, "fy must be > 0")
+    for label, f in (("fx", fx), ("fy", fy)):
+        if f <= 0:
+            F.fail(km, f"{label} must be > 0")
+        if f > MAX_FOCAL_PX:
+            F.fail(km, f"{label} must be at most {MAX_FOCAL_PX:g} px (a field of view of "
+                       f"hundredths of a degree), got {f:g}")
     if not 0 <= cx <= W - 1:
         F.fail(km, f"cx must be inside the image [0, {W - 1}], got {cx:g}")
     if not 0 <= cy <= H - 1:
         F.fail(km, f"cy must be inside the image [0, {H - 1}], got {cy:g}")
     if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
         F.fail(km, "must be [fx, 0, cx, 0, fy, cy, 0, 0, 1] (no skew)")
+    for label, f, c, n in (("fx", fx, cx, W), ("fy", fy, cy, H)):
+        half = np.degrees(np.arctan(max(c + 0.5, n - 0.5 - c) / f))
+        if half > MAX_HALF_FOV_DEG:
+            F.fail(km, f"{label} = {f:g} px gives a field of view of {2 * half:.0f} deg; a "
+                       f"pinhole camera here cannot exceed {2 * MAX_HALF_FOV_DEG:g} deg")
     model = d.get("distortion_model", "plumb_bob")
     if model != "plumb_bob":
         F.fail(f"{where}.distortion_model", f"only plumb_bob is supported, got {model!r}")
     dist = F.numbers(F.get(d, "distortion_coefficients", where), 5,
                      f"{where}.distortion_coefficients")
+    if np.max(np.abs(dist)) > MAX_DISTORTION:
+        F.fail(f"{where}.distortion_coefficients", f"each must be within +-{MAX_DISTORTION:g}, "
+                                                   f"got {np.max(np.abs(dist)):g}")
+    problem, margin = _distortion_check(fx, fy, cx, cy, W, H, dist)
+    if problem:
+        F.fail(f"{where}.distortion_coefficients", problem)
+    rendered = (W + 2 * margin) * (H + 2 * margin)
+    if rendered > MAX_IMAGE_PIXELS:
+        F.fail(where, f"this lens needs a {W + 2 * margin} x {H + 2 * margin} px render for a "
+                      f"{W} x {H} px image, about {rendered * BYTES_PER_PIXEL / 1e9:.3g} GB per "
+                      f"frame; the limit is {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx")
     R, t = _pose_from_dict(F, F.get(d, "pose", where), f"{where}.pose")
     sensor = d.get("sensor", {}) or {}
     if not isinstance(sensor, dict):
         F.fail(f"{where}.sensor", "must be a mapping")
     sigma = F.number(sensor.get("noise_sigma_gray", 2.0), f"{where}.sensor.noise_sigma_gray")
-    if sigma < 0:
-        F.fail(f"{where}.sensor.noise_sigma_gray", f"must be >= 0, got {sigma:g}")
+    if not 0 <= sigma <= 255:
+        F.fail(f"{where}.sensor.noise_sigma_gray", f"must be in [0, 255] grey levels, got {sigma:g}")
     exposure = F.number(sensor.get("exposure", 1.0), f"{where}.sensor.exposure")
-    if exposure <= 0:
-        F.fail(f"{where}.sensor.exposure", f"must be > 0, got {exposure:g}")
+    if not 0 < exposure <= MAX_EXPOSURE:
+        F.fail(f"{where}.sensor.exposure", f"must be in (0, {MAX_EXPOSURE:g}], got {exposure:g}")
     return Camera.from_arrays(name, (W, H), K, dist, R, t, sigma, exposure)
+
+
+def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
+                      n_steps: int = 3000) -> tuple[str, int]:
+    """Whether plumb_bob distortion ``dist`` can be simulated on this image: ('', margin_px)
+    or (problem, 0).
+
+    Along 72 rays from the principal point, the distorted image of the pinhole ray must move
+    outwards monotonically until it leaves the image (otherwise the lens folds back inside the
+    frame: not invertible, and rendering it blows up), and leave it within three times the
+    image's half-diagonal. ``margin_px``: how far beyond the frame the pinhole rendering must
+    reach (about what :func:`itg_vision.imaging.render_plan` adds on each side).
+    """
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    corners = np.array([[-0.5 - cx, -0.5 - cy], [W - 0.5 - cx, -0.5 - cy],
+                        [-0.5 - cx, H - 0.5 - cy], [W - 0.5 - cx, H - 0.5 - cy]]) / [fx, fy]
+    t = np.linspace(0.0, 3.0 * float(np.max(np.hypot(*corners.T))), n_steps)[:, None]
+    a = np.linspace(0.0, 2 * np.pi, n_angles, endpoint=False)[None, :]
+    x, y = t * np.cos(a), t * np.sin(a)
+    with np.errstate(all="ignore"):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        u, v = fx * xd + cx, fy * yd + cy
+        along = xd * np.cos(a) + yd * np.sin(a)
+    outside = ~((u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5))
+    margin = 0.0
+    for j in range(n_angles):
+        exits = np.flatnonzero(outside[:, j])
+        if not exits.size:
+            return ("the lens squeezes more than three times the field of view into the image: "
+                    "the simulator cannot render it", 0)
+        k = exits[0]
+        back = np.flatnonzero(~(np.diff(along[: k + 1, j]) > 0))
+        if back.size:
+            r = float(np.hypot(u[back[0], j] - cx, v[back[0], j] - cy))
+            return (f"the lens model folds back inside the image (not invertible, within {r:.0f} "
+                    "px of the centre): the simulator cannot render it", 0)
+        pu, pv = fx * x[k, j] + cx, fy * y[k, j] + cy
+        margin = max(margin, -pu, pu - (W - 1), -pv, pv - (H - 1))
+    return "", int(np.ceil(margin)) + 2
 
 
 def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -475,8 +578,12 @@ def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndar
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             F.fail(f"{where}.rotation_matrix", "must be a rotation (orthonormal, det +1)")
         t = F.numbers(F.get(d, "translation_mm", where), 3, f"{where}.translation_mm")
+        if np.max(np.abs(t)) > MAX_POSITION_MM:
+            F.fail(f"{where}.translation_mm", f"each must be within +-{MAX_POSITION_MM:g} mm")
         return R, t
     C = F.numbers(F.get(d, "position_mm", where), 3, f"{where}.position_mm")
+    if np.max(np.abs(C)) > MAX_POSITION_MM:
+        F.fail(f"{where}.position_mm", f"each must be within +-{MAX_POSITION_MM:g} mm")
     if "look_at_mm" in d:
         target = F.numbers(d["look_at_mm"], 3, f"{where}.look_at_mm")
         up = F.numbers(d.get("up", [0, 0, 1]), 3, f"{where}.up")
@@ -488,6 +595,8 @@ def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndar
             F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
     elif "rotation_deg" in d:
         rv = F.numbers(d["rotation_deg"], 3, f"{where}.rotation_deg")
+        if np.max(np.abs(rv)) > 3600:
+            F.fail(f"{where}.rotation_deg", "each must be within +-3600 deg")
         R, _ = cv2.Rodrigues(np.radians(rv))
     else:
         F.fail(where, "needs look_at_mm, rotation_deg or rotation_matrix + translation_mm")

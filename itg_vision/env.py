@@ -36,10 +36,9 @@ import dataclasses
 import gymnasium as gym
 import numpy as np
 
-from .identify import measure_geometry, nominal_geometry
 from .loop import Session
 from .rules import Step
-from .runner import RunConfig, prepare
+from .runner import RunConfig, prepare, start_up_geometry
 from .world import World
 
 #: Servo limit (deg per iteration) when the configuration sets none: an action space needs bounds.
@@ -90,8 +89,7 @@ class TrackingEnv(gym.Env):
         self._feedback = prep.feedback_factory()
         self._feedback.reset(run_seed)
         self._world = World(prep.true_arm)
-        geometry = (nominal_geometry(prep.model) if cfg.feedback == "model"
-                    else measure_geometry(self._world, self._feedback, prep.model))
+        geometry = start_up_geometry(cfg, self._world, self._feedback, prep.model)
         self._session = Session(self._world, self._feedback, prep.trajectory.points_mm,
                                 iterations=cfg.iterations, planar=prep.model.planar,
                                 max_step_deg=cfg.max_step,

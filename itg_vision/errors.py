@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from typing import Callable
 
@@ -10,13 +11,26 @@ class UserError(Exception):
     """A problem with the user's input, reported as one line (exit status 2)."""
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose errors are one line: a bad option raises `UserError` (naming the option),
+    which :func:`run_main` prints as ``error: ...`` with status 2, instead of printing the usage
+    and exiting. Parse inside the ``body`` given to :func:`run_main`."""
+
+    def error(self, message: str):
+        raise UserError(f"{message} (see {self.prog} --help)")
+
+
 def run_main(body: Callable[[], int]) -> int:
-    """Run a command body; turn a `UserError` into one line on stderr and status 2."""
+    """Run a command body; turn a `UserError` into one line on stderr and status 2.
+
+    Ctrl-C prints ``interrupted`` on a line of its own (a progress bar may be half drawn on
+    the current one) and returns 130.
+    """
     try:
         return body()
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("\ninterrupted", file=sys.stderr)
         return 130

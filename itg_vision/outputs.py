@@ -1,17 +1,46 @@
-"""Writing results safely: temporary name, then rename; a failed run leaves the old output."""
+"""Writing results safely: nothing the user owns is ever replaced, nothing is half-written.
+
+Rules (what every command follows):
+
+- **Files** are written to a temporary name in the same folder, then renamed
+  (:func:`write_bytes`): a reader sees the old file or the new one, never a mix, and a failed or
+  killed run leaves the old file.
+- **Output folders** are built in a staging folder beside ``--out`` and swapped in whole when
+  the command has finished (:func:`staged_dir`). A command replaces only a folder that it made
+  itself: every output folder carries a small manifest, :data:`MANIFEST`, naming the command
+  that made it. An existing folder without it (or made by another command), or an existing
+  file, is refused with one line (:class:`~itg_vision.errors.UserError`, exit 2) and left
+  untouched; ``force=True`` (``--force``) replaces a foreign *folder* (never a file).
+  An empty folder holds nothing to lose and is replaced.
+- ``--out .``, ``--out a/b/..``, the current folder or one of its ancestors, the root: refused
+  (a folder cannot be swapped over itself or over where the user stands).
+- A run killed with SIGKILL leaves a staging folder ``.<name>.staging-<pid>-*``; the next run
+  into the same place removes those whose process is gone. If it was killed between the two
+  renames of the swap, the old folder (``.<name>.old-<pid>``) is put back first.
+- JSON is strict (:func:`write_json`): non-finite floats are written as ``null``, never as the
+  bare ``NaN`` / ``Infinity`` that strict readers reject.
+"""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
+import math
 import os
+import re
 import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+from .errors import UserError
 
+#: The manifest file that marks a folder as made by an itg_vision command.
+MANIFEST = ".itg_vision-output.json"
+
+
+# ---------------------------------------------------------------------------- files
 def write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
     path = Path(path)
@@ -33,8 +62,28 @@ def write_text(path: str | Path, text: str) -> None:
     write_bytes(path, text.encode())
 
 
+def json_safe(obj):
+    """``obj`` with every non-finite float replaced by ``None`` and numpy scalars and arrays made
+    plain Python (dicts, lists and tuples are walked; other values are returned as they are)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):  # numpy scalar or array
+        return json_safe(obj.tolist())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(obj) -> str:
+    """Strict JSON text of ``obj`` (non-finite floats as null, see :func:`json_safe`)."""
+    return json.dumps(json_safe(obj), indent=2, sort_keys=False, allow_nan=False) + "\n"
+
+
 def write_json(path: str | Path, obj) -> None:
-    write_text(path, json.dumps(obj, indent=2, sort_keys=False) + "\n")
+    """Write strict JSON atomically: NaN and infinities become ``null``."""
+    write_text(path, json_text(obj))
 
 
 def csv_text(columns: list[str], rows: list[list]) -> str:
@@ -45,25 +94,203 @@ def csv_text(columns: list[str], rows: list[list]) -> str:
     return buf.getvalue()
 
 
-@contextmanager
-def staged_dir(out: str | Path):
-    """Yield a fresh temporary folder; on success it replaces ``out`` whole, on error it goes.
-
-    Readers of ``out`` see either the old results or the new ones, never a mix.
-    """
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    os.chmod(tmp, 0o755)
+# ---------------------------------------------------------------------------- ownership
+def read_manifest(folder: str | Path) -> dict | None:
+    """The manifest of an output folder, or None if it has none (or an unreadable one)."""
     try:
+        doc = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and doc.get("made_by") == "itg_vision" else None
+
+
+def manifest(command: str, key=None) -> dict:
+    """The manifest a command writes into its output folder (no time stamp: the same run gives
+    the same bytes). ``key``: what identifies the result (e.g. a run's settings)."""
+    from . import __version__
+
+    doc = {"made_by": "itg_vision", "command": command, "version": __version__}
+    if key is not None:
+        doc["key"] = key
+    return doc
+
+
+def _last_component(text: str) -> str:
+    return text.rstrip("/" + os.sep).rsplit("/", 1)[-1].rsplit(os.sep, 1)[-1]
+
+
+def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> Path:
+    """Refuse an output path (of a ``what``: folder or file) that can never be swapped in (no
+    writes).
+
+    Empty, ``.``, ``..`` or ending in ``/..`` or ``/.``, the root, the current folder or one
+    of its ancestors, or below an existing file.
+    """
+    text = str(out)
+    if not text.strip():
+        raise UserError(f"{option}: empty path")
+    if _last_component(text) in ("", ".", ".."):
+        raise UserError(f"{option} {text}: name a {what} (not '.', '..' or the root)")
+    path = Path(text)
+    resolved = path.resolve()
+    cwd = Path.cwd().resolve()
+    if resolved == cwd or resolved in cwd.parents:
+        raise UserError(f"{option} {text}: is the current folder or one of its parents; name a "
+                        "new folder for the results")
+    for parent in path.parents:
+        if parent.exists() or parent.is_symlink():
+            if not parent.is_dir():
+                raise UserError(f"{option} {text}: {parent} is a file, not a folder")
+            break
+    return path
+
+
+def check_out_dir(out: str | Path, command: str, *, force: bool = False,
+                  option: str = "--out") -> Path:
+    """Check that ``command`` may replace ``out`` with a new output folder; raise `UserError`
+    (one line naming ``option``) if not. Writes nothing.
+
+    Allowed: a path that does not exist, an empty folder, a folder whose manifest names
+    ``command``, or any folder with ``force``. Never a file.
+    """
+    path = check_path(out, option)
+    if not (path.exists() or path.is_symlink()):
+        return path
+    if not path.is_dir():
+        raise UserError(f"{option} {out}: exists and is not a folder; choose another {option}")
+    try:
+        entries = sorted(e.name for e in os.scandir(path))
+    except OSError as exc:
+        raise UserError(f"{option} {out}: cannot read the folder ({exc.strerror})") from None
+    if not entries or force:
+        return path
+    made = read_manifest(path)
+    if made is not None and made.get("command") == command:
+        return path
+    if made is not None:
+        raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
+                        f"`{command}`; choose another {option}, or add --force to replace it")
+    shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+    n = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
+    raise UserError(f"{option} {out}: is a folder that {command} did not make ({n}: {shown}); "
+                    f"choose another {option}, or add --force to replace it")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def clean_stale(out: str | Path) -> list[Path]:
+    """Remove staging folders left beside ``out`` by killed runs (their process is gone); put
+    back an old folder left by a run killed between the two renames of the swap. Returns the
+    paths removed or restored."""
+    out = Path(out)
+    parent = out.parent
+    if not parent.is_dir():
+        return []
+    pat = re.compile(rf"^\.{re.escape(out.name)}\.(staging|old)-(\d+)(-.*)?$")
+    done = []
+    for entry in sorted(os.scandir(parent), key=lambda e: e.name):
+        m = pat.match(entry.name)
+        if not m or _pid_alive(int(m.group(2))):
+            continue
+        p = Path(entry.path)
+        if m.group(1) == "old" and not (out.exists() or out.is_symlink()):
+            os.replace(p, out)  # killed mid-swap: the old results come back
+        else:
+            shutil.rmtree(p, ignore_errors=True)
+        done.append(p)
+    return done
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """mkdir -p ``folder``; return the folders created (deepest last)."""
+    missing = []
+    p = folder
+    while not p.exists():
+        missing.append(p)
+        p = p.parent
+    created = []
+    try:
+        for d in reversed(missing):
+            d.mkdir()
+            created.append(d)
+    except BaseException:
+        _remove_dirs(created)
+        raise
+    return created
+
+
+def _remove_dirs(created: list[Path]) -> None:
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def probe_folder(folder: str | Path, option: str = "--out") -> None:
+    """Check that files can be created in ``folder`` (made if missing) by creating and removing
+    one; whatever this made is removed again. Raises `UserError` naming ``option``."""
+    folder = Path(folder)
+    created: list[Path] = []
+    try:
+        created = _make_parents(folder)
+        fd, tmp = tempfile.mkstemp(prefix=".itg_vision-probe.", dir=folder)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise UserError(f"{option}: cannot write in {folder} ({exc.strerror or exc})") from None
+    finally:
+        _remove_dirs(created)
+
+
+@contextmanager
+def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = False,
+               key=None, option: str = "--out"):
+    """Yield a fresh staging folder; on success it replaces ``out`` whole, on error it goes.
+
+    ``out`` is checked first (:func:`check_out_dir`: only a folder ``command`` made, an empty
+    one, or any folder with ``force``); the staging folder is marked with the manifest of
+    ``command`` (and ``key``), so the result can be replaced by a later run of the same command.
+    Readers of ``out`` see either the old results or the new ones, never a mix. Whatever goes
+    wrong before the swap (a bad input, an error, Ctrl-C) leaves ``out`` as it was and no staging
+    folder behind.
+    """
+    clean_stale(check_path(out, option))  # first: a killed swap's old folder comes back
+    out = check_out_dir(out, command, force=force, option=option)
+    created: list[Path] = []
+    try:
+        created = _make_parents(out.parent)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-{os.getpid()}-", dir=out.parent))
+        os.chmod(tmp, 0o755)
+    except OSError as exc:
+        _remove_dirs(created)
+        raise UserError(f"{option} {out}: cannot create a folder there ({exc.strerror or exc})") \
+            from None
+    try:
+        write_json(tmp / MANIFEST, manifest(command, key))
         yield tmp
+        check_out_dir(out, command, force=force, option=option)  # changed while we worked?
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        _remove_dirs(created)
         raise
     old = None
-    if out.exists():
+    if out.exists() or out.is_symlink():
         old = out.parent / f".{out.name}.old-{os.getpid()}"
         os.replace(out, old)
     os.replace(tmp, out)
     if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+        if old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            old.unlink()

@@ -401,20 +401,25 @@ def report(r: dict, base: RunConfig) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m itg_vision.paper", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="paper-out", help="output folder (default %(default)s)")
-    ap.add_argument("--feedback", default="model", choices=("model", "truth", "vision"),
-                    help="feedback of every run (default: model, the paper's setup)")
-    ap.add_argument("--gain", type=float, default=0.5, help="f in deg/mm (default %(default)s)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--quiet", action="store_true")
-    args = ap.parse_args(argv)
-
     def body() -> int:
+        from .errors import ArgumentParser  # one-line option errors
+
+        ap: argparse.ArgumentParser = ArgumentParser(prog="python -m itg_vision.paper", description=__doc__.split("\n\n")[0])
+        ap.add_argument("--out", default="paper-out",
+                        help="output folder (default %(default)s); replaced only if this command "
+                             "made it")
+        ap.add_argument("--force", action="store_true",
+                        help="replace --out even if it is a folder this command did not make")
+        ap.add_argument("--feedback", default="model", choices=("model", "truth", "vision"),
+                        help="feedback of every run (default: model, the paper's setup)")
+        ap.add_argument("--gain", type=float, default=0.5, help="f in deg/mm (default %(default)s)")
+        ap.add_argument("--seed", type=int, default=0)
+        ap.add_argument("--quiet", action="store_true")
+        args = ap.parse_args(argv)
         base = RunConfig(feedback=args.feedback, gain=args.gain, seed=args.seed)
         base.validate()
         results = {}
-        with outputs.staged_dir(Path(args.out)) as tmp:
+        with outputs.staged_dir(Path(args.out), "paper", force=args.force) as tmp:
             for name, fn in (("exp1", exp1), ("exp2", exp2), ("exp3", exp3), ("exp4", exp4),
                              ("exp5", exp5), ("exp6", exp6)):
                 if not args.quiet:

@@ -21,6 +21,26 @@ Semantics (the paper leaves these open; we choose):
   iteration ("only one rule will be matched at each time", per joint).
 - Comparisons with NaN (a marker the arm lacks) are false.
 
+Arithmetic is total and checked (the paper says nothing; we choose IEEE 754 doubles):
+
+- Numbers in the file must be finite doubles (``1e999`` or a 400-digit number is refused at
+  its line and column).
+- Every operation yields a number: ``x / 0`` is +-inf (``0 / 0`` NaN), ``0 ^ -1`` is inf, an
+  overflow is +-inf, a negative number to a fractional power (a complex number) is NaN. In a
+  condition such a value simply compares (NaN compares false).
+- A step (the value added to a joint) that is not a finite number, computed from finite
+  inputs, stops the run: :meth:`RuleBase.step` raises :class:`~itg_vision.errors.UserError`
+  naming the rule, the joint, the step and the values it was computed from. A step computed
+  from a NaN input (a marker the arm lacks or never measured) moves nothing, as before.
+
+Limits (stated, so nothing ends in a RecursionError or MemoryError): a rule file is at most
+:data:`~itg_vision.inputs.MAX_FILE_BYTES` of UTF-8 text; a rule at most :data:`MAX_RULE_TOKENS`
+tokens; conditions and expressions at most :data:`MAX_DEPTH` levels deep (each parenthesis,
+``|...|``, ``NOT``, sign, operator and each further operand of a chain ``a + b + c`` adds a
+level). Beyond them the file is refused at the line and column where the limit is crossed.
+A rule base loaded for an arm (:func:`load_rules`) must move every joint of it: ``table1``
+(one joint) on the two-link arm is refused rather than run with q2 frozen.
+
 Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm); radial squares
 ``rd2 rg2 re2`` (x^2 + y^2, mm^2); joints ``q1..qn`` (deg); gain ``f`` (deg/mm), fixed step
 ``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm.
@@ -31,6 +51,8 @@ one Python function from the tree itself.
 
 from __future__ import annotations
 
+import itertools
+import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -38,10 +60,15 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
+from .inputs import clip, read_text
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 PARAM_NAMES = ("f", "S", "w")
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH"}
+#: Deepest condition or expression accepted (levels of nesting and of operators).
+MAX_DEPTH = 50
+#: Longest rule accepted (tokens: numbers, names, operators, keywords).
+MAX_RULE_TOKENS = 1000
 
 _TOKEN = re.compile(r"""
     (?P<ws>[ \t\r]+) | (?P<nl>\n) | (?P<comment>\#[^\n]*)
@@ -64,6 +91,10 @@ class RuleSyntaxError(UserError):
     pass
 
 
+class RuleLimitError(RuleSyntaxError):
+    """A stated limit crossed: never retried by the parser's backtracking."""
+
+
 def tokenize(text: str, source: str = "<rules>") -> list[Token]:
     tokens, line, line_start = [], 1, 0
     for m in _TOKEN.finditer(text):
@@ -75,6 +106,9 @@ def tokenize(text: str, source: str = "<rules>") -> list[Token]:
             continue
         elif kind == "bad":
             raise RuleSyntaxError(f"{source}:{line}:{col}: unexpected character {s!r}")
+        elif kind == "num" and not math.isfinite(float(s)):
+            raise RuleSyntaxError(f"{source}:{line}:{col}: number {clip(s)} is out of range "
+                                  "(the largest is about 1.8e308)")
         elif kind == "name" and s.upper() in KEYWORDS:
             tokens.append(Token("kw", s.upper(), line, col))
         else:
@@ -111,6 +145,27 @@ class Rule:
 class _Parser:
     def __init__(self, tokens: list[Token], source: str):
         self.t, self.i, self.source = tokens, 0, source
+        self.nesting = 0  # recursion: parentheses, |...|, NOT, signs, powers
+        self._height: dict[int, int] = {}  # id(node) -> height of its subtree
+
+    def _too_deep(self, tok: Token) -> RuleLimitError:
+        return RuleLimitError(
+            f"{self.source}:{tok.line}:{tok.col}: nested too deeply: more than {MAX_DEPTH} levels "
+            "(each parenthesis, |...|, NOT, sign, operator and each further operand of a chain "
+            "like a + b + c adds one)")
+
+    def node(self, tok: Token, *parts) -> tuple:
+        """A syntax-tree node; refused when its subtree is more than MAX_DEPTH levels high."""
+        h = 1 + max((self._height.get(id(p), 1) for p in parts if isinstance(p, tuple)), default=0)
+        if h > MAX_DEPTH:
+            raise self._too_deep(tok)
+        self._height[id(parts)] = h
+        return parts
+
+    def enter(self, tok: Token) -> None:
+        self.nesting += 1
+        if self.nesting > MAX_DEPTH:
+            raise self._too_deep(tok)
 
     # helpers
     @property
@@ -119,7 +174,7 @@ class _Parser:
 
     def error(self, msg: str, tok: Token | None = None) -> RuleSyntaxError:
         tok = tok or self.tok
-        found = "end of file" if tok.kind == "end" else repr(tok.text)
+        found = "end of file" if tok.kind == "end" else repr(clip(tok.text))
         return RuleSyntaxError(f"{self.source}:{tok.line}:{tok.col}: {msg} (found {found})")
 
     def accept(self, kind: str, text: str | None = None) -> Token | None:
@@ -144,6 +199,13 @@ class _Parser:
 
     def rule(self) -> Rule:
         start = self.expect("kw", "RULE", "'RULE <n>:'")
+        end = self.i
+        while self.t[end].kind != "end" and not (self.t[end].kind == "kw" and self.t[end].text == "RULE"):
+            end += 1
+            if end - self.i >= MAX_RULE_TOKENS:
+                tok = self.t[end]
+                raise RuleLimitError(f"{self.source}:{tok.line}:{tok.col}: RULE is longer than "
+                                     f"{MAX_RULE_TOKENS} tokens (it starts on line {start.line})")
         num = self.expect("num", what="a rule number")
         if not re.fullmatch(r"\d+", num.text):
             raise self.error("rule number must be a whole number", num)
@@ -180,30 +242,37 @@ class _Parser:
 
     def condition(self):
         node = self.conjunction()
-        while self.accept("kw", "OR"):
-            node = ("or", node, self.conjunction())
+        while (tok := self.accept("kw", "OR")):
+            node = self.node(tok, "or", node, self.conjunction())
         return node
 
     def conjunction(self):
         node = self.negation()
-        while self.accept("kw", "AND"):
-            node = ("and", node, self.negation())
+        while (tok := self.accept("kw", "AND")):
+            node = self.node(tok, "and", node, self.negation())
         return node
 
     def negation(self):
-        if self.accept("kw", "NOT"):
-            return ("not", self.negation())
+        if (tok := self.accept("kw", "NOT")):
+            self.enter(tok)
+            node = self.node(tok, "not", self.negation())
+            self.nesting -= 1
+            return node
         if self.tok.kind == "op" and self.tok.text == "(":
             # '(' opens either a condition or an expression: try the condition first.
-            save = self.i
+            save, nesting = self.i, self.nesting
+            self.enter(self.tok)
             self.i += 1
             try:
                 node = self.condition()
                 if self.accept("op", ")") and not self._at_expression_operator():
+                    self.nesting = nesting
                     return node
+            except RuleLimitError:
+                raise
             except RuleSyntaxError:
                 pass
-            self.i = save
+            self.i, self.nesting = save, nesting
         return self.comparison()
 
     def _at_expression_operator(self) -> bool:
@@ -215,59 +284,91 @@ class _Parser:
         tok = self.tok
         if tok.kind == "op" and tok.text in ("<", "<=", ">", ">=", "==", "!="):
             self.i += 1
-            return ("cmp", tok.text, left, self.expr())
+            return self.node(tok, "cmp", tok.text, left, self.expr())
         raise self.error("expected a comparison (<, <=, >, >=, ==, !=)")
 
     def expr(self):
         node = self.term()
-        while self.tok.kind == "op" and self.tok.text in "+-" and len(self.tok.text) == 1:
-            op = self.tok.text
+        while self.tok.kind == "op" and self.tok.text in ("+", "-"):
+            tok = self.tok
             self.i += 1
-            node = ("bin", op, node, self.term())
+            node = self.node(tok, "bin", tok.text, node, self.term())
         return node
 
     def term(self):
         node = self.unary()
         while self.tok.kind == "op" and self.tok.text in ("*", "/"):
-            op = self.tok.text
+            tok = self.tok
             self.i += 1
-            node = ("bin", op, node, self.unary())
+            node = self.node(tok, "bin", tok.text, node, self.unary())
         return node
 
     def unary(self):
-        if self.accept("op", "-"):
-            return ("neg", self.unary())
-        if self.accept("op", "+"):
-            return self.unary()
+        tok = self.tok
+        if self.accept("op", "-") or self.accept("op", "+"):
+            self.enter(tok)
+            node = self.unary()
+            self.nesting -= 1
+            return self.node(tok, "neg", node) if tok.text == "-" else node
         return self.power()
 
     def power(self):
         base = self.atom()
-        if self.accept("op", "^"):
-            return ("bin", "^", base, self.unary())
+        if (tok := self.accept("op", "^")):
+            self.enter(tok)
+            node = self.node(tok, "bin", "^", base, self.unary())
+            self.nesting -= 1
+            return node
         return base
 
     def atom(self):
         tok = self.tok
         if tok.kind == "num":
             self.i += 1
-            return ("num", float(tok.text))
+            return self.node(tok, "num", float(tok.text))
         if tok.kind == "name":
             self.i += 1
-            return ("name", tok.text, tok)
-        if self.accept("op", "("):
+            return self.node(tok, "name", tok.text, tok)
+        if tok.kind == "op" and tok.text in ("(", "|"):
+            self.enter(tok)
+            self.i += 1
             node = self.expr()
-            self.expect("op", ")", "')'")
+            if tok.text == "(":
+                self.expect("op", ")", "')'")
+            else:
+                self.expect("op", "|", "closing '|'")
+                node = self.node(tok, "abs", node)
+            self.nesting -= 1
             return node
-        if self.accept("op", "|"):
-            node = self.expr()
-            self.expect("op", "|", "closing '|'")
-            return ("abs", node)
         raise self.error("expected a number, a name, '(' or '|'")
 
 
 # --------------------------------------------------------------------------- compiler
-_PY_OP = {"^": "**", "and": "and", "or": "or"}
+def _div(a: float, b: float) -> float:
+    """``a / b`` as IEEE 754 doubles: x / 0 is +-inf, 0 / 0 NaN (Python raises instead)."""
+    try:
+        return a / b
+    except ZeroDivisionError:
+        if a == 0 or a != a:
+            return math.nan
+        return math.copysign(math.inf, a) * math.copysign(1.0, b)
+
+
+def _pow(a: float, b: float) -> float:
+    """``a ^ b``, total: 0 ^ -1 is inf, an overflow +-inf, a complex result (a negative base to
+    a fractional power) NaN (Python raises, or returns a complex number)."""
+    try:
+        r = a ** b
+    except ZeroDivisionError:
+        return math.inf
+    except OverflowError:
+        odd = b == int(b) and int(b) % 2 == 1
+        return -math.inf if a < 0 and odd else math.inf
+    return math.nan if isinstance(r, complex) else r
+
+
+_HELPERS = {"_div": _div, "_pow": _pow, "abs": abs, "__builtins__": {}}
+_TEMPS = itertools.count()  # names of temporaries in compiled code
 
 
 def _names_in(node) -> list[tuple[str, Token]]:
@@ -281,7 +382,7 @@ def _names_in(node) -> list[tuple[str, Token]]:
 def _py(node) -> str:
     kind = node[0]
     if kind == "num":
-        return repr(node[1])
+        return repr(node[1])  # finite: checked by the tokenizer
     if kind == "name":
         return f"v_{node[1]}"
     if kind == "neg":
@@ -292,8 +393,17 @@ def _py(node) -> str:
         return f"(not {_py(node[1])})"
     if kind in ("and", "or"):
         return f"({_py(node[1])} {kind} {_py(node[2])})"
-    op = node[1]
-    return f"({_py(node[2])} {_PY_OP.get(op, op)} {_py(node[3])})"
+    op, a, b = node[1], _py(node[2]), _py(node[3])
+    if op == "/":
+        return f"_div({a}, {b})"
+    if op == "^" and node[3][:2] == ("num", 2.0):  # squares (RULE 0's r^2): no call, same value
+        if node[2][0] in ("name", "num"):
+            return f"({a} * {a})"
+        t = f"_t{next(_TEMPS)}"
+        return f"(({t} := {a}) * {t})"
+    if op == "^":
+        return f"_pow({a}, {b})"
+    return f"({a} {op} {b})"
 
 
 @dataclass(frozen=True)
@@ -329,7 +439,7 @@ class RuleBase:
     @classmethod
     def from_text(cls, text: str, n_joints: int, links_mm, source: str = "<rules>", **params):
         rules = _Parser(tokenize(text, source), source).rules()
-        lines = text.splitlines()
+        lines = text.split("\n")  # the tokenizer's lines
         rules = [Rule(r.number, r.condition, r.actions, r.line, lines[r.line - 1].strip())
                  for r in rules]
         rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source, **params)
@@ -340,10 +450,7 @@ class RuleBase:
     @classmethod
     def from_file(cls, path: str | Path, n_joints: int, links_mm, **params) -> "RuleBase":
         path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise UserError(f"{path}: cannot read rule file ({exc.strerror})") from None
+        text = read_text(path, "rule file")
         return cls.from_text(text, n_joints, links_mm, source=str(path), **params)
 
     def with_links(self, links_mm) -> "RuleBase":
@@ -384,12 +491,18 @@ class RuleBase:
         if not any(not r.out_of_reach for r in self.rules):
             raise UserError(f"{self.source}: no rule moves a joint")
 
+    def unmoved_joints(self) -> list[str]:
+        """Joints of the arm that no rule moves (``q2`` for Table 1 on a two-link arm)."""
+        moved = {a.joint for r in self.rules for a in r.actions if a.kind in ("inc", "dec")}
+        return [f"q{j}" for j in range(1, self.n_joints + 1) if j not in moved]
+
     # -------------------------------------------------------------- compile
     def _compile(self):
         n = self.n_joints
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
-        lines = [f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {', '.join(f'v_L{i}' for i in range(1, len(self.links_mm) + 1))}):"]
+        links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
+        lines = [f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):"]
         for r in (r for r in self.rules if r.out_of_reach):
             lines.append(f"    if {_py(r.condition)}:")
             lines.append(f"        return None, ({r.number},)")
@@ -408,9 +521,20 @@ class RuleBase:
                 lines.append(f"        free[{j}] = False")
             lines.append(f"        fired.append({r.number})")
         lines.append("    return dq, fired")
-        namespace: dict = {}
-        exec(compile("\n".join(lines), f"<compiled {self.source}>", "exec"), namespace)  # noqa: S102 - source generated from the checked tree
+        namespace: dict = dict(_HELPERS)
+        try:
+            code = compile("\n".join(lines), f"<compiled {self.source}>", "exec")
+        except (SyntaxError, RecursionError, MemoryError) as exc:  # beyond the stated limits
+            raise UserError(f"{self.source}: rule base too large to compile "
+                            f"({type(exc).__name__})") from None
+        exec(code, namespace)  # noqa: S102 - source generated from the checked tree
         return namespace["_itg_step"]
+
+    @property
+    def argument_names(self) -> tuple[str, ...]:
+        """Names of :meth:`arguments`, in order."""
+        return (*MARKER_NAMES, *(f"q{i}" for i in range(1, self.n_joints + 1)), *PARAM_NAMES,
+                "L", *(f"L{i}" for i in range(1, len(self.links_mm) + 1)))
 
     # -------------------------------------------------------------- run
     @property
@@ -432,12 +556,32 @@ class RuleBase:
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""
-        dq, fired = self._fn(*self.arguments(desired_mm, markers, q_deg))
+        args = self.arguments(desired_mm, markers, q_deg)
+        dq, fired = self._fn(*args)
         if dq is None:
             return Step(np.zeros(self.n_joints), tuple(fired), True)
-        if any(v != v for v in dq):  # a NaN estimate must never move a joint
-            dq = [0.0 if v != v else v for v in dq]
+        for j, v in enumerate(dq):
+            if not math.isfinite(v):
+                dq[j] = self._non_finite_step(j, v, fired, args)
         return Step(np.array(dq), tuple(fired), False)
+
+    def _non_finite_step(self, j: int, value: float, fired, args) -> float:
+        """A step of joint j that is not a finite number: 0 if it came from a NaN input (a
+        marker not measured never moves a joint), else a `UserError` naming the rule."""
+        env = dict(zip(self.argument_names, args))
+        for rule in (r for n in fired for r in self.rules if r.number == n):
+            for a in rule.actions:
+                if a.joint != j + 1 or a.kind not in ("inc", "dec"):
+                    continue
+                names = list(dict.fromkeys(n for n, _ in _names_in(a.step)))
+                if any(env[n] != env[n] for n in names):
+                    return 0.0
+                values = ", ".join(f"{n} = {env[n]:.6g}" for n in names) or "constants only"
+                raise UserError(
+                    f"{self.source}:{rule.line}: RULE {rule.number} gives q{j + 1} a step of "
+                    f"{value} deg ({values}): division by zero, overflow or a negative number "
+                    f"to a fractional power in '{clip(rule.text, 80)}'; the run is stopped")
+        return 0.0
 
 
 RULES_DIR = Path(__file__).resolve().parent.parent / "data" / "rules"
@@ -460,6 +604,13 @@ def resolve_rules_path(name_or_path: str) -> Path:
 
 
 def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase:
-    return RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
+    """A rule base for an arm with ``n_joints`` joints; refused unless it moves every one."""
+    rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
+    unmoved = rb.unmoved_joints()
+    if unmoved:
+        shipped = ", ".join(f"{rules} ({arm})" for arm, rules in DEFAULT_RULES.items())
+        raise UserError(f"{rb.source}: no rule moves {', '.join(unmoved)} of this {n_joints}-joint "
+                        f"arm: a rule base for another arm? (shipped: {shipped})")
+    return rb
 
 

@@ -1,17 +1,34 @@
-"""python -m itg_vision.run: track a trajectory with the ITG and write runs/<name>/."""
+"""python -m itg_vision.run: track a trajectory with the ITG and write runs/<name>/.
+
+Output folder: ``--out DIR``, or by default ``runs/<arm>-<trajectory>-<controller>-<feedback>``
+followed by every option that differs from its default (``-rules<name>``, ``-rig<name>``,
+``-f0.3``, ``-noise0.5``, ``-seed3``, ...), so two different command lines never share a
+folder. The folder is replaced only if this command made it (see :mod:`itg_vision.outputs`);
+its manifest records the run's settings and a hash of its input files, and a default folder
+holding a run with other settings (an edited rule file, a CSV of the same name elsewhere) is
+refused too. ``--force`` replaces anyway.
+"""
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import re
 import sys
 from contextlib import nullcontext
 from pathlib import Path
 
-from tqdm import tqdm
-
 from . import outputs, plot
-from .errors import UserError, run_main
-from .runner import CONTROLLERS, FEEDBACKS, RunConfig, execute, prepare
+from .errors import ArgumentParser, UserError, run_main
+from .progress import progress
+from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
+
+#: Largest --points accepted (a named trajectory; a vision run costs ~30 ms per point).
+MAX_POINTS = 100_000
+#: Options that name the default output folder when they differ from their default.
+_NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"), ("gain", "f"),
+          ("step", "S"), ("tolerance", "w"), ("iterations", "it"), ("max_step", "maxstep"),
+          ("noise_px", "noise"), ("dropout", "dropout"), ("strobe", "strobe"), ("seed", "seed"))
 
 
 def _links(text: str) -> tuple[float, ...]:
@@ -21,8 +38,18 @@ def _links(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"expected link lengths in mm separated by commas, got {text!r}")
 
 
+def _points(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of set points, got {text!r}")
+    if not 2 <= n <= MAX_POINTS:
+        raise argparse.ArgumentTypeError(f"must be in 2..{MAX_POINTS}, got {n}")
+    return n
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = ArgumentParser(
         prog="python -m itg_vision.run",
         description="Track a trajectory with the Intelligent Trajectory Generator and write "
                     "summary.json, trace.csv, path.png and error.png to runs/<name>/.")
@@ -33,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, or a CSV with "
                          "header x_mm,y_mm[,z_mm][,t_s] (default: ellipse-t1 for two-link, "
                          "line-ab-reach for three-link, arc for one-link)")
-    ap.add_argument("--points", type=int, help="number of set points of a named trajectory")
+    ap.add_argument("--points", type=_points, metavar="N",
+                    help=f"number of set points of a named trajectory (2..{MAX_POINTS})")
     ap.add_argument("--rules", metavar="NAME|PATH",
                     help="rule base: table1, table2, three-link or a .rules file (default: the arm's)")
     ap.add_argument("--controller", default="itg", choices=CONTROLLERS,
@@ -75,16 +103,81 @@ def build_parser() -> argparse.ArgumentParser:
                     help="light one LED per frame (as active-marker systems do) instead of telling "
                          "them apart by colour; doubles the rendering")
     ap.add_argument("--seed", type=int, default=0, help="seed of every random thing (default %(default)s)")
-    ap.add_argument("--out", metavar="DIR", help="output folder (default runs/<arm>-<trajectory>-<feedback>)")
-    ap.add_argument("--video", action="store_true", help="also write video.mp4 of both camera views (vision)")
+    ap.add_argument("--allow-unseen", action="store_true",
+                    help="run even if the cameras cannot see the arm along the trajectory (refused "
+                         "by default, at start-up): to measure that failure")
+    ap.add_argument("--out", metavar="DIR",
+                    help="output folder (default runs/<arm>-<trajectory>-<controller>-<feedback> "
+                         "plus every option that differs from its default); replaced only if a "
+                         "run made it")
+    ap.add_argument("--force", action="store_true",
+                    help="replace --out even if it is a folder this command did not make")
+    ap.add_argument("--video", action="store_true",
+                    help="also write a video of both camera views (vision): H.264 video.mp4 or, "
+                         "where OpenCV cannot encode H.264, VP9 video.webm")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no table")
     return ap
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def default_out(args: argparse.Namespace, prep) -> Path:
+    """``runs/<arm>-<trajectory>-<controller>-<feedback>[-<option><value>...]`` for the options
+    that differ from their default (file names by their stem)."""
+    cfg, defaults = prep.config, build_parser()
+    parts = [cfg.arm, Path(prep.trajectory.name).stem, cfg.controller, cfg.feedback]
+    for dest, label in _NAMED:
+        v = getattr(args, dest)
+        if v == defaults.get_default(dest):
+            continue
+        if isinstance(v, bool):
+            parts.append(label)
+        elif isinstance(v, (tuple, list)):
+            parts.append(label + "x".join(f"{x:g}" for x in v))
+        elif isinstance(v, float):
+            parts.append(f"{label}{v:g}")
+        elif isinstance(v, str):
+            parts.append(label + Path(v).name.split(".")[0])
+        else:
+            parts.append(f"{label}{v}")
+    name = re.sub(r"[^A-Za-z0-9._+=-]", "_", "-".join(parts))
+    if len(name) > 120:  # a name the file system takes, still telling runs apart
+        name = f"{name[:100]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
+    return Path("runs") / name
 
+
+def run_key(prep) -> dict:
+    """What identifies a run's result: its settings and the content of its input files."""
+    files = {}
+    for key in ("rules", "estimate_rig", "render_rig"):
+        if key in prep.info:
+            files[key] = prep.info[key]
+    if Path(prep.trajectory.name).is_file():
+        files["trajectory"] = prep.trajectory.name
+    digests = {}
+    for key, path in files.items():
+        try:
+            digests[key] = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+        except OSError:
+            digests[key] = None
+    return {"config": outputs.json_safe(config_dict(prep.config)), "inputs_sha256": digests}
+
+
+def _check_default_out(out: Path, key: dict, force: bool) -> None:
+    """A default folder holding a run with other settings is not replaced silently."""
+    made = outputs.read_manifest(out)
+    if force or made is None or made.get("command") != "run" or made.get("key") == key:
+        return
+    old = made.get("key") or {}
+    diff = sorted(k for k in set(old.get("config", {})) | set(key["config"])
+                  if old.get("config", {}).get(k) != key["config"].get(k))
+    diff += [f"content of the {k} file" for k in sorted(key["inputs_sha256"])
+             if old.get("inputs_sha256", {}).get(k) != key["inputs_sha256"][k]]
+    raise UserError(f"{out} holds an earlier run with other settings ({', '.join(diff) or 'version'}"
+                    "); give --out, or --force to replace it")
+
+
+def main(argv: list[str] | None = None) -> int:
     def body() -> int:
+        args = build_parser().parse_args(argv)
         cfg = RunConfig(arm=args.arm, links_mm=args.links, trajectory=args.trajectory,
                         points=args.points, controller=args.controller, rules=args.rules,
                         gain=args.gain, step=args.step, tolerance=args.tolerance,
@@ -92,25 +185,30 @@ def main(argv: list[str] | None = None) -> int:
                         feedback=args.feedback, rig=args.rig, noise_px=args.noise_px,
                         noise_mm=args.noise_mm, dropout=args.dropout, strobe=args.strobe,
                         seed=args.seed, true_links_mm=args.true_links,
-                        joint_offset_deg=args.joint_offset)
+                        joint_offset_deg=args.joint_offset, allow_unseen=args.allow_unseen)
         prep = prepare(cfg)
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")
-        name = f"{cfg.arm}-{Path(prep.trajectory.name).stem}-{cfg.feedback}"
-        out = Path(args.out) if args.out else Path("runs") / name
-        bar = tqdm(total=len(prep.trajectory), desc=name, unit="pt", disable=args.quiet,
-                   file=sys.stderr)
-        with outputs.staged_dir(out) as tmp:
+        key = run_key(prep)
+        out = Path(args.out) if args.out else default_out(args, prep)
+        if not args.out:
+            _check_default_out(out, key, args.force)
+        with outputs.staged_dir(out, "run", force=args.force, key=key) as tmp:
+            bar = progress(len(prep.trajectory), f"run {out.name}", quiet=args.quiet, unit="pt")
             recorder = nullcontext()
             if args.video:
                 from .video import VideoRecorder
 
-                recorder = VideoRecorder(tmp / "video.mp4")
-                prep.info["video"] = "video.mp4"
+                recorder = VideoRecorder(tmp / "video")
             with recorder:
-                trace, summary = execute(prep, progress=bar.update,
-                                         recorder=recorder if args.video else None)
-            bar.close()
+                try:
+                    trace, summary = execute(prep, progress=bar.update,
+                                             recorder=recorder if args.video else None)
+                finally:
+                    bar.close()
+            if args.video:
+                summary["video"] = recorder.path.name
+                summary["video_codec"] = recorder.codec_note
             cols, rows = trace.rows()
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
             outputs.write_json(tmp / "summary.json", summary)
@@ -146,6 +244,8 @@ def summary_table(s: dict, out: Path) -> str:
         t = s.get("timing_ms", {})
         rows.append(("median ms render/detect/triang./rules",
                      " / ".join(f"{t.get(k, float('nan')):.2f}" for k in ("render", "detect", "triangulate", "rules"))))
+    if s.get("video"):
+        rows.append(("video", f"{s['video']} ({s.get('video_codec', '')})"))
     rows += [("wall time", f(s["wall_s"], " s")), ("written to", str(out))]
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)

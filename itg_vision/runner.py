@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -58,6 +59,7 @@ class RunConfig:
     seed: int = 0
     true_links_mm: tuple[float, ...] | None = None
     joint_offset_deg: tuple[float, ...] | None = None
+    allow_unseen: bool = False  # skip the start-up check that the cameras can see the arm
 
     def validate(self) -> None:
         checks = [
@@ -150,12 +152,15 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
     else:
         from .camera import Rig
         from .feedback import VisionFeedback
+        from .visibility import check_visible
 
         if estimate_rig is None:
             estimate_rig = Rig.from_yaml(cfg.rig_path)
         render_rig = estimate_rig
         if estimate_rig.true_rig:
             render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
+        if not cfg.allow_unseen:
+            check_visible(render_rig, true_arm, trajectory.points_mm)
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
 
@@ -181,8 +186,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     feedback.reset(cfg.seed)
     t0 = time.perf_counter()
     with World(prep.true_arm) as world:
-        geometry = (nominal_geometry(prep.model) if cfg.feedback == "model"
-                    else measure_geometry(world, feedback, prep.model))
+        geometry = start_up_geometry(cfg, world, feedback, prep.model)
         controller = bind_geometry(prep.controller, geometry, prep.model, cfg.max_step)
         trace = simulate(world, controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
@@ -215,6 +219,21 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         **prep.info,
     }
     return trace, summary
+
+
+def start_up_geometry(cfg: RunConfig, world, feedback, model):
+    """The lengths the controller may use: the nominal model's under ``model`` feedback, else
+    measured from the LEDs at start-up. A run the user let go on with a rig that cannot see
+    the arm (``allow_unseen``) falls back to the nominal lengths, and says so."""
+    if cfg.feedback == "model":
+        return nominal_geometry(model)
+    try:
+        return measure_geometry(world, feedback, model)
+    except UserError as exc:
+        if not cfg.allow_unseen:
+            raise
+        return dataclasses.replace(nominal_geometry(model),
+                                   source=f"nominal model ({exc}; --allow-unseen)")
 
 
 def bind_geometry(controller, geometry, model, max_step_deg=None):

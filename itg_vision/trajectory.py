@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
+from .inputs import clip, read_text
 
 
 @dataclass(frozen=True)
@@ -159,20 +160,25 @@ def named(name: str, n_points: int | None = None) -> Trajectory:
 
 
 def read_csv(path: str | Path) -> Trajectory:
-    """A user trajectory: header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm``, optional ``t_s`` column."""
+    """A user trajectory: header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm``, optional ``t_s`` column.
+
+    UTF-8 text of at most :data:`itg_vision.inputs.MAX_FILE_BYTES` (a spreadsheet's byte-order
+    mark is dropped); every problem is one `UserError` naming the file, line and field.
+    """
     path = Path(path)
+    text = read_text(path, "trajectory CSV")
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: cannot read trajectory ({getattr(exc, 'strerror', None) or exc})") from None
-    rows = list(csv.reader(text.splitlines()))
+        rows = list(csv.reader(text.split("\n")))
+    except csv.Error as exc:  # e.g. a field larger than csv's limit (128 KiB)
+        raise UserError(f"{path}: not a CSV file ({exc})") from None
     if not rows or not any(cell.strip() for cell in rows[0]):
         raise UserError(f"{path}: empty file (expected a header x_mm,y_mm[,z_mm][,t_s])")
     header = [h.strip() for h in rows[0]]
     allowed = (["x_mm", "y_mm"], ["x_mm", "y_mm", "z_mm"], ["x_mm", "y_mm", "t_s"],
                ["x_mm", "y_mm", "z_mm", "t_s"])
     if header not in allowed:
-        raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got {','.join(header)}")
+        raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got "
+                        f"{clip(','.join(header), 60)!r}")
     values = []
     for lineno, row in enumerate(rows[1:], 2):
         if not any(cell.strip() for cell in row):
@@ -184,9 +190,11 @@ def read_csv(path: str | Path) -> Trajectory:
             try:
                 v = float(cell)
             except ValueError:
-                raise UserError(f"{path}:{lineno}: field {col}: not a number: {cell.strip()!r}") from None
+                raise UserError(f"{path}:{lineno}: field {col}: not a number: "
+                                f"{clip(cell.strip())!r}") from None
             if not math.isfinite(v):
-                raise UserError(f"{path}:{lineno}: field {col}: must be finite, got {cell.strip()}")
+                raise UserError(f"{path}:{lineno}: field {col}: must be finite, got "
+                                f"{clip(cell.strip())}")
             vals.append(v)
         values.append(vals)
     if not values:

@@ -1,7 +1,26 @@
-"""--video: both camera views side by side, detected centroids and the projected desired point."""
+"""--video: both camera views side by side, detected centroids and the projected desired point.
+
+Codec: the first of these that this OpenCV build can encode (checked when the first frame
+comes, with OpenCV's own log silenced while trying):
+
+FFmpeg reports a failed encoder on stderr itself (not through OpenCV's log), so stderr's file
+descriptor is pointed at /dev/null while trying.
+
+1. H.264 (fourcc ``avc1``) in ``.mp4``: plays everywhere. The opencv-python wheels ship FFmpeg
+   without an H.264 encoder (LGPL build), so this usually fails.
+2. VP9 (``VP90``) in ``.webm``: plays in Chrome, Firefox, Edge and Safari 14.1+.
+3. MPEG-4 Part 2 (``mp4v``) in ``.mp4``: most browsers do not play it (VLC, ffplay do); the
+   note says so.
+
+:attr:`VideoRecorder.path` is the file written (its suffix set by the codec) and
+:attr:`VideoRecorder.codec_note` says which codec, for the summary.
+"""
 
 from __future__ import annotations
 
+import os
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -11,12 +30,58 @@ from .errors import UserError
 from .urdf import LED_RGB
 
 
+#: (fourcc, file suffix, note), in order of preference: see the module docstring.
+CODECS = (("avc1", ".mp4", "H.264"),
+          ("VP90", ".webm", "VP9; this OpenCV cannot encode H.264"),
+          ("mp4v", ".mp4", "MPEG-4 Part 2, which most browsers do not play; this OpenCV can "
+                           "encode neither H.264 nor VP9"))
+
+
+@contextmanager
+def _quiet_stderr():
+    """Silence C-level writes to stderr (FFmpeg's messages about encoders it cannot open)."""
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # stderr replaced (pytest capture, notebooks)
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    try:
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+        os.close(devnull)
+
+
+def open_writer(path: Path, fps: float, size: tuple[int, int]):
+    """The first codec of :data:`CODECS` this OpenCV can write: (writer, path, note)."""
+    with _quiet_stderr():
+        for fourcc, suffix, note in CODECS:
+            target = path.with_suffix(suffix)
+            writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*fourcc), fps, size)
+            if writer.isOpened():
+                return writer, target, note
+            writer.release()
+            if target.exists() and target.stat().st_size == 0:
+                target.unlink()
+    raise UserError(f"{path}: this OpenCV can write none of H.264, VP9 or MPEG-4 video")
+
+
 class VideoRecorder:
-    """Writes one frame per set point from a ``VisionFeedback``'s last images (MP4, mp4v)."""
+    """Writes one frame per set point from a ``VisionFeedback``'s last images.
+
+    ``path``: the file to write; its suffix is set by the codec found (see the module
+    docstring), so read :attr:`path` after the first frame.
+    """
 
     def __init__(self, path: str | Path, fps: float = 20.0):
         self.path = Path(path)
         self.fps = fps
+        self.codec_note = ""
         self._writer = None
 
     def frame(self, feedback, desired_mm: np.ndarray) -> None:
@@ -41,9 +106,7 @@ class VideoRecorder:
         frame = np.hstack(panels)
         if self._writer is None:
             h, w = frame.shape[:2]
-            self._writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h))
-            if not self._writer.isOpened():
-                raise UserError(f"{self.path}: cannot open an MP4 writer (OpenCV built without a codec?)")
+            self._writer, self.path, self.codec_note = open_writer(self.path, self.fps, (w, h))
         self._writer.write(frame)
 
     def close(self) -> None:

@@ -227,7 +227,8 @@ def test_failures_exit_2_with_one_line_and_keep_the_old_file(cli, tmp_path, args
     out = tmp_path / "old.calib.yaml"
     out.write_text("old\n")
     args = [str(_camera_looking_away(tmp_path)) if a == "AWAY" else a for a in args]
-    proc = cli("itg_vision.calibrate", *args, "--quiet", "--out", out)
+    # --force: the old file is not a calibration of this rig (refused before any work without it)
+    proc = cli("itg_vision.calibrate", *args, "--quiet", "--force", "--out", out)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and expect in lines[0], proc.stderr

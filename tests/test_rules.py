@@ -203,3 +203,95 @@ def test_three_link_vertical_plane_corrections_reduce_errors(q):
     s = rb.step(d, markers(g, e), q)
     after = forward_kinematics(arm, q + [0, s.dq_deg[1], 0])["gripper"]
     assert abs(np.hypot(*d[:2]) - np.hypot(*after[:2])) < 5.0
+
+
+# ----------------------------------------------------------------------------- total arithmetic
+@pytest.mark.parametrize("expr, expected", [
+    ("5 / 0", math.inf), ("-5 / 0", -math.inf), ("0 / 0", math.nan), ("0 ^ -1", math.inf),
+    ("10 ^ 400", math.inf), ("(-10) ^ 401", -math.inf), ("(-4) ^ 0.5", math.nan),
+    ("1e308 * 10", math.inf), ("2 ^ 10", 1024.0), ("8 / 4", 2.0),
+])
+def test_arithmetic_is_total_in_conditions(expr, expected):
+    """Every operation yields an IEEE double; in a condition it simply compares."""
+    from itg_vision.rules import _div, _pow  # noqa: F401 (the compiled code's helpers)
+
+    rb = RuleBase.from_text(f"RULE 1: IF {expr} == {expr} THEN q1 += 1\n"
+                            f"RULE 2: IF {expr} > 100 THEN q2 += 1", 2, TWO)
+    step = rb.step(np.zeros(3), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+    assert (1 in step.fired) == (expected == expected)  # NaN == NaN is false
+    assert (2 in step.fired) == (expected > 100)
+
+
+@pytest.mark.parametrize("step_text, value", [("xd / (xd - xg)", "inf"), ("(xg - xd - 1) ^ 0.5", "nan"),
+                                               ("f * 1e308", "inf")])
+def test_a_non_finite_step_from_finite_inputs_stops_the_run_naming_rule_and_values(step_text, value):
+    rb = RuleBase.from_text(f"RULE 0: IF rd2 > 1e9 THEN OUT_OF_REACH\n\nRULE 7: IF xd >= xg THEN q1 += {step_text}",
+                            2, TWO, source="my.rules", f=10.0)
+    with pytest.raises(UserError) as exc:
+        rb.step(np.array([5.0, 0, 0]), markers([5.0, 1, 0], [0, 0, 0]), [0, 0])
+    msg = str(exc.value)
+    assert msg.startswith(f"my.rules:3: RULE 7 gives q1 a step of {value} deg (")
+    assert "xd = 5" in msg or "f = 10" in msg
+    assert "\n" not in msg
+
+
+def test_a_step_computed_from_a_missing_marker_moves_nothing():
+    rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += xe / 0", 2, TWO)
+    step = rb.step(np.array([5.0, 0, 0]), markers([0, 0, 0]), [0, 0])  # no elbow: NaN
+    assert step.fired == (1,) and np.all(step.dq_deg == 0)
+
+
+@pytest.mark.parametrize("text, where, what", [
+    ("RULE 1: IF xd > xg THEN q1 += 1e999", ":1:31", "number 1e999 is out of range"),
+    ("RULE 1: IF xd > xg THEN q1 += " + "9" * 400, ":1:31", "...(400 chars) is out of range"),
+    ("RULE 1: IF " + "(" * 51 + "xd > xg" + ")" * 51 + " THEN q1 += S", ":1:62", "nested too deeply"),
+    ("RULE 1: IF xd > xg THEN q1 += " + "-" * 51 + "S", ":1:81", "nested too deeply"),
+    ("RULE 1: IF xd > xg THEN q1 += |" + "+".join(["S"] * 51) + "|", ":1:", "nested too deeply"),
+    ("RULE 1: IF xd > xg THEN q1 += " + " + ".join(["S"] * 600), ":1:", "longer than 1000 tokens"),
+])
+def test_stated_limits_are_refused_at_line_and_column(text, where, what):
+    with pytest.raises(UserError) as exc:
+        RuleBase.from_text(text, 2, TWO, source="my.rules")
+    msg = str(exc.value)
+    assert msg.startswith("my.rules" + where) and what in msg and len(msg) < 400, msg
+
+
+def test_limits_leave_room_for_real_rule_bases():
+    deep = "(" * 40 + "xd - xg" + ")" * 40
+    chain = " + ".join(["S"] * 45)
+    rb = RuleBase.from_text(f"RULE 1: IF {deep} > 0 THEN q1 += {chain}", 2, TWO, S=1.0)
+    assert rb.step(np.array([1.0, 0, 0]), markers([0, 0, 0], [0, 0, 0]), [0, 0]).dq_deg[0] == 45.0
+
+
+def test_a_rule_base_for_another_arm_is_refused_by_load_rules():
+    with pytest.raises(UserError, match="no rule moves q2 of this 2-joint arm"):
+        load_rules("table1", 2, TWO)
+    with pytest.raises(UserError, match="no rule moves q3 of this 3-joint arm"):
+        load_rules("table2", 3, (100.0, 100.0, 100.0))
+
+
+def test_binary_and_oversized_rule_files_are_one_line(tmp_path):
+    f = tmp_path / "x.rules"
+    f.write_bytes(b"RULE 1: IF xd > xg\n  THEN \xe9 q1 += S")
+    with pytest.raises(UserError, match=r"x.rules:2:8: not UTF-8 text \(byte 0xe9\)"):
+        RuleBase.from_file(f, 2, TWO)
+    f.write_bytes(b"# " + b"x" * (1 << 20))
+    with pytest.raises(UserError, match="larger than 1024 KiB"):
+        RuleBase.from_file(f, 2, TWO)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-1e200, 1e200), st.floats(-50, 50))
+def test_squares_and_powers_equal_python_floats(x, y):
+    """Squares compile to a product (no call), other powers to a checked pow: same numbers."""
+    rb = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 += ((xd - yd)^2)^2 + |xd|^1.5 + 2^yd\n"
+                            "RULE 2: IF 1 > 0 THEN q2 += xd^2", 2, TWO)
+    d = np.array([x, y, 0.0])
+    try:
+        expected = [((x - y) ** 2) ** 2 + abs(x) ** 1.5 + 2.0 ** y, x ** 2]
+    except OverflowError:  # Python raises; the rules give inf, and then a UserError (above)
+        return
+    if not all(map(math.isfinite, expected)):
+        return
+    got = rb.step(d, markers([0, 0, 0], [0, 0, 0]), [0, 0]).dq_deg
+    assert list(got) == expected

@@ -1,17 +1,23 @@
-"""python -m itg_vision.bench speed|noise [options]"""
+"""python -m itg_vision.bench {speed,accuracy,noise} [options]"""
 
 from __future__ import annotations
 
 import sys
 
-USAGE = "usage: python -m itg_vision.bench {speed,accuracy,noise} [options]  (--help after the name for its options)"
+NAMES = ("speed", "accuracy", "noise")
+USAGE = ("usage: python -m itg_vision.bench {speed,accuracy,noise} [options]  "
+         "(--help after the name for its options)")
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help"):
+    if argv and argv[0] in ("-h", "--help"):
         print(USAGE)
-        return 0 if argv else 2
+        return 0
+    if not argv:
+        print(f"error: name a benchmark: {', '.join(NAMES)} ({USAGE.removeprefix('usage: ')})",
+              file=sys.stderr)
+        return 2
     name, rest = argv[0], argv[1:]
     if name == "speed":
         from .speed import main as run

@@ -42,7 +42,6 @@ import argparse
 import csv
 import dataclasses
 import hashlib
-import io
 import json
 import math
 import os
@@ -422,39 +421,68 @@ def make_row(spec: RunSpec, s: dict) -> dict:
 
 # ---------------------------------------------------------------------------- results.csv
 class Results:
-    """``results.csv`` in ``--out``: read once (dropping a torn last line), then append rows."""
+    """``results.csv`` in ``--out``: read once, then append rows.
+
+    Damage is reported and repaired, never silently kept: a torn last line (an interrupted
+    write) and any damaged row (wrong number of fields, a run_id that is not 16 hex digits,
+    bytes that are not UTF-8) are dropped, each named by its line number in :attr:`problems`;
+    :meth:`repair` rewrites the file without them (atomically) before anything is appended, and
+    their runs are redone. A file whose header is not this benchmark's is refused.
+    """
 
     def __init__(self, path: Path):
         self.path = path
         self.rows: dict[str, dict] = {}
-        self.torn: str | None = None
+        self.problems: list[str] = []
+        self._repaired: str | None = None
         if path.exists():
             self._load()
 
     def _load(self) -> None:
-        text = self.path.read_bytes().decode("utf-8", errors="replace")
-        if text and not text.endswith("\n"):
-            # a torn last line (interrupted mid-write): dropped; `repair` rewrites the file
-            text = text[: text.rfind("\n") + 1]
-            self.torn = text
-        if not text:
+        import re
+
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise UserError(f"{self.path}: cannot read ({exc.strerror})") from None
+        if not data:
             return
-        reader = csv.reader(io.StringIO(text))
-        header = next(reader, None)
-        if header != COLUMNS:
+        lines = data.split(b"\n")
+        last = lines.pop()  # b"" when the file ends with a newline
+        if not lines and ",".join(COLUMNS).encode().startswith(last):
+            self.problems.append(f"{self.path}:1: torn header (an interrupted first write): "
+                                 "dropped")
+            self._repaired = ""
+            return
+        header = lines[0] if lines else last
+        if next(csv.reader([header.decode("utf-8", errors="replace")]), None) != COLUMNS:
             raise UserError(f"{self.path}: its columns are not this benchmark's (another tool's "
                             "or another version's results): choose another --out")
-        for fields in reader:
-            if len(fields) != len(COLUMNS):
+        keep = [header]
+        for lineno, raw in enumerate(lines[1:], 2):
+            try:
+                fields = next(csv.reader([raw.decode("utf-8")]), [])
+            except (UnicodeDecodeError, csv.Error):
+                fields = None
+            if fields is None or len(fields) != len(COLUMNS) or not re.fullmatch(r"[0-9a-f]{16}", fields[0]):
+                got = "not UTF-8" if fields is None else f"{len(fields)} fields"
+                self.problems.append(f"{self.path}:{lineno}: damaged row ({got}, expected "
+                                     f"{len(COLUMNS)}): dropped, its run will be redone")
                 continue
+            keep.append(raw)
             row = dict(zip(COLUMNS, fields))
             self.rows.setdefault(row["run_id"], row)
+        if last and lines:
+            self.problems.append(f"{self.path}:{len(lines) + 1}: torn last line (an interrupted "
+                                 "write): dropped, its run will be redone")
+        if self.problems:
+            self._repaired = b"".join(line + b"\n" for line in keep).decode("utf-8", errors="replace")
 
     def repair(self) -> None:
-        """Rewrite the file without its torn last line (atomically), before any append."""
-        if self.torn is not None:
-            outputs.write_text(self.path, self.torn)
-            self.torn = None
+        """Rewrite the file without its damaged rows (atomically), before any append."""
+        if self._repaired is not None:
+            outputs.write_text(self.path, self._repaired)
+            self._repaired = None
 
     def append(self, row: dict) -> None:
         """Append one row and make it durable (flush + fsync) before returning."""
@@ -507,8 +535,31 @@ def _outcome(spec: RunSpec, future) -> dict:
         return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
 
 
+def _exit_with_parent() -> None:
+    """Pool initializer: end this worker as soon as its parent dies, however it dies.
+
+    A pool's workers otherwise outlive a parent killed by SIGKILL (they wait forever on the call
+    queue, whose write end they hold themselves; the resource tracker lives as long as they do;
+    cpython#111873). A daemon thread waits on the parent sentinel that ``spawn`` hands every
+    child (a pipe closed by the kernel when the parent exits) and then ``os._exit`` s.
+    """
+    import multiprocessing
+    import threading
+
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        parent.join()
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 class _Local:
-    """A process pool (or the calling process when workers == 1)."""
+    """A process pool (or the calling process when workers == 1). Its workers exit when this
+    process dies, even by SIGKILL (see :func:`_exit_with_parent`)."""
 
     def __init__(self, workers: int):
         self.workers = workers
@@ -518,7 +569,8 @@ class _Local:
             from concurrent.futures import ProcessPoolExecutor
 
             self.pool = ProcessPoolExecutor(max_workers=workers,
-                                            mp_context=multiprocessing.get_context("spawn"))
+                                            mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=_exit_with_parent)
 
     def results(self, specs):
         if self.pool is None:
@@ -540,10 +592,24 @@ class _Local:
         self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
 
+def check_scheduler_address(address: str) -> None:
+    """``[tcp|tls|ws|wss://]HOST:PORT``, port 1..65535, or a `UserError` naming --scheduler.
+
+    Checked before a Dask Client is made: one built on a malformed address raises, and the
+    half-made Client then prints a traceback and hangs 10 s when garbage-collected.
+    """
+    import re
+
+    m = re.fullmatch(r"(?:(tcp|tls|ws|wss)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})", address)
+    if not m or not 1 <= int(m.group(3)) <= 65535:
+        raise UserError(f"--scheduler {address}: expected tcp://HOST:PORT (port 1..65535)")
+
+
 class _Dask:
     """The same runs on a Dask distributed cluster (workers must be able to import itg_vision)."""
 
     def __init__(self, address: str, timeout_s: float = 5.0):
+        check_scheduler_address(address)  # a Client that fails on a bad address hangs in __del__
         try:
             from distributed import Client
         except ImportError:
@@ -861,16 +927,46 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]
 
 
 # ---------------------------------------------------------------------------- command line
+#: The name this benchmark writes into its output folder's manifest.
+COMMAND = "bench noise"
+
+
+def check_out(out: Path) -> None:
+    """Refuse an ``--out`` this benchmark must not write into (`UserError`, writes nothing).
+
+    Allowed: a new path, an empty folder, or a folder this benchmark made (its manifest, or a
+    ``sweep.json`` written by an earlier version): it resumes there. Anything else (a file, a
+    folder of other things, another command's output) is refused: report.md and the plots
+    would be written over whatever is there. The folder must be writable.
+    """
+    path = outputs.check_path(out)
+    if path.exists() and not path.is_dir():
+        raise UserError(f"--out {out}: exists and is not a folder")
+    if path.is_dir() and any(path.iterdir()):
+        made = outputs.read_manifest(path)
+        if made is not None and made.get("command") != COMMAND:
+            raise UserError(f"--out {out}: holds the output of `{made.get('command')}`; choose "
+                            "another --out")
+        if made is None and not (path / "sweep.json").is_file():
+            raise UserError(f"--out {out}: is a folder this benchmark did not make; choose "
+                            "another --out")
+    outputs.probe_folder(path)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    from ..errors import ArgumentParser  # one-line option errors
+
+    ap = ArgumentParser(
         prog="python -m itg_vision.bench noise",
         description="Noise-robustness benchmark: ITG fed by vision against ITG + nominal model, "
                     "open-loop IK and a vision-fed Jacobian tracker, under centroid noise, LED "
                     "dropout, rig errors and kinematic model errors. Writes results.csv, "
-                    "report.md and plots to --out; rerun with the same --out to resume.")
+                    "report.md and plots to --out; rerun with the same --out to resume. "
+                    "Pool workers exit when this process dies, however it dies.")
     ap.add_argument("--out", default="runs/bench-noise", metavar="DIR",
                     help="output folder (default %(default)s; --quick: runs/bench-noise-quick; "
-                         "--sweep start-tie: runs/bench-start-tie)")
+                         "--sweep start-tie: runs/bench-start-tie); a folder this benchmark made "
+                         "(rerun to resume), an empty or a new one")
     ap.add_argument("--sweep", default="robustness", choices=tuple(SWEEPS),
                     help="robustness (default: every condition, 4 trajectories, "
                          f"{FULL_SEEDS} seeds) or start-tie (the three-link arm from its "
@@ -881,7 +977,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--quick", action="store_true",
                     help=f"reduced sweep (< 2 min on 2 cores): {QUICK['trajectories'][0]} with "
                          f"{QUICK['points']} points, {QUICK['seeds']} seeds, conditions "
-                         + ", ".join(QUICK["conditions"]))
+                         + ", ".join(QUICK["conditions"]).replace("%", "%%"))
     ap.add_argument("--seeds", type=int, metavar="K",
                     help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
     ap.add_argument("--workers", type=int, metavar="N",
@@ -908,9 +1004,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
 
     def body() -> int:
+        args = build_parser().parse_args(argv)
         conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
         ctrls = _parse_names(args.controllers, ALL_CONTROLLERS, "controllers", "controller")
         plot_metrics = _parse_names(args.plot_metrics, PLOT_METRICS, "plot-metrics", "metric")
@@ -936,8 +1032,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
-        if out.exists() and not out.is_dir():
-            raise UserError(f"--out {out}: exists and is not a folder")
+        check_out(out)
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
@@ -948,8 +1043,11 @@ def main(argv: list[str] | None = None) -> int:
         check_sweep_file(out, definition, specs, results)
         executor = _Dask(args.scheduler) if args.scheduler else _Local(
             args.workers or os.cpu_count() or 1)
+        outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         record_sweep_file(out, definition, options, specs)
         results.repair()
+        for msg in results.problems:
+            print(f"warning: {msg}", file=sys.stderr)
         todo = [s for s in specs if s.run_id not in results.rows]
         if args.limit is not None:
             todo = todo[: args.limit]
@@ -986,12 +1084,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_all(executor, todo: list[RunSpec], results: Results, failures: dict, quiet: bool) -> None:
-    from tqdm import tqdm
+    from ..progress import progress
 
     weight = {s.run_id: max(1, round(100 * s.cost_s())) for s in todo}  # estimated cost, 10 ms
-    bar = tqdm(total=sum(weight.values()), disable=quiet or not todo, file=sys.stderr,
-               desc="noise sweep",
-               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix} [{elapsed}<{remaining}]")
+    bar = progress(sum(weight.values()), "noise sweep", quiet=quiet or not todo, unit="",
+                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix} [{elapsed}<{remaining}]")
     n_done = 0
     bar.set_postfix_str(f"0/{len(todo)} runs")
     try:

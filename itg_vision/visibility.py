@@ -1,0 +1,152 @@
+"""Can the cameras see the arm? A start-up check, so a run that cannot work is refused before it
+renders a frame (instead of ending with every detection missed and a meaningless E_av).
+
+:func:`check_visible` looks at every camera of the rig that renders and raises one
+:class:`~itg_vision.errors.UserError` line for the first problem it finds:
+
+- **sensor**: the exposure must make an LED stand out from the background by at least the
+  detector's threshold (:data:`itg_vision.detect.MIN_SCORE` grey levels) plus three noise
+  standard deviations. The LEDs render as saturated primaries, so an LED's score is
+  ``min(255, 255 * exposure)`` grey levels.
+- **place**: the camera must be above the floor the arm stands on (z > 0 mm).
+- **points**: the gripper LED at every set point in reach, both LEDs at the start pose, and the
+  elbow LED of at least one of the two inverse-kinematics branches at each set point in reach
+  must lie in front of the camera between the renderer's near and far planes, project inside
+  the image with a margin (the LED's projected radius + :data:`MARGIN_PX`), and look large
+  enough to be detected (projected radius at least :data:`MIN_LED_RADIUS_PX`).
+
+Pure numpy and the camera model: nothing is rendered. ``--allow-unseen`` skips the check
+(to measure the failure).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+
+import numpy as np
+
+from .arm import ArmSpec, forward_kinematics
+from .errors import UserError
+
+#: Pixels kept free between an LED's projected disc and the image border.
+MARGIN_PX = 2.0
+#: Smallest projected LED radius (px) the detector can use: its blobs need
+#: ``detect.MIN_AREA_PX`` (3 px) of area, pi * 1^2 = 3.1.
+MIN_LED_RADIUS_PX = 1.0
+
+
+def _render_range_mm() -> tuple[float, float]:
+    """The near and far planes (mm) that :func:`itg_vision.imaging.render_plan` renders with."""
+    from .imaging import render_plan
+
+    params = inspect.signature(render_plan).parameters
+    return 1e3 * params["near_m"].default, 1e3 * params["far_m"].default
+
+
+def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Where the LEDs must be seen.
+
+    Returns
+    -------
+    gripper : ndarray, shape (m, 3): the gripper LED at the start pose and at each set point in
+        reach (planar arms carry it ``led_standoff_mm`` above the plane).
+    elbows : list of ndarray, each shape (k, 3), k in {0, 1, 2}: the elbow LED at the start
+        pose (one), then per set point in reach its inverse-kinematics branches (two; one of
+        them must be seen). Empty for an arm without an elbow LED.
+    """
+    from .controllers import two_link_ik
+
+    nominal = arm.with_joint_offset((0.0,) * arm.n_joints)
+    start = forward_kinematics(arm, arm.start_q_deg)
+    pts = np.asarray(points_mm, float).reshape(-1, 3)
+    reach = [p for p in pts if arm.reachable(p)]
+    gripper = [start["gripper"]]
+    has_elbow = "elbow" in arm.marker_names
+    elbows = [start["elbow"][None]] if has_elbow else []
+    for p in reach:
+        g = np.array([p[0], p[1], arm.led_standoff_mm]) if arm.planar else p
+        gripper.append(g)
+        if not has_elbow:
+            continue
+        if arm.name == "two-link":
+            qs = [np.array(q) for q in two_link_ik(p[0], p[1], *arm.links_mm)]
+        else:  # three-link: base yaw towards the point, then the pitch plane's two branches
+            q1 = math.degrees(math.atan2(p[1], p[0]))
+            r, z = math.hypot(p[0], p[1]), p[2] - arm.links_mm[0]
+            qs = [np.array([q1, *q]) for q in two_link_ik(r, z, arm.links_mm[1], arm.links_mm[2])]
+        e = [forward_kinematics(nominal, q)["elbow"] for q in qs]
+        if e:
+            elbows.append(np.array(e))
+    return np.array(gripper), elbows
+
+
+def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
+    """Per point: None if seen, else why not (a short phrase)."""
+    from .urdf import LED_RADIUS_MM
+
+    X = np.asarray(X_mm, float).reshape(-1, 3)
+    z = camera.to_camera(X)[:, 2]
+    W, H = camera.size
+    with np.errstate(all="ignore"):
+        r_px = min(camera.fx, camera.fy) * LED_RADIUS_MM / np.where(z > 0, z, np.nan)
+        pin = camera.project(X, distort=False)
+        uv = camera.project(X)
+    out = []
+    for k in range(len(X)):
+        if not z[k] > near_mm:
+            out.append(f"behind the camera or nearer than {near_mm:g} mm (depth {z[k]:.0f} mm)")
+        elif z[k] > far_mm:
+            out.append(f"farther than the renderer's {far_mm:g} mm (depth {z[k]:.0f} mm)")
+        elif not r_px[k] >= MIN_LED_RADIUS_PX:
+            out.append(f"an LED there would be {2 * r_px[k]:.2g} px across (the detector needs "
+                       f"{2 * MIN_LED_RADIUS_PX:g})")
+        else:
+            m = r_px[k] + MARGIN_PX
+            u, v = uv[k]
+            inside = m <= u <= W - 1 - m and m <= v <= H - 1 - m
+            # a point far outside the field of view can come back inside through the distortion
+            # polynomial: its pinhole projection must be near the image too
+            pu, pv = pin[k]
+            near = abs(pu - camera.cx) <= 2 * W and abs(pv - camera.cy) <= 2 * H
+            out.append(None if inside and near else
+                       f"projects to ({u:.0f}, {v:.0f}) px, outside the {W} x {H} px image less a "
+                       f"{m:.0f} px margin")
+    return out
+
+
+def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
+    """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
+    arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring."""
+    from .detect import MIN_SCORE
+
+    near_mm, far_mm = _render_range_mm()
+    gripper, elbows = led_points(arm, points_mm)
+    where = rig.source or rig.name
+    hint = "; --allow-unseen runs anyway"
+    for i, cam in enumerate(rig.cameras):
+        who = f"{where}: cameras[{i}] ({cam.name})"
+        score = min(255.0, 255.0 * cam.exposure)
+        need = MIN_SCORE + 3.0 * cam.noise_sigma_gray
+        if score < need:
+            raise UserError(f"{who}: exposure {cam.exposure:g} makes an LED at most {score:.3g} "
+                            f"grey levels bright; the detector needs {need:g} (threshold "
+                            f"{MIN_SCORE} + 3 x noise {cam.noise_sigma_gray:g}){hint}")
+        if not cam.position_mm[2] > 0:
+            raise UserError(f"{who}: is below the floor the arm stands on (z = "
+                            f"{cam.position_mm[2]:.0f} mm){hint}")
+        why = _visible(cam, gripper, near_mm, far_mm)
+        bad = [k for k, w in enumerate(why) if w]
+        if bad:
+            k = bad[0]
+            what = "at the start pose" if k == 0 else f"at set point {k} of those in reach"
+            raise UserError(f"{who}: cannot see the gripper LED at {len(bad)} of {len(why)} "
+                            f"positions; {what}, {tuple(round(float(v), 1) for v in gripper[k])} mm "
+                            f"{why[k]}{hint}")
+        for k, branches in enumerate(elbows):
+            whys = _visible(cam, branches, near_mm, far_mm)
+            if all(whys):
+                what = "at the start pose" if k == 0 else f"at set point {k} of those in reach"
+                raise UserError(f"{who}: cannot see the elbow LED {what}: "
+                                f"{tuple(round(float(v), 1) for v in branches[0])} mm "
+                                f"{whys[0]}{hint}")

@@ -1,0 +1,375 @@
+"""Every bad input: exit 2, one line on stderr naming the file, line and column or the field or
+option, no traceback, nothing touched. Table-driven, each command called in-process."""
+
+import copy
+import os
+import random
+
+import pytest
+import yaml
+
+from itg_vision import calibrate, paper, run
+from itg_vision.bench import __main__ as bench
+from itg_vision.bench import noise
+from itg_vision.camera import CAMERAS_DIR
+from itg_vision.rules import RULES_DIR
+
+COMMANDS = {"run": run.main, "paper": paper.main, "calibrate": calibrate.main,
+            "noise": noise.main, "bench": bench.main}
+
+TWO_LINK_Q2 = "\nRULE 9: IF yd > yg THEN q2 += S\n"  # so the rule base moves both joints
+
+
+def _rig(tmp, name, change):
+    doc = yaml.safe_load((CAMERAS_DIR / "planar.yaml").read_text())
+    doc = copy.deepcopy(doc)
+    change(doc)
+    path = tmp / f"rig-{name}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _set(cam, **kw):
+    def change(doc):
+        doc["cameras"][cam].update(kw)
+    return change
+
+
+def _pose(cam, **kw):
+    def change(doc):
+        doc["cameras"][cam]["pose"].update(kw)
+    return change
+
+
+def _fx(value):
+    def change(doc):
+        doc["cameras"][1]["camera_matrix"]["data"][0] = value
+    return change
+
+
+def _tiny(doc):
+    for c in doc["cameras"]:
+        c.update(image_width=4, image_height=3)
+        c["camera_matrix"]["data"] = [3.75, 0, 1.5, 0, 3.75, 1.0, 0, 0, 1]
+
+
+def _below(doc):
+    for c in doc["cameras"]:
+        c["pose"]["position_mm"][2] = -620.0
+
+
+def make_inputs(tmp):
+    """The bad files of the table, by name."""
+    f = {}
+
+    def text(name, body, encoding="utf-8"):
+        f[name] = tmp / name
+        f[name].write_text(body, encoding=encoding)
+
+    f["binary.rules"] = tmp / "binary.rules"
+    f["binary.rules"].write_bytes(b"RULE 1: IF xd > xg THEN q1 += S\n\x86\xff\x00garbage")
+    text("deep.rules", "RULE 1: IF " + "(" * 300 + "xd > xg" + ")" * 300 + " THEN q1 += S" + TWO_LINK_Q2)
+    text("nots.rules", "RULE 1: IF " + "NOT " * 3000 + "xd > xg THEN q1 += S" + TWO_LINK_Q2)
+    text("minus.rules", "RULE 1: IF xd > xg THEN q1 += " + "-" * 60 + "S" + TWO_LINK_Q2)
+    text("powers.rules", "RULE 1: IF xd > xg THEN q1 += " + "1^" * 60 + "1" + TWO_LINK_Q2)
+    text("sum.rules", "RULE 1: IF xd > xg THEN q1 += " + " + ".join(["S"] * 200) + TWO_LINK_Q2)
+    text("digits.rules", "RULE 1: IF xd > xg THEN q1 += " + "9" * 5000 + TWO_LINK_Q2)
+    text("inf.rules", "RULE 1: IF xd > xg THEN q1 += 1e999" + TWO_LINK_Q2)
+    for name, step in (("div0", "f / 0"), ("zero-pow", "0 ^ -1"), ("big-pow", "10 ^ 400"),
+                       ("overflow", "1e308 * 10")):
+        text(f"{name}.rules", f"RULE 1: IF 1 > 0 THEN q1 += {step}" + TWO_LINK_Q2)
+    text("complex.rules", "RULE 1: IF 1 > 0 THEN q1 -= (xg - xd - 1000) ^ 0.5" + TWO_LINK_Q2)
+    f["binary.yaml"] = tmp / "binary.yaml"
+    f["binary.yaml"].write_bytes(bytes(range(256)) * 4)
+    text("syntax.yaml", "name: x\ncameras:\n  - name: [left\n")
+    text("digits.yaml", "name: x\ncameras: " + "7" * 5000 + "\n")
+    text("nested.yaml", "[" * 3000 + "]" * 3000)
+    f["rig-fx-huge"] = _rig(tmp, "fx-huge", _fx(1e300))
+    f["rig-same-place"] = _rig(tmp, "same-place", _pose(1, position_mm=[-180.0, -60.0, 620.0]))
+    f["rig-40000x30000"] = _rig(tmp, "40000x30000", _set(0, image_width=40000, image_height=30000))
+    f["rig-away"] = _rig(tmp, "away", _pose(0, look_at_mm=[-180.0, -60.0, 1620.0]))
+    f["rig-below"] = _rig(tmp, "below", _below)
+    f["rig-4x3"] = _rig(tmp, "4x3", _tiny)
+    f["rig-fx-tiny"] = _rig(tmp, "fx-tiny", _fx(1e-12))
+    f["rig-dark"] = _rig(tmp, "dark", _set(0, sensor={"noise_sigma_gray": 2.0, "exposure": 1e-9}))
+    f["rig-bright"] = _rig(tmp, "bright", _set(0, sensor={"noise_sigma_gray": 2.0, "exposure": 1e300}))
+    f["rig-noisy"] = _rig(tmp, "noisy", _set(0, sensor={"noise_sigma_gray": 1e300}))
+    f["rig-fold"] = _rig(tmp, "fold", _set(0, distortion_coefficients=[-5.0, 0, 0, 0, 0]))
+    f["rig-spin"] = _rig(tmp, "spin", _set(1, pose={"position_mm": [180, -60, 620],
+                                                     "rotation_deg": [1e300, 0, 0]}))
+    f["bom-bad.csv"] = tmp / "bom-bad.csv"
+    f["bom-bad.csv"].write_text("x_mm,y_mm\n10,twenty\n", encoding="utf-8-sig")
+    text("digits.csv", "x_mm,y_mm\n" + "1" * 5000 + ",20\n30,40\n")
+    f["binary.csv"] = tmp / "binary.csv"
+    f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
+    text("not-rig.yaml", "just: text\n")
+    f["folder"] = tmp / "a-folder"
+    f["folder"].mkdir()
+    (f["folder"] / "thesis.tex").write_text("keep me")
+    f["file"] = tmp / "notes.txt"
+    f["file"].write_text("keep me")
+    f["paper-out"] = tmp / "paper-made"
+    f["paper-out"].mkdir()
+    (f["paper-out"] / ".itg_vision-output.json").write_text(
+        '{"made_by": "itg_vision", "command": "paper", "version": "0"}')
+    return {k: str(v) for k, v in f.items()}
+
+
+RUN = ["--quiet", "--feedback", "model"]
+# (id, command, argv with {file} placeholders, what the one line must contain)
+CASES = [
+    # rule files
+    ("rules-binary", "run", RUN + ["--rules", "{binary.rules}"], "binary.rules:2:1: not UTF-8"),
+    ("rules-deep", "run", RUN + ["--rules", "{deep.rules}"], "deep.rules:1:62: nested too deeply"),
+    ("rules-not-chain", "run", RUN + ["--rules", "{nots.rules}"], "nots.rules:1:4000: RULE is longer than 1000 tokens"),
+    ("rules-minus-chain", "run", RUN + ["--rules", "{minus.rules}"], "minus.rules:1:81: nested too deeply"),
+    ("rules-power-chain", "run", RUN + ["--rules", "{powers.rules}"], "powers.rules:1:132: nested too deeply"),
+    ("rules-long-sum", "run", RUN + ["--rules", "{sum.rules}"], "sum.rules:1:229: nested too deeply"),
+    ("rules-5000-digits", "run", RUN + ["--rules", "{digits.rules}"], "digits.rules:1:31: number 99999"),
+    ("rules-1e999", "run", RUN + ["--rules", "{inf.rules}"], "inf.rules:1:31: number 1e999 is out of range"),
+    ("rules-div-zero", "run", RUN + ["--rules", "{div0.rules}"], "div0.rules:1: RULE 1 gives q1 a step of inf deg (f = 0.5)"),
+    ("rules-0^-1", "run", RUN + ["--rules", "{zero-pow.rules}"], "RULE 1 gives q1 a step of inf deg (constants only)"),
+    ("rules-10^400", "run", RUN + ["--rules", "{big-pow.rules}"], "RULE 1 gives q1 a step of inf deg"),
+    ("rules-overflow", "run", RUN + ["--rules", "{overflow.rules}"], "RULE 1 gives q1 a step of inf deg"),
+    ("rules-complex", "run", RUN + ["--rules", "{complex.rules}"], "RULE 1 gives q1 a step of nan deg (xg = "),
+    ("gain-1e308", "run", RUN + ["--gain", "1e308"], "table2.rules:18: RULE 2 gives q1 a step of inf deg (f = 1e+308, xd = "),
+    ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves q2 of this 2-joint arm"),
+    ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
+    ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
+    # rig files (vision feedback, the default)
+    ("rig-binary", "run", ["--quiet", "--rig", "{binary.yaml}"], "binary.yaml:2:118: not UTF-8 text (byte 0x80)"),
+    ("rig-yaml-syntax", "run", ["--quiet", "--rig", "{syntax.yaml}"], "syntax.yaml:4:1: not valid YAML (expected ',' or ']'"),
+    ("rig-5000-digit-int", "run", ["--quiet", "--rig", "{digits.yaml}"], "digits.yaml:2:10: not valid YAML (a number of more than 4300 digits)"),
+    ("rig-nested", "run", ["--quiet", "--rig", "{nested.yaml}"], "nested.yaml: nested too deeply"),
+    ("rig-not-a-rig", "run", ["--quiet", "--rig", "{not-rig.yaml}"], "not-rig.yaml: name: missing"),
+    ("rig-dev-zero", "run", ["--quiet", "--rig", "/dev/zero"], "/dev/zero: rig file larger than"),
+    ("rig-folder", "run", ["--quiet", "--rig", "{folder}"], "a-folder: is a folder, not a rig file"),
+    ("rig-fx-1e300", "run", ["--quiet", "--rig", "{rig-fx-huge}"], "cameras[1].camera_matrix: fx must be at most 1e+06 px"),
+    ("rig-same-place", "run", ["--quiet", "--rig", "{rig-same-place}"], "cameras[1].pose: at the same place as cameras[0]"),
+    ("rig-40000x30000", "run", ["--quiet", "--rig", "{rig-40000x30000}"], "cameras[0]: a 40000 x 30000 px image needs about 72 GB"),
+    ("rig-looking-away", "run", ["--quiet", "--rig", "{rig-away}"], "cameras[0] (left): cannot see the gripper LED"),
+    ("rig-below-floor", "run", ["--quiet", "--rig", "{rig-below}"], "cameras[0] (left): is below the floor"),
+    ("rig-4x3-px", "run", ["--quiet", "--rig", "{rig-4x3}"], "cameras[0] (left): cannot see the gripper LED"),
+    ("rig-fx-1e-12", "run", ["--quiet", "--rig", "{rig-fx-tiny}"], "cameras[1].camera_matrix: fx = 1e-12 px gives a field of view of 180 deg"),
+    ("rig-exposure-1e-9", "run", ["--quiet", "--rig", "{rig-dark}"], "cameras[0] (left): exposure 1e-09"),
+    ("rig-exposure-1e300", "run", ["--quiet", "--rig", "{rig-bright}"], "cameras[0].sensor.exposure: must be in (0, 1000], got 1e+300"),
+    ("rig-noise-1e300", "run", ["--quiet", "--rig", "{rig-noisy}"], "cameras[0].sensor.noise_sigma_gray: must be in [0, 255]"),
+    ("rig-lens-folds", "run", ["--quiet", "--rig", "{rig-fold}"], "cameras[0].distortion_coefficients: the lens model folds back inside the image"),
+    ("rig-rotation-1e300", "run", ["--quiet", "--rig", "{rig-spin}"], "cameras[1].pose.rotation_deg: each must be within +-3600 deg"),
+    ("links-1000-planar-rig", "run", ["--quiet", "--links", "1000,1000"], "planar.yaml: cameras[0] (left): cannot see"),
+    # trajectories
+    ("csv-bom-bad-value", "run", RUN + ["--trajectory", "{bom-bad.csv}"], "bom-bad.csv:2: field y_mm: not a number: 'twenty'"),
+    ("csv-5000-digits", "run", RUN + ["--trajectory", "{digits.csv}"], "digits.csv:2: field x_mm: must be finite, got 1111"),
+    ("csv-binary", "run", RUN + ["--trajectory", "{binary.csv}"], "binary.csv:3:1: not UTF-8"),
+    ("csv-dev-zero", "run", RUN + ["--trajectory", "/dev/zero"], "/dev/zero: trajectory CSV larger than"),
+    # options
+    ("points-too-many", "run", RUN + ["--points", "1000000000"], "argument --points: must be in 2..100000"),
+    ("points-not-a-number", "run", RUN + ["--points", "many"], "argument --points: expected a whole number"),
+    ("unknown-option", "run", RUN + ["--colour", "red"], "unrecognized arguments: --colour red"),
+    ("video-without-vision", "run", RUN + ["--video"], "--video needs --feedback vision"),
+    # --out
+    ("out-dot", "run", RUN + ["--out", "."], "--out .: name a folder"),
+    ("out-dotdot", "run", RUN + ["--out", "{folder}/sub/.."], "sub/..: name a folder"),
+    ("out-proc", "run", RUN + ["--out", "/proc/itg-vision-test"], "--out /proc/itg-vision-test: cannot create a folder there"),
+    ("out-file", "run", RUN + ["--out", "{file}"], "notes.txt: exists and is not a folder"),
+    ("out-user-folder", "run", RUN + ["--out", "{folder}"], "a-folder: is a folder that run did not make (1 entry: thesis.tex)"),
+    ("out-other-command", "run", RUN + ["--out", "{paper-out}"], "paper-made: holds the output of `paper`"),
+    ("paper-out-file", "paper", ["--quiet", "--out", "{file}"], "notes.txt: exists and is not a folder"),
+    ("paper-out-user-folder", "paper", ["--quiet", "--out", "{folder}"], "a-folder: is a folder that paper did not make"),
+    ("paper-seed", "paper", ["--quiet", "--seed", "-1"], "--seed: must be >= 0"),
+    ("calibrate-out-other-rig", "calibrate", ["--quiet", "--out", str(CAMERAS_DIR / "three-link.yaml")], "three-link.yaml: is the rig file 'three-link', not a calibration of"),
+    ("calibrate-out-other-calibration", "calibrate", ["--quiet", "--out", str(CAMERAS_DIR / "three-link.calib.yaml")], "is a calibration of three-link.yaml, not of"),
+    ("calibrate-out-folder", "calibrate", ["--quiet", "--out", "{folder}"], "a-folder: is a folder; give the calibrated rig's file name"),
+    ("calibrate-out-not-yaml", "calibrate", ["--quiet", "--out", "{file}"], "notes.txt: must name a .yaml file"),
+    ("calibrate-out-not-a-rig", "calibrate", ["--quiet", "--out", "{not-rig.yaml}"], "not-rig.yaml: exists and is not a rig file"),
+    ("calibrate-out-proc", "calibrate", ["--quiet", "--out", "/proc/itg-vision-test/p.yaml"], "--out: cannot write in /proc/itg-vision-test"),
+    ("calibrate-out-dotdot", "calibrate", ["--quiet", "--out", "{folder}/x/.."], "x/..: name a file"),
+    ("calibrate-rig-binary", "calibrate", ["--quiet", "--rig", "{binary.yaml}"], "binary.yaml:2:118: not UTF-8 text (byte 0x80)"),
+    ("calibrate-views", "calibrate", ["--quiet", "--views", "0"], "--views: must be in 1..1000"),
+    ("noise-out-file", "noise", ["--quick", "--quiet", "--out", "{file}"], "notes.txt: exists and is not a folder"),
+    ("noise-out-user-folder", "noise", ["--quick", "--quiet", "--out", "{folder}"], "a-folder: is a folder this benchmark did not make"),
+    ("noise-out-other-command", "noise", ["--quick", "--quiet", "--out", "{paper-out}"], "holds the output of `paper`"),
+    ("noise-scheduler-garbage", "noise", ["--quick", "--quiet", "--scheduler", "garbage", "--out", "{tmp}/n"], "--scheduler garbage: expected tcp://HOST:PORT"),
+    ("noise-workers", "noise", ["--quick", "--quiet", "--workers", "0", "--out", "{tmp}/n"], "--workers: must be >= 1"),
+    ("noise-seeds-type", "noise", ["--quick", "--seeds", "two"], "argument --seeds: invalid int value: 'two'"),
+    ("bench-unknown", "bench", ["sped"], "unknown benchmark 'sped'"),
+    ("bench-nothing", "bench", [], "name a benchmark"),
+]
+
+
+def _fill(arg: str, names: dict) -> str:
+    for k, v in names.items():
+        arg = arg.replace("{" + k + "}", v)
+    return arg
+
+
+def _tree(root):
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in dirnames + filenames:
+            p = os.path.join(dirpath, name)
+            out[os.path.relpath(p, root)] = None if os.path.isdir(p) else open(p, "rb").read()
+    return out
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("bad-inputs")
+    return tmp, make_inputs(tmp)
+
+
+def _cameras_tree():
+    return {p.name: p.read_bytes() for p in CAMERAS_DIR.iterdir()}
+
+
+@pytest.mark.parametrize("case, command, argv, expect", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, expect,
+                                                    capsys, monkeypatch):
+    tmp, files = inputs
+    work = tmp / "cwd"
+    work.mkdir(exist_ok=True)
+    monkeypatch.chdir(work)  # default outputs (runs/...) would land here
+    argv = [_fill(a, {"tmp": str(tmp), **files}) for a in argv]
+    if command == "run" and "--out" not in argv:
+        argv += ["--out", str(tmp / "out")]
+    before, cameras = _tree(tmp), _cameras_tree()
+    rc = COMMANDS[command](argv)
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert expect in lines[0], lines[0]
+    assert _tree(tmp) == before  # nothing written, nothing left behind (staging, parents)
+    assert _cameras_tree() == cameras  # the shipped rigs and calibrations too
+
+
+def test_a_utf8_bom_in_a_csv_header_is_accepted(tmp_path):
+    from itg_vision.trajectory import read_csv
+
+    f = tmp_path / "excel.csv"
+    f.write_text("x_mm,y_mm\n10,20\n30,40\n", encoding="utf-8-sig")
+    assert read_csv(f).points_mm.tolist() == [[10, 20, 0], [30, 40, 0]]
+
+
+def test_allow_unseen_runs_a_rig_that_cannot_see(inputs, tmp_path, capsys):
+    _, files = inputs
+    argv = ["--quiet", "--rig", files["rig-away"], "--points", "3", "--out", str(tmp_path / "o")]
+    assert run.main(argv) == 2
+    assert run.main(argv + ["--allow-unseen"]) == 0
+    import json
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["n_missed"] > 0  # the failure, measured
+
+
+@pytest.mark.parametrize("command", [["run"], ["paper"], ["calibrate"], ["bench"],
+                                     ["bench", "speed"], ["bench", "accuracy"],
+                                     ["bench", "noise"]])
+def test_every_help_exits_0(command, capsys):
+    main = {"run": run.main, "paper": paper.main, "calibrate": calibrate.main,
+            "bench": bench.main}[command[0]]
+    try:
+        rc = main(command[1:] + ["--help"])
+    except SystemExit as exc:
+        rc = exc.code
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert "usage" in out.out and "Traceback" not in out.err
+
+
+def test_cli_exit_status_and_one_line_in_a_real_process(cli, tmp_path):
+    """The same contract through `python -m` (status, streams)."""
+    bad = tmp_path / "bad.rules"
+    bad.write_text("RULE 1: IF xd > xg THEN q1 += 1e999\n")
+    res = cli("itg_vision.run", "--feedback", "model", "--rules", bad, "--out", tmp_path / "o")
+    assert res.returncode == 2 and res.stdout == ""
+    assert res.stderr == f"error: {bad}:1:31: number 1e999 is out of range (the largest is about 1.8e308)\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.rules"]
+
+
+# ----------------------------------------------------------------------------- soak
+def _mutations(rng: random.Random, text: bytes, n: int):
+    """``n`` damaged copies of ``text``: cut, duplicated, spliced with random bytes or junk
+    tokens, truncated; and a few files that are junk through and through."""
+    junk = [b"(", b")", b"|", b"^", b"-", b"NOT ", b"1e999", b"9" * 400, b"\xff\xfe", b"\x00",
+            b"[", b"{", b"&a ", b"*a", b"!!python/object:os.system ", b":", b",", b"\n", b"\r",
+            b"\xef\xbb\xbf", b"RULE", b"nan", b"inf", b"-1e308"]
+    for k in range(n):
+        data = bytearray(text)
+        for _ in range(rng.randint(1, 6)):
+            i = rng.randrange(len(data) + 1)
+            op = rng.randrange(5)
+            if op == 0 and data:
+                del data[i:i + rng.randint(1, 40)]
+            elif op == 1:
+                j = rng.randrange(len(data) + 1)
+                data[i:i] = data[j:j + rng.randint(1, 200)] * rng.randint(1, 30)
+            elif op == 2:
+                data[i:i] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 20)))
+            elif op == 3:
+                data[i:i] = rng.choice(junk) * rng.randint(1, 300)
+            else:
+                del data[i:]
+        yield bytes(data)
+    yield b""
+    yield bytes(rng.randrange(256) for _ in range(2000))
+    yield b"(" * 5000
+
+
+def _soak(tmp_path, monkeypatch, capsys, seed: int, per_kind: int):
+    rng = random.Random(seed)
+    canary = tmp_path / "canary"
+    (canary / "sub").mkdir(parents=True)
+    (canary / "thesis.tex").write_text("do not touch")
+    (canary / "sub" / "data.csv").write_text("1,2,3\n")
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    canary_before = _tree(canary)
+    sources = {
+        "rules": (RULES_DIR / "table2.rules").read_bytes(),
+        "rig": (CAMERAS_DIR / "planar.yaml").read_bytes(),
+        "csv": b"x_mm,y_mm,t_s\n" + b"".join(b"%d,%d,%d\n" % (60 + i, 40 - 3 * i, i) for i in range(8)),
+    }
+    commands = {
+        "rules": lambda p, o: run.main(["--quiet", "--feedback", "model", "--points", "4",
+                                        "--rules", p, "--out", o]),
+        "rig": lambda p, o: run.main(["--quiet", "--points", "2", "--rig", p, "--out", o]),
+        "csv": lambda p, o: run.main(["--quiet", "--feedback", "model", "--trajectory", p,
+                                      "--out", o]),
+        "calibrate": lambda p, o: calibrate.main(["--quiet", "--views", "1", "--base-poses", "2",
+                                                  "--check-poses", "1", "--rig", p,
+                                                  "--out", f"{o}.yaml"]),
+    }
+    outcomes = {}
+    for kind, command in commands.items():
+        src = sources["rig" if kind == "calibrate" else kind]
+        suffix = {"rules": ".rules", "rig": ".yaml", "csv": ".csv", "calibrate": ".yaml"}[kind]
+        for k, data in enumerate(_mutations(rng, src, per_kind)):
+            f = tmp_path / f"{kind}-{k}{suffix}"
+            f.write_bytes(data)
+            try:
+                rc = command(str(f), str(tmp_path / "out" / f"{kind}-{k}"))
+            except BaseException as exc:  # noqa: BLE001 - what we are looking for
+                pytest.fail(f"{kind} file {f} (seed {seed}): {type(exc).__name__}: {exc}")
+            err = capsys.readouterr().err
+            assert "Traceback" not in err, (f, err)
+            assert rc in (0, 2), (f, rc, err)
+            if rc == 2:
+                assert len(err.strip().splitlines()) == 1, (f, err)
+            outcomes[rc] = outcomes.get(rc, 0) + 1
+            assert _tree(canary) == canary_before, f
+    assert list(work.iterdir()) == []  # nothing in the current folder
+    assert not [p for p in (tmp_path / "out").glob(".*")] if (tmp_path / "out").exists() else True
+    return outcomes
+
+
+def test_soak_random_bad_files_never_crash_nor_touch_a_canary(tmp_path, monkeypatch, capsys):
+    outcomes = _soak(tmp_path, monkeypatch, capsys, seed=10, per_kind=12)
+    assert outcomes.get(2, 0) >= 20  # most damaged files are refused
+
+
+@pytest.mark.slow
+def test_soak_long(tmp_path, monkeypatch, capsys):
+    outcomes = _soak(tmp_path, monkeypatch, capsys, seed=1010, per_kind=150)
+    assert outcomes.get(2, 0) >= 300

@@ -1,0 +1,272 @@
+"""Output ownership: a command replaces only what it made; nothing half-written; strict JSON."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from itg_vision import outputs
+from itg_vision.errors import UserError, run_main
+from itg_vision.progress import LineProgress, progress
+
+
+def _tree(root):
+    """Every path below ``root`` with its bytes (None for folders)."""
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for d in dirnames:
+            out[os.path.relpath(os.path.join(dirpath, d), root)] = None
+        for f in filenames:
+            p = os.path.join(dirpath, f)
+            out[os.path.relpath(p, root)] = open(p, "rb").read()
+    return out
+
+
+def _make(out, command="run", text="new"):
+    with outputs.staged_dir(out, command) as tmp:
+        (tmp / "result.txt").write_text(text)
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+# ----------------------------------------------------------------------------- staged_dir
+def test_a_command_replaces_its_own_folder_and_marks_it(tmp_path):
+    out = tmp_path / "r"
+    _make(out, text="one")
+    assert outputs.read_manifest(out)["command"] == "run"
+    _make(out, text="two")
+    assert (out / "result.txt").read_text() == "two"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]  # no staging or old folder left
+
+
+@pytest.mark.parametrize("setup, expect", [
+    ("foreign", "is a folder that run did not make (2 entries: sub, thesis.tex)"),
+    ("other-command", "holds the output of `paper`"),
+    ("file", "exists and is not a folder"),
+])
+def test_foreign_things_are_refused_and_untouched(tmp_path, setup, expect):
+    out = tmp_path / "thesis"
+    if setup == "foreign":
+        (out / "sub").mkdir(parents=True)
+        (out / "thesis.tex").write_text("my thesis")
+        (out / "sub" / "fig.png").write_bytes(b"\x89PNG")
+    elif setup == "other-command":
+        _make(out, "paper")
+    else:
+        out.write_text("my notes")
+    before = _tree(tmp_path)
+    with pytest.raises(UserError) as exc:
+        _make(out)
+    assert expect in str(exc.value)
+    assert _tree(tmp_path) == before
+
+
+def test_force_replaces_a_foreign_folder_but_never_a_file(tmp_path):
+    folder, file = tmp_path / "f", tmp_path / "notes.txt"
+    folder.mkdir()
+    (folder / "x").write_text("x")
+    file.write_text("keep")
+    with outputs.staged_dir(folder, "run", force=True) as tmp:
+        (tmp / "result.txt").write_text("new")
+    assert sorted(p.name for p in folder.iterdir()) == [outputs.MANIFEST, "result.txt"]
+    with pytest.raises(UserError, match="not a folder"):
+        with outputs.staged_dir(file, "run", force=True):
+            pass
+    assert file.read_text() == "keep"
+
+
+def test_an_empty_folder_is_replaced(tmp_path):
+    (tmp_path / "e").mkdir()
+    _make(tmp_path / "e")
+    assert (tmp_path / "e" / "result.txt").exists()
+
+
+@pytest.mark.parametrize("out", [".", "..", "a/b/..", "a/.", "/", ""])
+def test_paths_that_cannot_be_swapped_in_are_refused(tmp_path, monkeypatch, out):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    before = _tree(tmp_path)
+    with pytest.raises(UserError, match="--out"):
+        _make(out)
+    assert _tree(tmp_path) == before
+
+
+def test_the_current_folder_and_its_parents_are_refused(tmp_path, monkeypatch):
+    work = tmp_path / "w" / "here"
+    work.mkdir(parents=True)
+    monkeypatch.chdir(work)
+    for out in (str(work), str(tmp_path / "w"), "../../w"):
+        with pytest.raises(UserError, match="current folder"):
+            outputs.check_out_dir(out, "run", force=True)
+
+
+def test_unwritable_places_fail_before_any_work_and_leave_nothing(tmp_path):
+    ran = []
+    for out in ("/proc/itg-vision-test/x", str(tmp_path / "file" / "x")):
+        (tmp_path / "file").write_text("a file")
+        with pytest.raises(UserError, match="--out"):
+            with outputs.staged_dir(out, "run"):
+                ran.append(out)
+    assert ran == [] and sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_an_error_or_interrupt_keeps_the_old_output_and_leaves_no_staging(tmp_path):
+    out = tmp_path / "r"
+    _make(out, text="old")
+    for exc in (UserError("bad input"), KeyboardInterrupt()):
+        with pytest.raises(type(exc)):
+            with outputs.staged_dir(out, "run") as tmp:
+                (tmp / "result.txt").write_text("half")
+                raise exc
+        assert (out / "result.txt").read_text() == "old"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_missing_parents_made_for_a_failed_run_are_removed(tmp_path):
+    out = tmp_path / "new" / "deeper" / "r"
+    with pytest.raises(UserError):
+        with outputs.staged_dir(out, "run"):
+            raise UserError("bad input found late")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_staging_of_a_killed_run_is_cleaned_by_the_next_run(tmp_path):
+    dead = _dead_pid()
+    stale = tmp_path / f".r.staging-{dead}-abc123"
+    stale.mkdir()
+    (stale / "half.csv").write_text("1,2")
+    live = tmp_path / f".r.staging-{os.getpid()}-live"  # a run still going: left alone
+    live.mkdir()
+    other = tmp_path / f".rr.staging-{dead}-x"  # another output's staging: left alone
+    other.mkdir()
+    _make(tmp_path / "r")
+    assert not stale.exists() and live.exists() and other.exists()
+
+
+def test_a_run_killed_between_the_two_renames_gets_its_old_folder_back(tmp_path):
+    dead = _dead_pid()
+    old = tmp_path / f".r.old-{dead}"
+    old.mkdir()
+    (old / "result.txt").write_text("old")
+    assert outputs.clean_stale(tmp_path / "r") == [old]
+    assert (tmp_path / "r" / "result.txt").read_text() == "old"
+
+
+def test_probe_folder_leaves_nothing(tmp_path):
+    outputs.probe_folder(tmp_path / "a" / "b")
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(UserError, match="cannot write"):
+        outputs.probe_folder("/proc/itg-vision-test")
+
+
+# ----------------------------------------------------------------------------- files, JSON
+def test_write_json_is_strict_nan_and_infinity_become_null(tmp_path):
+    p = tmp_path / "s.json"
+    outputs.write_json(p, {"e": float("nan"), "l": [1.0, math.inf, np.float64(-np.inf)],
+                           "a": np.array([1.5, np.nan]), "n": np.int64(3), "t": (np.nan,)})
+
+    def refuse(name):
+        raise ValueError(f"non-standard JSON constant {name}")
+
+    doc = json.loads(p.read_text(), parse_constant=refuse)
+    assert doc == {"e": None, "l": [1.0, None, None], "a": [1.5, None], "n": 3, "t": [None]}
+
+
+def test_write_bytes_keeps_the_old_file_when_writing_fails(tmp_path, monkeypatch):
+    p = tmp_path / "f.txt"
+    p.write_text("old")
+
+    def full(*a):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(outputs.os, "replace", full)
+    with pytest.raises(OSError):
+        outputs.write_text(p, "new")
+    assert p.read_text() == "old" and sorted(x.name for x in tmp_path.iterdir()) == ["f.txt"]
+
+
+# ----------------------------------------------------------------------------- errors, progress
+def test_interrupted_gets_a_line_of_its_own(capsys):
+    def body():
+        sys.stderr.write("run: 10/180 pt")  # a progress bar mid-line
+        raise KeyboardInterrupt
+
+    assert run_main(body) == 130
+    assert capsys.readouterr().err.splitlines()[-1] == "interrupted"
+
+
+def test_progress_in_a_log_is_plain_lines(capsys):
+    bar = progress(100, "run x", unit="pt")
+    assert isinstance(bar, LineProgress)  # pytest's captured stderr is not a terminal
+    bar.min_interval_s = 0.0
+    for _ in range(100):
+        bar.update(1)
+    bar.close()
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert 2 <= len(lines) <= 12 and lines[-1].startswith("run x: 100/100 pt (100%)")
+    assert len(set(lines)) == len(lines)  # the last line once
+    progress(100, "quiet", quiet=True).update(5)
+    assert capsys.readouterr().err == ""
+
+
+# ----------------------------------------------------------------------------- run's folders
+def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
+    from itg_vision import run
+    from itg_vision.rules import RULES_DIR
+
+    monkeypatch.chdir(tmp_path)
+    base = ["--quiet", "--feedback", "model", "--points", "6"]
+    assert run.main(base) == 0
+    assert run.main(base + ["--seed", "3", "--gain", "0.3"]) == 0
+    assert run.main(base + ["--controller", "ik"]) == 0
+    names = sorted(p.name for p in (tmp_path / "runs").iterdir())
+    assert names == ["two-link-ellipse-t1-ik-model-n6", "two-link-ellipse-t1-itg-model-n6",
+                     "two-link-ellipse-t1-itg-model-n6-f0.3-seed3"]
+    # the same command again replaces its own result (same settings, same bytes)
+    before = _tree(tmp_path / "runs" / names[1])
+    assert run.main(base) == 0
+    after = _tree(tmp_path / "runs" / names[1])
+    assert {k for k in before} == {k for k in after}
+    assert before["trace.csv"] == after["trace.csv"]
+    # an edited rule file under the same name: its default folder is not replaced silently
+    rules = tmp_path / "mine.rules"
+    rules.write_text((RULES_DIR / "table2.rules").read_text())
+    assert run.main(base + ["--rules", str(rules)]) == 0
+    folder = tmp_path / "runs" / "two-link-ellipse-t1-itg-model-rulesmine-n6"
+    kept = _tree(folder)
+    rules.write_text(rules.read_text().replace("f * |xd - xg|", "0.5 * f * |xd - xg|"))
+    capsys.readouterr()
+    assert run.main(base + ["--rules", str(rules)]) == 2
+    err = capsys.readouterr().err
+    assert "holds an earlier run with other settings (content of the rules file)" in err
+    assert _tree(folder) == kept
+    assert run.main(base + ["--rules", str(rules), "--force"]) == 0
+    assert _tree(folder) != kept
+
+
+def test_calibrate_output_checks(tmp_path):
+    from itg_vision.calibrate import check_out, default_out
+    from itg_vision.camera import CAMERAS_DIR
+
+    planar = CAMERAS_DIR / "planar.yaml"
+    assert default_out(planar) == Path("runs/calibrate/planar.calib.yaml")
+    check_out(CAMERAS_DIR / "planar.calib.yaml", planar)  # this rig's calibration: may refresh
+    check_out(tmp_path / "new" / "p.calib.yaml", planar)
+    assert list(tmp_path.iterdir()) == []  # the check made nothing
+    with pytest.raises(UserError, match="is a calibration of planar.yaml, not of"):
+        check_out(CAMERAS_DIR / "planar.calib.yaml", CAMERAS_DIR / "three-link.yaml")
+    check_out(CAMERAS_DIR / "planar.calib.yaml", CAMERAS_DIR / "three-link.yaml", force=True)
+    (tmp_path / "p.calib.png").write_bytes(b"a user's picture")
+    with pytest.raises(UserError, match="p.calib.png exists and would be replaced"):
+        check_out(tmp_path / "p.calib.yaml", planar)

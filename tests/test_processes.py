@@ -1,0 +1,149 @@
+"""Processes, signals and interrupted files: bench noise's pool dies with its parent, a bad
+scheduler address is one prompt line, damaged results.csv rows are reported and repaired."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from itg_vision.bench.noise import COLUMNS, Results, build_sweep, main
+from itg_vision.errors import UserError
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _children(pid: int) -> list[int]:
+    """Direct children of ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"  # a zombie has exited
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_bench_noise_leaves_no_worker_or_resource_tracker(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.bench", "noise", "--quick",
+                             "--controllers", "itg-vision", "--workers", "2", "--quiet",
+                             "--out", str(tmp_path / "n")],
+                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 60
+        kids: list[int] = []
+        while time.monotonic() < deadline and len(kids) < 3:  # two workers + resource tracker
+            time.sleep(0.2)
+            kids = _children(proc.pid)
+        assert len(kids) >= 3, f"pool not started: {kids}"
+        time.sleep(1.0)  # the workers are busy with runs now
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline and any(_alive(k) for k in kids):
+        time.sleep(0.2)
+    left = [k for k in kids if _alive(k)]
+    for k in left:  # do not leave them behind even when the test fails
+        os.kill(k, signal.SIGKILL)
+    assert not left, f"still running after the parent's SIGKILL: {left}"
+
+
+def test_a_malformed_scheduler_is_one_prompt_line_without_a_client(cli, tmp_path):
+    t0 = time.perf_counter()
+    res = cli("itg_vision.bench", "noise", "--quick", "--scheduler", "garbage", "--out", tmp_path / "n")
+    wall = time.perf_counter() - t0
+    assert res.returncode == 2
+    assert res.stderr == "error: --scheduler garbage: expected tcp://HOST:PORT (port 1..65535)\n"
+    assert wall < 8, f"took {wall:.1f} s"  # it hung 10 s in Client.__del__
+    assert not (tmp_path / "n").exists()
+
+
+def _row(run_id: str) -> str:
+    return ",".join([run_id] + ["1"] * (len(COLUMNS) - 1)) + "\n"
+
+
+def test_damaged_rows_are_reported_by_line_and_repaired(tmp_path):
+    path = tmp_path / "results.csv"
+    good = [_row(f"{i:016x}") for i in range(1, 5)]
+    text = (",".join(COLUMNS) + "\n" + good[0] + good[1][:30] + "\n" + good[2]
+            + "xx" + good[3][2:] + good[3] + good[0][:20])
+    path.write_text(text)
+    r = Results(path)
+    assert sorted(r.rows) == [f"{i:016x}" for i in (1, 3, 4)]
+    assert [p.split(": ", 1)[0] for p in r.problems] == [f"{path}:3", f"{path}:5", f"{path}:7"]
+    assert "damaged row (" in r.problems[0] and "torn last line" in r.problems[2]
+    assert path.read_text() == text  # reading changes nothing
+    r.repair()
+    assert path.read_text() == ",".join(COLUMNS) + "\n" + good[0] + good[2] + good[3]
+    assert Results(path).problems == []
+
+
+def test_a_damaged_middle_row_is_redone_and_named_on_stderr(tmp_path, capsys):
+    args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path / "n"),
+            "--quiet", "--workers", "1"]
+    assert main(args) == 0
+    path = tmp_path / "n" / "results.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    lines[2] = lines[2][:40] + "\n"  # a row cut short in the middle of the file
+    path.write_text("".join(lines))
+    capsys.readouterr()
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {path}:3: damaged row (" in err
+    rows = path.read_text().splitlines()
+    assert len(rows) == 1 + len(build_sweep(quick=True, controllers=("ik",), seeds=1))
+    assert all(len(r.split(",")) == len(COLUMNS) for r in rows)
+
+
+def test_a_run_killed_mid_way_keeps_the_old_result_and_the_next_run_cleans_its_staging(cli, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = tmp_path / "r"
+    assert cli("itg_vision.run", "--feedback", "model", "--points", "5", "--quiet", "--out", out).returncode == 0
+    old = (out / "summary.json").read_bytes()
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.run", "--points", "400", "--quiet",
+                             "--out", str(out)], cwd=ROOT, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not list(tmp_path.glob(".r.staging-*")):
+            time.sleep(0.1)
+        time.sleep(0.5)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert len(list(tmp_path.glob(".r.staging-*"))) == 1  # what SIGKILL leaves
+    assert (out / "summary.json").read_bytes() == old  # the old result is whole
+    assert cli("itg_vision.run", "--feedback", "model", "--points", "5", "--quiet", "--out", out).returncode == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_a_torn_header_is_dropped_and_rewritten_whole(tmp_path):
+    path = tmp_path / "results.csv"
+    path.write_text(",".join(COLUMNS)[:17])
+    r = Results(path)
+    assert r.rows == {} and r.problems == [f"{path}:1: torn header (an interrupted first write): dropped"]
+    r.repair()
+    r.append({c: ("0123456789abcdef" if c == "run_id" else "1") for c in COLUMNS})
+    assert path.read_text() == ",".join(COLUMNS) + "\n" + _row("0123456789abcdef")
+    path.write_text("x_mm,y_mm\n1,2\n")  # somebody else's CSV: refused, untouched
+    with pytest.raises(UserError, match="its columns are not this benchmark.s"):
+        Results(path)
+    assert path.read_text() == "x_mm,y_mm\n1,2\n"
