@@ -1,67 +1,84 @@
 """Arm specifications and the nominal kinematic model (millimetres, degrees).
 
+Every fact about an arm lives in its file, ``data/arms/<name>.yaml`` (links, kind of chain, LED
+placement, start pose, the rules, rig and trajectory it uses by default, the pose ranges its rig
+sees, its calibration sweeps, the benchmark's limits), read here into an :class:`ArmSpec`. Code
+elsewhere asks the spec (``arm.planar``, ``arm.marker_names``, ``arm.shoulder_mm()``...), never
+the arm's name.
+
 The kinematic model here is what the *classical* variant of the ITG uses (encoders + model) and
 what the tests compare the simulator against. The vision loop never calls it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 from .errors import UserError
 
-#: The paper's arms: link lengths in mm, number of joints, planar or spatial.
-ARMS: dict[str, tuple[float, ...]] = {
-    "one-link": (100.0,),
-    "two-link": (100.0, 100.0),
-    "three-link": (100.0, 100.0, 100.0),  # base height, upper arm, forearm (section 3.5)
-}
+#: The shipped arm files.
+ARMS_DIR = Path(__file__).resolve().parent.parent / "data" / "arms"
+#: Kinds of chain: joints all about world z, or a base yaw then two pitch joints (section 3.5).
+KINDS = ("planar", "yaw-pitch-pitch")
 
-#: LED stand-off so the links never hide it: planar arms carry the LEDs this far above the
-#: joints (world +z); the three-link arm carries them this far along the pitch axis, towards
-#: the cameras (world -y at q1 = 0). The tracked tool point is the gripper LED's centre.
-LED_STANDOFF_MM = 12.0
+
+def arm_names() -> list[str]:
+    """The shipped arms, by name."""
+    return sorted(p.stem for p in ARMS_DIR.glob("*.yaml"))
 
 
 @dataclass(frozen=True)
 class ArmSpec:
-    """A kinematic chain of the paper.
+    """A kinematic chain of the paper, as its arm file describes it.
 
     Attributes
     ----------
-    name : one of ``ARMS``.
-    links_mm : link lengths in mm; for ``three-link`` (base height L1, upper arm L2, forearm L3).
-    led_standoff_mm : LED stand-off from the joints: above them (planar arms) or along the
-        pitch axis towards the cameras (three-link arm).
+    name : the arm's name (its file's stem).
+    kind : "planar" (joints about world z, LEDs ``led_standoff_mm`` above the joints) or
+        "yaw-pitch-pitch" (base yaw, two pitch joints; LEDs along the pitch axis).
+    links_mm : link lengths; yaw-pitch-pitch: (base height L1, upper arm L2, forearm L3).
+    led_standoff_mm : the LEDs' offset from the joints.
+    start_pose_deg : the paper's initial pose.
     joint_offset_deg : added to every commanded joint angle by the *true* arm (model error).
+    defaults : {"rules", "rig", "trajectory"}: what a run of this arm uses unless told.
+    pose_ranges_deg : per joint (lo, hi): random poses the arm's rig sees.
+    benchmark : {"max_step_deg", "iterations"}: the limits of the noise benchmark.
+    calibration : {"board_target_mm", "axis_sweeps"}: see itg_vision/calibrate.py.
     """
 
     name: str
+    kind: str
     links_mm: tuple[float, ...]
-    led_standoff_mm: float = 0.0
+    led_standoff_mm: float
+    start_pose_deg: tuple[float, ...]
     joint_offset_deg: tuple[float, ...] = ()
+    defaults: dict = field(default_factory=dict, compare=False, hash=False)
+    pose_ranges_deg: tuple[tuple[float, float], ...] = ()
+    benchmark: dict = field(default_factory=dict, compare=False, hash=False)
+    calibration: dict = field(default_factory=dict, compare=False, hash=False)
 
     @classmethod
     def from_args(cls, name: str, links_mm: tuple[float, ...] | None = None) -> "ArmSpec":
-        if name not in ARMS:
-            raise UserError(f"unknown arm {name!r} (choose from {', '.join(ARMS)})")
-        default = ARMS[name]
-        links = tuple(float(v) for v in (links_mm if links_mm is not None else default))
-        if len(links) != len(default):
-            raise UserError(
-                f"--links: arm {name!r} needs {len(default)} link lengths in mm, got {len(links)}")
+        """A shipped arm by name (or an arm file's path), optionally with other link lengths."""
+        arm = load_arm(name)
+        if links_mm is None:
+            return arm
+        links = tuple(float(v) for v in links_mm)
+        if len(links) != arm.n_joints:
+            raise UserError(f"--links: arm {arm.name!r} needs {arm.n_joints} link lengths in mm, "
+                            f"got {len(links)}")
         for i, v in enumerate(links, 1):
             if not np.isfinite(v) or v <= 0 or v > 5000:
                 raise UserError(f"--links: link {i} must be a length in mm in (0, 5000], got {v}")
-        standoff = LED_STANDOFF_MM
-        return cls(name, links, standoff, (0.0,) * len(default))
+        return arm.with_links(links)
 
     # ------------------------------------------------------------------ structure
     @property
     def planar(self) -> bool:
-        return self.name != "three-link"
+        return self.kind == "planar"
 
     @property
     def n_joints(self) -> int:
@@ -73,32 +90,38 @@ class ArmSpec:
 
     @property
     def marker_names(self) -> tuple[str, ...]:
-        return ("gripper",) if self.name == "one-link" else ("elbow", "gripper")
+        """The LEDs the arm carries: the gripper, and the elbow when there is one."""
+        return ("gripper",) if self.n_joints == 1 else ("elbow", "gripper")
 
     @property
     def start_q_deg(self) -> np.ndarray:
-        """The paper's initial pose: fully extended along +y (planar) or straight up."""
-        if self.name == "three-link":
-            return np.array([0.0, 90.0, 0.0])
-        return np.array([90.0] + [0.0] * (self.n_joints - 1))
+        """The paper's initial pose (fully extended along +y, or straight up), shape (n,)."""
+        return np.array(self.start_pose_deg, float)
 
     def with_links(self, links_mm: tuple[float, ...]) -> "ArmSpec":
-        return ArmSpec(self.name, tuple(links_mm), self.led_standoff_mm, self.joint_offset_deg)
+        return replace(self, links_mm=tuple(float(v) for v in links_mm))
 
     def with_joint_offset(self, offset_deg: tuple[float, ...]) -> "ArmSpec":
-        return ArmSpec(self.name, self.links_mm, self.led_standoff_mm, tuple(offset_deg))
+        return replace(self, joint_offset_deg=tuple(float(v) for v in offset_deg))
+
+    def random_poses(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` joint poses (deg) drawn uniformly in ``pose_ranges_deg``, shape (n, n_joints)."""
+        lo, hi = np.array(self.pose_ranges_deg, float).T
+        return rng.uniform(lo, hi, size=(n, self.n_joints))
 
     # ------------------------------------------------------------------ workspace
     def reach_mm(self) -> tuple[float, float]:
         """Inner and outer radius of the workspace about the shoulder (mm)."""
         L = self.links_mm
-        if self.name == "one-link":
+        if self.n_joints == 1:
             return L[0], L[0]
-        a, b = (L[0], L[1]) if self.name == "two-link" else (L[1], L[2])
+        a, b = L[-2], L[-1]
         return abs(a - b), a + b
 
     def shoulder_mm(self) -> np.ndarray:
-        return np.array([0.0, 0.0, self.links_mm[0] if self.name == "three-link" else 0.0])
+        """The joint the last two links turn about: the base (planar) or the shoulder atop the
+        base column (yaw-pitch-pitch), shape (3,)."""
+        return np.array([0.0, 0.0, 0.0 if self.planar else self.links_mm[0]])
 
     def reachable(self, p_mm: np.ndarray, tol_mm: float = 1e-9) -> bool:
         """Whether the gripper can reach the point (planar arms: its x, y only)."""
@@ -108,6 +131,76 @@ class ArmSpec:
         r = float(np.linalg.norm(d - s))
         lo, hi = self.reach_mm()
         return lo - tol_mm <= r <= hi + tol_mm
+
+
+# ---------------------------------------------------------------------------- arm files
+def _arm_path(name_or_path: str) -> Path:
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or "/" in name_or_path:
+        return p
+    candidate = ARMS_DIR / f"{name_or_path}.yaml"
+    if not candidate.exists():
+        raise UserError(f"unknown arm {name_or_path!r} (choose from {', '.join(arm_names())}, "
+                        "or give an arm file's path)")
+    return candidate
+
+
+def load_arm(name_or_path: str) -> ArmSpec:
+    """Read and check an arm file (see ``data/arms/two-link.yaml``); a bad field raises
+    `UserError` naming the file and the field."""
+    import yaml
+
+    from .inputs import read_text
+
+    path = _arm_path(name_or_path)
+    try:
+        doc = yaml.safe_load(read_text(path, "arm file"))
+    except yaml.YAMLError as exc:
+        raise UserError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+
+    def fail(where, msg):
+        raise UserError(f"{path}: {where}: {msg}")
+
+    if not isinstance(doc, dict):
+        fail("(top level)", "must be a mapping")
+
+    def get(key, kind=None):
+        if key not in doc:
+            fail(key, "missing")
+        return doc[key]
+
+    def numbers(v, where, n=None):
+        if not isinstance(v, list) or (n is not None and len(v) != n) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v):
+            fail(where, f"must be a list of {n or 'some'} finite numbers, got {v!r}")
+        return tuple(float(x) for x in v)
+
+    kind = get("kind")
+    if kind not in KINDS:
+        fail("kind", f"must be one of {', '.join(KINDS)}, got {kind!r}")
+    links = numbers(get("links_mm"), "links_mm")
+    n = len(links)
+    if not (1 <= n <= 2 if kind == "planar" else n == 3):
+        fail("links_mm", f"a {kind} arm has {'1 or 2' if kind == 'planar' else '3'} links, got {n}")
+    if any(v <= 0 for v in links):
+        fail("links_mm", "lengths must be > 0")
+    standoff = float(numbers([get("led_standoff_mm")], "led_standoff_mm")[0])
+    start = numbers(get("start_pose_deg"), "start_pose_deg", n)
+    ranges = tuple(numbers(r, f"pose_ranges_deg[{i}]", 2) for i, r in enumerate(get("pose_ranges_deg")))
+    if len(ranges) != n:
+        fail("pose_ranges_deg", f"needs one [lo, hi] per joint ({n})")
+    defaults = get("defaults")
+    if not isinstance(defaults, dict) or set(defaults) != {"rules", "rig", "trajectory"}:
+        fail("defaults", "must name the default rules, rig and trajectory")
+    bench = get("benchmark")
+    if not isinstance(bench, dict) or set(bench) != {"max_step_deg", "iterations"}:
+        fail("benchmark", "must give max_step_deg and iterations")
+    calib = get("calibration")
+    if not isinstance(calib, dict) or "axis_sweeps" not in calib or "board_target_mm" not in calib:
+        fail("calibration", "must give board_target_mm and axis_sweeps")
+    numbers(calib["board_target_mm"], "calibration.board_target_mm", 3)
+    return ArmSpec(str(get("name")), kind, links, standoff, start, (0.0,) * n, dict(defaults),
+                   ranges, dict(bench), dict(calib))
 
 
 def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]:
@@ -127,14 +220,14 @@ def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]
     q = np.radians(np.asarray(q_deg, float) + np.asarray(arm.joint_offset_deg or 0.0))
     L = arm.links_mm
     h = arm.led_standoff_mm
-    if arm.name == "one-link":
+    if arm.planar and arm.n_joints == 1:
         g = np.array([L[0] * np.cos(q[0]), L[0] * np.sin(q[0]), h])
         return {"gripper": g, "elbow": np.full(3, np.nan)}
-    if arm.name == "two-link":
+    if arm.planar:
         e = np.array([L[0] * np.cos(q[0]), L[0] * np.sin(q[0]), h])
         g = e + np.array([L[1] * np.cos(q[0] + q[1]), L[1] * np.sin(q[0] + q[1]), 0.0])
         return {"gripper": g, "elbow": e}
-    # three-link: base yaw q1, shoulder pitch q2 (from horizontal), elbow pitch q3
+    # yaw-pitch-pitch: base yaw q1, shoulder pitch q2 (from horizontal), elbow pitch q3
     re = L[1] * np.cos(q[1])
     ze = L[0] + L[1] * np.sin(q[1])
     rg = re + L[2] * np.cos(q[1] + q[2])

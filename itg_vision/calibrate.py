@@ -59,7 +59,8 @@ import numpy as np
 from trimesh.transformations import quaternion_from_matrix
 
 from . import outputs
-from .camera import DEFAULT_RIG, Camera, Rig, resolve_rig
+from .arm import arm_names
+from .camera import Camera, Rig, resolve_rig
 from .errors import UserError, run_main
 
 #: Fewest views (board found by both cameras) accepted for a calibration.
@@ -83,7 +84,15 @@ BORDER_PX = 8.0
 
 #: The arm whose LEDs tie a rig to the base frame, by rig name (others: two-link). The one-link
 #: arm shares the planar rig but carries one LED, on one circle: too little for the base fit.
-ARM_OF_RIG = {rig: arm for arm, rig in DEFAULT_RIG.items() if arm != "one-link"}
+def arm_of_rig(rig_name: str) -> str:
+    """The arm whose LEDs tie a shipped rig to the base: of the arms that use the rig by
+    default, the one with the most LEDs (two circles per joint sweep fit better than one);
+    two-link for a rig of the user's own."""
+    from .arm import ArmSpec, arm_names
+
+    arms = [ArmSpec.from_args(n) for n in arm_names()]
+    users = [a for a in arms if a.defaults["rig"] == rig_name]
+    return max(users, key=lambda a: len(a.marker_names)).name if users else "two-link"
 
 
 # ---------------------------------------------------------------------------- the board
@@ -208,10 +217,6 @@ def board_visible(camera: Camera, board: Board, pose: BoardPose,
     W, H = camera.size
     return bool(np.all((uv >= border_px) & (uv <= np.array([W - 1, H - 1]) - border_px)))
 
-
-def workspace_centre_mm(arm_name: str) -> np.ndarray:
-    """A point in the middle of the arm's workspace (mm): where the board is waved towards."""
-    return np.array([0.0, 0.0, 150.0]) if arm_name == "three-link" else np.array([0.0, 0.0, 0.0])
 
 
 def sample_board_poses(rig: Rig, board: Board, n: int, rng: np.random.Generator, *,
@@ -517,16 +522,6 @@ def place_rig(rig_c1: Rig, R_w: np.ndarray, t_w: np.ndarray, name: str) -> Rig:
 
 
 # ---------------------------------------------------------------------------- LEDs
-def random_arm_poses(arm, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Seeded joint angles (deg) that keep the LEDs in view of the shipped rigs, (n, joints)."""
-    if arm.name == "three-link":
-        lo, hi = np.array([-50.0, 25.0, -110.0]), np.array([50.0, 85.0, -10.0])
-    else:
-        lo = np.array([-180.0] + [-150.0] * (arm.n_joints - 1))
-        hi = np.array([180.0] + [150.0] * (arm.n_joints - 1))
-    return rng.uniform(lo, hi, size=(n, arm.n_joints))
-
-
 def led_images(world, rig: Rig, arm, q_list, rng, *, supersample: int = 1, progress=None):
     """Capture both cameras of ``rig`` at each joint pose; yield (q, images, true LEDs)."""
     from .imaging import capture
@@ -561,24 +556,21 @@ def triangulate_leds(rig: Rig, arm, images) -> dict[str, np.ndarray]:
 
 
 def axis_sweeps(arm) -> dict[int, tuple[np.ndarray, tuple[str, ...]]]:
-    """Poses that turn one joint at a time, and the LEDs that joint moves.
+    """Poses that turn one joint at a time, and the LEDs that joint moves, from the arm file's
+    ``calibration.axis_sweeps``.
 
     Returns
     -------
     {joint index (0-based): (joint angles in deg, shape (n, n_joints), marker names)}; the
-    angles increase along each sweep, and every pose keeps the LEDs in view of the arm's rig.
+    angles increase along each sweep.
     """
-    if arm.name == "three-link":
-        yaw = np.column_stack([np.linspace(-170, 170, 21), np.full(21, 60.0), np.full(21, -60.0)])
-        pitch = np.column_stack([np.zeros(25), np.linspace(0, 150, 25), np.full(25, -60.0)])
-        return {0: (yaw, ("elbow", "gripper")), 1: (pitch, ("elbow", "gripper"))}
-    n = arm.n_joints
-    base = np.column_stack([np.linspace(-165, 165, 23)] + [np.full(23, 30.0)] * (n - 1))
-    sweeps = {0: (base, arm.marker_names)}
-    if n == 2:
-        sweeps[1] = (np.column_stack([np.full(23, 90.0), np.linspace(-150, 150, 23)]),
-                     ("gripper",))
-    return sweeps
+    out = {}
+    for sw in arm.calibration["axis_sweeps"]:
+        j = int(sw["joint"]) - 1
+        q = np.tile([0.0 if v is None else float(v) for v in sw["pose_deg"]], (sw["poses"], 1))
+        q[:, j] = np.linspace(sw["from_deg"], sw["to_deg"], sw["poses"])
+        out[j] = (q, tuple(sw["markers"]))
+    return out
 
 
 def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names) -> dict[str, dict]:
@@ -789,7 +781,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
 
     rng = np.random.default_rng(seed)
     poses = sample_board_poses(true_rig, board, views, rng,
-                               target_mm=workspace_centre_mm(arm.name), tilt_deg=tilt_deg)
+                               target_mm=arm.calibration["board_target_mm"], tilt_deg=tilt_deg)
     tick = (lambda stage: (lambda: progress(stage))) if progress else (lambda stage: None)
     t0 = time.perf_counter()
     sweep_poses = axis_sweeps(arm)
@@ -804,7 +796,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)
         sweeps = {j: (led_images(world, true_rig, arm, q, rng, progress=tick("arm")), names)
                   for j, (q, names) in sweep_poses.items()}
-        q_check = random_arm_poses(arm, check_poses, rng)
+        q_check = arm.random_poses(check_poses, rng)
         shots_check = led_images(world, true_rig, arm, q_check, rng, progress=tick("arm"))
     t3 = time.perf_counter()
     R_w, t_w, base_record = base_frame_from_axes(rig_c1, arm, sweeps)
@@ -999,7 +991,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "file is replaced only if it is a calibration of this rig")
     ap.add_argument("--force", action="store_true",
                     help="replace --out even if it is not a calibration of this rig")
-    ap.add_argument("--arm", choices=("one-link", "two-link", "three-link"),
+    ap.add_argument("--arm", choices=arm_names(),
                     help="arm whose LEDs tie the rig to the base frame (default: three-link for "
                          "the three-link rig, else two-link)")
     ap.add_argument("--tilt", type=float, default=45.0, metavar="DEG",
@@ -1048,7 +1040,7 @@ def main(argv: list[str] | None = None) -> int:
             true_rig = dataclasses.replace(true_rig, cameras=tuple(
                 dataclasses.replace(c, noise_sigma_gray=float(args.sensor_noise))
                 for c in true_rig.cameras))
-        arm = ArmSpec.from_args(args.arm or ARM_OF_RIG.get(true_rig.name, "two-link"))
+        arm = ArmSpec.from_args(args.arm or arm_of_rig(true_rig.name))
         true_arm = arm
         if args.true_links is not None:
             try:

@@ -63,8 +63,6 @@ MAX_EXPOSURE = 1000.0
 MAX_DISTORTION = 100.0
 #: Where the shipped rigs and their calibrations live.
 CAMERAS_DIR = Path(__file__).resolve().parent.parent / "cameras"
-#: The shipped rig that sees each arm.
-DEFAULT_RIG = {"one-link": "planar", "two-link": "planar", "three-link": "three-link"}
 #: Iterations of cv2.undistortPoints: the default 5 leaves ~0.1 px error in the corners.
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 
@@ -78,9 +76,13 @@ def resolve_rig(name_or_path: str) -> Path:
     return CAMERAS_DIR / f"{name_or_path}.yaml"
 
 
-def default_rig_path(arm: str, calibrated: bool = False) -> Path:
-    """The shipped rig of an arm (``cameras/<rig>.yaml``), or its calibration."""
-    return CAMERAS_DIR / f"{DEFAULT_RIG[arm]}{'.calib' if calibrated else ''}.yaml"
+def default_rig_path(arm, calibrated: bool = False) -> Path:
+    """The shipped rig of an arm (an `ArmSpec` or its name): ``cameras/<rig>.yaml`` as its arm
+    file's ``defaults.rig`` names it, or its calibration ``cameras/<rig>.calib.yaml``."""
+    from .arm import ArmSpec
+
+    spec = arm if isinstance(arm, ArmSpec) else ArmSpec.from_args(arm)
+    return CAMERAS_DIR / f"{spec.defaults['rig']}{'.calib' if calibrated else ''}.yaml"
 
 
 # ---------------------------------------------------------------------------- pure functions

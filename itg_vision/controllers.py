@@ -76,11 +76,11 @@ class InverseKinematics:
         L = self.model.links_mm
         x, y, _ = (float(v) for v in desired_mm)
         q_now = np.asarray(q_deg, float)
-        if self.model.name == "one-link":
+        if self.model.n_joints == 1:
             if abs(math.hypot(x, y) - L[0]) > 1e-6 * L[0] + 0.5:
                 return None
             return np.array([math.degrees(math.atan2(y, x))])
-        if self.model.name == "two-link":
+        if self.model.planar:
             cands = [np.array(c) for c in two_link_ik(x, y, L[0], L[1])]
         else:
             cands = [np.array(c) for c in three_link_ik(desired_mm, L, self.model.led_standoff_mm)]

@@ -585,7 +585,6 @@ class RuleBase:
 
 
 RULES_DIR = Path(__file__).resolve().parent.parent / "data" / "rules"
-DEFAULT_RULES = {"one-link": "table1", "two-link": "table2", "three-link": "three-link"}
 
 
 def resolve_rules_path(name_or_path: str) -> Path:
@@ -608,7 +607,9 @@ def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase
     rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
     unmoved = rb.unmoved_joints()
     if unmoved:
-        shipped = ", ".join(f"{rules} ({arm})" for arm, rules in DEFAULT_RULES.items())
+        from .arm import ArmSpec, arm_names
+
+        shipped = ", ".join(f"{ArmSpec.from_args(a).defaults['rules']} ({a})" for a in arm_names())
         raise UserError(f"{rb.source}: no rule moves {', '.join(unmoved)} of this {n_joints}-joint "
                         f"arm: a rule base for another arm? (shipped: {shipped})")
     return rb

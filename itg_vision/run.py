@@ -53,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m itg_vision.run",
         description="Track a trajectory with the Intelligent Trajectory Generator and write "
                     "summary.json, trace.csv, path.png and error.png to runs/<name>/.")
-    ap.add_argument("--arm", default="two-link", help="one-link, two-link or three-link (default %(default)s)")
+    ap.add_argument("--arm", default="two-link", help="an arm of data/arms (one-link, two-link, three-link) or an arm file "
+                         "(default %(default)s)")
     ap.add_argument("--links", type=_links, metavar="L1,L2[,L3]",
                     help="link lengths in mm (default: the paper's 100 mm each)")
     ap.add_argument("--trajectory", metavar="NAME|PATH",

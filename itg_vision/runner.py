@@ -11,17 +11,16 @@ from pathlib import Path
 
 from . import trajectory as traj
 from .arm import ArmSpec
-from .camera import CAMERAS_DIR, DEFAULT_RIG, default_rig_path, resolve_rig  # noqa: F401 (re-exported)
+from .camera import CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401 (re-exported)
 from .errors import UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .loop import Trace, simulate
-from .rules import DEFAULT_RULES, load_rules
+from .rules import load_rules
 from .world import World
 
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
-DEFAULT_TRAJECTORY = {"one-link": "arc", "two-link": "ellipse-t1", "three-link": "line-ab-reach"}
 
 
 @dataclass(frozen=True)
@@ -81,17 +80,20 @@ class RunConfig:
             if not ok:
                 raise UserError(msg)
 
+    def _default(self, what: str) -> str:
+        return ArmSpec.from_args(self.arm).defaults[what]  # the arm file says
+
     @property
     def trajectory_name(self) -> str:
-        return self.trajectory or DEFAULT_TRAJECTORY.get(self.arm, "ellipse-t1")
+        return self.trajectory or self._default("trajectory")
 
     @property
     def rules_name(self) -> str:
-        return self.rules or DEFAULT_RULES.get(self.arm, "table2")
+        return self.rules or self._default("rules")
 
     @property
     def rig_path(self) -> Path:
-        return default_rig_path(self.arm) if self.rig is None else resolve_rig(self.rig)
+        return resolve_rig(self.rig or self._default("rig"))
 
 
 @dataclass
@@ -127,7 +129,7 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
             raise UserError(f"--joint-offset: arm {model.name!r} needs {model.n_joints} finite "
                             f"offsets in deg within +-180, got {cfg.joint_offset_deg}")
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
-    trajectory = traj.load(cfg.trajectory_name, cfg.points).repeated(cfg.laps)
+    trajectory = traj.load(cfg.trajectory_name, cfg.points, arm=model).repeated(cfg.laps)
     if not trajectory.planar and model.planar:
         raise UserError(f"trajectory {trajectory.name} has z values but arm {model.name} is planar")
     if trajectory.planar and not model.planar:

@@ -120,23 +120,31 @@ def segments(name, corners_mm, per_segment: int) -> Trajectory:
 #: Experiment 1's corners (mm): a 120 mm stroke at y = 120, a 100 mm jump down, and back.
 ABCD_MM = ((-60.0, 120.0), (60.0, 120.0), (60.0, 20.0), (-60.0, 20.0))
 #: Experiment 6: the paper's line (B is out of reach of 100/100/100 mm links) and the reachable
-#: variant, the same segment scaled by 0.42 about the shoulder (0, 0, 100): same direction,
-#: same quintic and duration, 134 mm long, both ends within 190 mm of the shoulder.
+#: variant, the same segment scaled by 0.42 about the arm's shoulder ((0, 0, 100) for the
+#: paper's arm): same direction, same quintic and duration, 134 mm long, both ends within
+#: 190 mm of the shoulder.
 LINE_AB_MM = ((50.0, 30.0, 220.0), (250.0, 200.0, 400.0))
 REACH_SCALE = 0.42
-_SHOULDER = np.array([0.0, 0.0, 100.0])
-LINE_AB_REACH_MM = tuple(tuple(float(v) for v in _SHOULDER + REACH_SCALE * (np.array(p) - _SHOULDER))
-                         for p in LINE_AB_MM)
-#: One-link arm: a 270-degree arc on the circle of radius 100 mm, from +y clockwise.
-ARC_RADIUS_MM = 100.0
+#: The arms these trajectories are defined on, when no arm is given: the paper's.
+PAPER_ARM = {"line-ab": "three-link", "line-ab-reach": "three-link", "arc": "one-link"}
+
+
+def line_ab_reach_mm(shoulder_mm) -> tuple[np.ndarray, np.ndarray]:
+    """A' and B': the paper's A and B scaled by ``REACH_SCALE`` about the shoulder (mm)."""
+    s = np.asarray(shoulder_mm, float)
+    return tuple(s + REACH_SCALE * (np.array(p) - s) for p in LINE_AB_MM)
 
 NAMES = ("ellipse-t1", "ellipse-t2", "abcd", "line-ab", "line-ab-reach", "arc")
 DEFAULT_POINTS = {"ellipse-t1": 180, "ellipse-t2": 180, "abcd": 200, "line-ab": 100,
                   "line-ab-reach": 100, "arc": 180}
 
 
-def named(name: str, n_points: int | None = None) -> Trajectory:
-    """A trajectory of the paper by name (see ``NAMES``); ``n_points`` overrides the default."""
+def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
+    """A trajectory of the paper by name (see ``NAMES``); ``n_points`` overrides the default.
+
+    ``arm`` (an `itg_vision.arm.ArmSpec`, default the paper's arm of the trajectory) places the
+    trajectories defined on it: ``line-ab-reach`` about its shoulder, ``arc`` on its reach.
+    """
     if name not in NAMES:
         raise UserError(f"unknown trajectory {name!r} (choose from {', '.join(NAMES)}, "
                         "or give a path to a CSV file)")
@@ -152,10 +160,16 @@ def named(name: str, n_points: int | None = None) -> Trajectory:
         return segments(name, ABCD_MM, n // 2)
     if name == "line-ab":
         return line(name, *LINE_AB_MM, 10.0, n)
+    if arm is None and name in PAPER_ARM:
+        from .arm import ArmSpec
+
+        arm = ArmSpec.from_args(PAPER_ARM[name])
     if name == "line-ab-reach":
-        return line(name, *LINE_AB_REACH_MM, 10.0, n)
+        return line(name, *line_ab_reach_mm(arm.shoulder_mm()), 10.0, n)
+    # arc: 270 degrees of the one-link arm's circle, from +y clockwise
+    radius = arm.reach_mm()[1]
     theta = np.radians(90.0 - np.arange(n) * 270.0 / (n - 1))
-    pts = np.column_stack([ARC_RADIUS_MM * np.cos(theta), ARC_RADIUS_MM * np.sin(theta), np.zeros(n)])
+    pts = np.column_stack([radius * np.cos(theta), radius * np.sin(theta), np.zeros(n)])
     return Trajectory(name, pts, None, None, True)
 
 
@@ -210,9 +224,10 @@ def read_csv(path: str | Path) -> Trajectory:
     return Trajectory(str(path), pts, t, None, planar, closed=is_closed(pts))
 
 
-def load(name_or_path: str, n_points: int | None = None) -> Trajectory:
+def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory:
+    """A named trajectory (placed on ``arm``, see :func:`named`) or a CSV file's."""
     if name_or_path in NAMES:
-        return named(name_or_path, n_points)
+        return named(name_or_path, n_points, arm)
     p = Path(name_or_path)
     if p.suffix.lower() == ".csv" or p.exists():
         if not p.exists():

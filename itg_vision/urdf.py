@@ -85,7 +85,7 @@ def arm_urdf(arm: ArmSpec) -> str:
             parts.append(_box_link(f"link{i}", length, "x"))
             parts.append(_joint(f"q{i}", "continuous", parent, f"link{i}", origin))
             parent = f"link{i}"
-        if arm.name == "two-link":
+        if "elbow" in arm.marker_names:
             parts.append(_led_link("elbow", h))
             parts.append(_joint("elbow_mount", "fixed", "link1", "elbow_led", (L[0], 0, h)))
         parts.append(_led_link("gripper", h))

@@ -22,7 +22,6 @@ Pure numpy and the camera model: nothing is rendered. ``--allow-unseen`` skips t
 from __future__ import annotations
 
 import inspect
-import math
 
 import numpy as np
 
@@ -55,7 +54,7 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
         pose (one), then per set point in reach its inverse-kinematics branches (two; one of
         them must be seen). Empty for an arm without an elbow LED.
     """
-    from .controllers import two_link_ik
+    from .controllers import three_link_ik, two_link_ik
 
     nominal = arm.with_joint_offset((0.0,) * arm.n_joints)
     start = forward_kinematics(arm, arm.start_q_deg)
@@ -69,12 +68,10 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
         gripper.append(g)
         if not has_elbow:
             continue
-        if arm.name == "two-link":
+        if arm.planar:
             qs = [np.array(q) for q in two_link_ik(p[0], p[1], *arm.links_mm)]
-        else:  # three-link: base yaw towards the point, then the pitch plane's two branches
-            q1 = math.degrees(math.atan2(p[1], p[0]))
-            r, z = math.hypot(p[0], p[1]), p[2] - arm.links_mm[0]
-            qs = [np.array([q1, *q]) for q in two_link_ik(r, z, arm.links_mm[1], arm.links_mm[2])]
+        else:  # base yaw towards the point, then the pitch plane's branches (the LED is the tool)
+            qs = [np.array(q) for q in three_link_ik(p, arm.links_mm, arm.led_standoff_mm)]
         e = [forward_kinematics(nominal, q)["elbow"] for q in qs]
         if e:
             elbows.append(np.array(e))

@@ -53,6 +53,7 @@ import cv2
 import numpy as np
 
 from .. import outputs
+from ..arm import ArmSpec
 from ..errors import UserError, run_main
 
 # ---------------------------------------------------------------------------- the sweep
@@ -91,12 +92,6 @@ DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
 RIG_ANGLE_DEG = 1.0
 RIG_SHIFT_MM = 5.0
-#: The limits every controller runs under, per arm: the servo rate limit (deg per iteration,
-#: each joint) and the iterations per set point. The three-link composition of the paper is
-#: unstable from its straight-up start without a rate limit; 20 deg/iteration on the two-link
-#: arm cuts only the start transient.
-LIMITS = {"two-link": {"max_step": 20.0, "iterations": 1},
-          "three-link": {"max_step": 2.0, "iterations": 5}}
 #: Closed paths run this many laps; the tracking phase is the laps after the first.
 LAPS = 2
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
@@ -252,7 +247,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     specs = []
     for traj_name in trajs:
         arm = TRAJECTORIES[traj_name]
-        limits = LIMITS[arm]
+        limits = ArmSpec.from_args(arm).benchmark  # the servo limit every controller runs under
         laps = LAPS if named(traj_name).closed else 1
         n = points
         if n is not None and traj_name == "abcd" and n % 2:
@@ -270,17 +265,16 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                     specs.append(RunSpec(
                         ctrl, cname, traj_name, arm, n, seed, rc, fb, noise_mm, cond.noise_px,
                         cond.dropout, cond.rig, sha, cond.link_error, cond.offset_deg,
-                        limits["iterations"], limits["max_step"], laps))
+                        int(limits["iterations"]), float(limits["max_step_deg"]), laps))
     return specs
 
 
 def _calibrated_rig_sha(arm: str) -> str:
     path = calibrated_rig_path(arm)
     if not path.exists():
-        from ..camera import DEFAULT_RIG
-
         raise UserError(f"condition rig-calibrated needs {path}: make it with `python -m "
-                        f"itg_vision.calibrate --rig {DEFAULT_RIG[arm]} --out {path}`, or leave "
+                        f"itg_vision.calibrate --rig {ArmSpec.from_args(arm).defaults['rig']} "
+                        f"--out {path}`, or leave "
                         "the rig-calibrated conditions out with --conditions")
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
 
@@ -346,10 +340,9 @@ def perturb_rig(rig, seed: int, *, angle_deg: float = RIG_ANGLE_DEG,
 # ---------------------------------------------------------------------------- one run
 def run_config(spec: RunSpec, rig_path: str | None = None):
     """The :class:`itg_vision.runner.RunConfig` of a spec (``rig_path``: the rig believed)."""
-    from ..arm import ARMS
     from ..runner import RunConfig
 
-    nominal = ARMS[spec.arm]
+    nominal = ArmSpec.from_args(spec.arm).links_mm
     true_links = (tuple(round(v * (1.0 + spec.link_error), 9) for v in nominal)
                   if spec.link_error else None)
     offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
