@@ -7,7 +7,13 @@ A rule file reads like the paper's tables::
     RULE 1: IF (xd > xg AND yd > 0) OR (xd < xg AND yd < 0) THEN q1 -= f * |xd - xg|
     RULE 2: IF |xd - xg| <= w AND |yd - yg| <= w THEN q1 HOLD
 
-A rule may span lines; each starts with ``RULE <n>:``. Conditions combine comparisons
+A rule may span lines; each starts with ``RULE <n>:``. ``LET name = expr`` names a quantity
+(a lever, a cross product) for the rules and definitions below it::
+
+    LET C = xg * ye - yg * xe        # twice the area of the base-elbow-gripper triangle
+    RULE 5: IF C * C > w * w * re2 THEN q2 += 57.29578 * (xg * (xd - xg) + yg * (yd - yg)) / C
+
+Conditions combine comparisons
 (``< <= > >= == !=``) with ``AND``, ``OR``, ``NOT`` and parentheses; expressions use numbers,
 names, ``+ - * / ^``, ``|expr|`` and parentheses. Actions: ``qN += expr``, ``qN -= expr``,
 ``qN HOLD`` (also written ``qN = qN``), ``OUT_OF_REACH``; several separated by commas.
@@ -20,6 +26,8 @@ Semantics (the paper leaves these open; we choose):
   joints has been set by an earlier rule in this scan: each joint changes at most once per
   iteration ("only one rule will be matched at each time", per joint).
 - Comparisons with NaN (a marker the arm lacks) are false.
+- Definitions are computed once per iteration, in file order, before any rule is tested; a
+  name is known from its ``LET`` on and cannot be defined twice or shadow a built-in name.
 
 Arithmetic is total and checked (the paper says nothing; we choose IEEE 754 doubles):
 
@@ -64,7 +72,7 @@ from .inputs import clip, read_text
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 PARAM_NAMES = ("f", "S", "w")
-KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH"}
+KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: Deepest condition or expression accepted (levels of nesting and of operators).
 MAX_DEPTH = 50
 #: Longest rule accepted (tokens: numbers, names, operators, keywords).
@@ -142,11 +150,22 @@ class Rule:
         return any(a.kind == "out" for a in self.actions)
 
 
+@dataclass(frozen=True)
+class Definition:
+    """``LET name = expr``: a named quantity, computed before the rules at each iteration."""
+
+    name: str
+    expr: tuple
+    line: int
+    col: int
+
+
 class _Parser:
     def __init__(self, tokens: list[Token], source: str):
         self.t, self.i, self.source = tokens, 0, source
         self.nesting = 0  # recursion: parentheses, |...|, NOT, signs, powers
         self._height: dict[int, int] = {}  # id(node) -> height of its subtree
+        self.definitions: list[Definition] = []
 
     def _too_deep(self, tok: Token) -> RuleLimitError:
         return RuleLimitError(
@@ -194,13 +213,28 @@ class _Parser:
     def rules(self) -> list[Rule]:
         out = []
         while self.tok.kind != "end":
-            out.append(self.rule())
+            if self.tok.kind == "kw" and self.tok.text == "LET":
+                self.definitions.append(self.definition())
+            else:
+                out.append(self.rule())
         return out
+
+    def _at_statement_end(self) -> bool:
+        return self.tok.kind == "end" or (self.tok.kind == "kw" and self.tok.text in ("RULE", "LET"))
+
+    def definition(self) -> Definition:
+        self.expect("kw", "LET")
+        name = self.expect("name", what="a name after LET")
+        self.expect("op", "=", f"'=' after LET {name.text}")
+        expr = self.expr()
+        if not self._at_statement_end():
+            raise self.error("expected the next 'RULE' or 'LET'")
+        return Definition(name.text, expr, name.line, name.col)
 
     def rule(self) -> Rule:
         start = self.expect("kw", "RULE", "'RULE <n>:'")
         end = self.i
-        while self.t[end].kind != "end" and not (self.t[end].kind == "kw" and self.t[end].text == "RULE"):
+        while self.t[end].kind != "end" and not (self.t[end].kind == "kw" and self.t[end].text in ("RULE", "LET")):
             end += 1
             if end - self.i >= MAX_RULE_TOKENS:
                 tok = self.t[end]
@@ -216,7 +250,7 @@ class _Parser:
         actions = [self.action()]
         while self.accept("op", ","):
             actions.append(self.action())
-        if self.tok.kind != "end" and not (self.tok.kind == "kw" and self.tok.text == "RULE"):
+        if not self._at_statement_end():
             raise self.error("expected ',' or the next 'RULE'")
         return Rule(int(num.text), cond, tuple(actions), start.line)
 
@@ -434,15 +468,18 @@ class RuleBase:
     S: float = 0.5
     w: float = 0.5
     source: str = "<rules>"
+    definitions: tuple[Definition, ...] = ()
     _fn: object = field(default=None, repr=False)
 
     @classmethod
     def from_text(cls, text: str, n_joints: int, links_mm, source: str = "<rules>", **params):
-        rules = _Parser(tokenize(text, source), source).rules()
+        parser = _Parser(tokenize(text, source), source)
+        rules = parser.rules()
         lines = text.split("\n")  # the tokenizer's lines
         rules = [Rule(r.number, r.condition, r.actions, r.line, lines[r.line - 1].strip())
                  for r in rules]
-        rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source, **params)
+        rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source,
+                 definitions=tuple(parser.definitions), **params)
         rb._check()
         rb._fn = rb._compile()
         return rb
@@ -471,17 +508,21 @@ class RuleBase:
         if not self.rules:
             raise UserError(f"{self.source}: no rules found")
         known = self.known_names
+        defined: dict[str, int] = {}  # LET name -> its line
+        for d in self.definitions:
+            self._check_names([d.expr], known | set(defined))
+            if d.name in known or d.name in defined or re.fullmatch(r"q\d+|L\d+", d.name):
+                first = f"LET on line {defined[d.name]}" if d.name in defined else "a built-in name"
+                raise UserError(f"{self.source}:{d.line}:{d.col}: {d.name!r} is already {first}")
+            defined[d.name] = d.line
         seen: dict[int, int] = {}
         for r in self.rules:
             if r.number in seen:
                 raise UserError(f"{self.source}:{r.line}: RULE {r.number} is defined twice "
                                 f"(first on line {seen[r.number]})")
             seen[r.number] = r.line
-            nodes = [r.condition] + [a.step for a in r.actions]
-            for name, tok in (n for node in nodes for n in _names_in(node)):
-                if name not in known:
-                    raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
-                                    f"(known: {', '.join(sorted(known))})")
+            above = {name for name, line in defined.items() if line < r.line}
+            self._check_names([r.condition] + [a.step for a in r.actions], known | above)
             for a in r.actions:
                 if a.kind != "out" and not 1 <= a.joint <= self.n_joints:
                     raise UserError(f"{self.source}:{r.line}: RULE {r.number} moves q{a.joint}, "
@@ -496,6 +537,12 @@ class RuleBase:
         moved = {a.joint for r in self.rules for a in r.actions if a.kind in ("inc", "dec")}
         return [f"q{j}" for j in range(1, self.n_joints + 1) if j not in moved]
 
+    def _check_names(self, nodes, known: set[str]) -> None:
+        for name, tok in (n for node in nodes for n in _names_in(node)):
+            if name not in known:
+                raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
+                                f"(known: {', '.join(sorted(known))})")
+
     # -------------------------------------------------------------- compile
     def _compile(self):
         n = self.n_joints
@@ -503,6 +550,8 @@ class RuleBase:
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
         lines = [f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):"]
+        for d in self.definitions:
+            lines.append(f"    v_{d.name} = {_py(d.expr)}")
         for r in (r for r in self.rules if r.out_of_reach):
             lines.append(f"    if {_py(r.condition)}:")
             lines.append(f"        return None, ({r.number},)")
