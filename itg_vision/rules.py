@@ -126,21 +126,60 @@ def tokenize(text: str, source: str = "<rules>") -> list[Token]:
 
 
 # --------------------------------------------------------------------------- syntax tree
-# Expressions and conditions are tuples: ("num", v) ("name", n, tok) ("neg", e) ("abs", e)
-# ("bin", op, a, b) ("cmp", op, a, b) ("and", a, b) ("or", a, b) ("not", a)
+@dataclass(frozen=True)
+class Num:
+    """A number (finite: checked by the tokenizer)."""
+
+    value: float
+
+
+@dataclass(frozen=True)
+class Name:
+    """A name: a marker coordinate, a joint, a parameter, a link length or a LET definition."""
+
+    name: str
+    tok: Token
+
+
+@dataclass(frozen=True)
+class Unary:
+    """``-x``, ``|x|`` (op "abs") or ``NOT c``."""
+
+    op: str
+    arg: "Node"
+
+
+@dataclass(frozen=True)
+class Binary:
+    """Arithmetic (+ - * / ^), a comparison (< <= > >= == !=) or a logical AND / OR."""
+
+    op: str
+    left: "Node"
+    right: "Node"
+
+
+Node = Num | Name | Unary | Binary
+
+
+def children(node: Node) -> tuple:
+    if isinstance(node, Unary):
+        return (node.arg,)
+    if isinstance(node, Binary):
+        return (node.left, node.right)
+    return ()
 
 
 @dataclass(frozen=True)
 class Action:
     kind: str  # "inc", "dec", "hold", "out"
     joint: int = 0  # 1-based
-    step: tuple | None = None
+    step: Node | None = None
 
 
 @dataclass(frozen=True)
 class Rule:
     number: int
-    condition: tuple
+    condition: Node
     actions: tuple[Action, ...]
     line: int
     text: str = ""
@@ -155,7 +194,7 @@ class Definition:
     """``LET name = expr``: a named quantity, computed before the rules at each iteration."""
 
     name: str
-    expr: tuple
+    expr: Node
     line: int
     col: int
 
@@ -173,13 +212,13 @@ class _Parser:
             "(each parenthesis, |...|, NOT, sign, operator and each further operand of a chain "
             "like a + b + c adds one)")
 
-    def node(self, tok: Token, *parts) -> tuple:
+    def node(self, tok: Token, node: Node) -> Node:
         """A syntax-tree node; refused when its subtree is more than MAX_DEPTH levels high."""
-        h = 1 + max((self._height.get(id(p), 1) for p in parts if isinstance(p, tuple)), default=0)
+        h = 1 + max((self._height.get(id(c), 1) for c in children(node)), default=0)
         if h > MAX_DEPTH:
             raise self._too_deep(tok)
-        self._height[id(parts)] = h
-        return parts
+        self._height[id(node)] = h
+        return node
 
     def enter(self, tok: Token) -> None:
         self.nesting += 1
@@ -277,19 +316,19 @@ class _Parser:
     def condition(self):
         node = self.conjunction()
         while (tok := self.accept("kw", "OR")):
-            node = self.node(tok, "or", node, self.conjunction())
+            node = self.node(tok, Binary("or", node, self.conjunction()))
         return node
 
     def conjunction(self):
         node = self.negation()
         while (tok := self.accept("kw", "AND")):
-            node = self.node(tok, "and", node, self.negation())
+            node = self.node(tok, Binary("and", node, self.negation()))
         return node
 
     def negation(self):
         if (tok := self.accept("kw", "NOT")):
             self.enter(tok)
-            node = self.node(tok, "not", self.negation())
+            node = self.node(tok, Unary("not", self.negation()))
             self.nesting -= 1
             return node
         if self.tok.kind == "op" and self.tok.text == "(":
@@ -318,7 +357,7 @@ class _Parser:
         tok = self.tok
         if tok.kind == "op" and tok.text in ("<", "<=", ">", ">=", "==", "!="):
             self.i += 1
-            return self.node(tok, "cmp", tok.text, left, self.expr())
+            return self.node(tok, Binary(tok.text, left, self.expr()))
         raise self.error("expected a comparison (<, <=, >, >=, ==, !=)")
 
     def expr(self):
@@ -326,7 +365,7 @@ class _Parser:
         while self.tok.kind == "op" and self.tok.text in ("+", "-"):
             tok = self.tok
             self.i += 1
-            node = self.node(tok, "bin", tok.text, node, self.term())
+            node = self.node(tok, Binary(tok.text, node, self.term()))
         return node
 
     def term(self):
@@ -334,7 +373,7 @@ class _Parser:
         while self.tok.kind == "op" and self.tok.text in ("*", "/"):
             tok = self.tok
             self.i += 1
-            node = self.node(tok, "bin", tok.text, node, self.unary())
+            node = self.node(tok, Binary(tok.text, node, self.unary()))
         return node
 
     def unary(self):
@@ -343,14 +382,14 @@ class _Parser:
             self.enter(tok)
             node = self.unary()
             self.nesting -= 1
-            return self.node(tok, "neg", node) if tok.text == "-" else node
+            return self.node(tok, Unary("-", node)) if tok.text == "-" else node
         return self.power()
 
     def power(self):
         base = self.atom()
         if (tok := self.accept("op", "^")):
             self.enter(tok)
-            node = self.node(tok, "bin", "^", base, self.unary())
+            node = self.node(tok, Binary("^", base, self.unary()))
             self.nesting -= 1
             return node
         return base
@@ -359,10 +398,10 @@ class _Parser:
         tok = self.tok
         if tok.kind == "num":
             self.i += 1
-            return self.node(tok, "num", float(tok.text))
+            return self.node(tok, Num(float(tok.text)))
         if tok.kind == "name":
             self.i += 1
-            return self.node(tok, "name", tok.text, tok)
+            return self.node(tok, Name(tok.text, tok))
         if tok.kind == "op" and tok.text in ("(", "|"):
             self.enter(tok)
             self.i += 1
@@ -371,7 +410,7 @@ class _Parser:
                 self.expect("op", ")", "')'")
             else:
                 self.expect("op", "|", "closing '|'")
-                node = self.node(tok, "abs", node)
+                node = self.node(tok, Unary("abs", node))
             self.nesting -= 1
             return node
         raise self.error("expected a number, a name, '(' or '|'")
@@ -402,38 +441,33 @@ def _pow(a: float, b: float) -> float:
 
 
 _HELPERS = {"_div": _div, "_pow": _pow, "abs": abs, "__builtins__": {}}
-_TEMPS = itertools.count()  # names of temporaries in compiled code
 
 
-def _names_in(node) -> list[tuple[str, Token]]:
+def _names_in(node: Node | None) -> list[tuple[str, Token]]:
     if node is None:
         return []
-    if node[0] == "name":
-        return [(node[1], node[2])]
-    return [n for child in node[1:] if isinstance(child, tuple) for n in _names_in(child)]
+    if isinstance(node, Name):
+        return [(node.name, node.tok)]
+    return [n for child in children(node) for n in _names_in(child)]
 
 
-def _py(node) -> str:
-    kind = node[0]
-    if kind == "num":
-        return repr(node[1])  # finite: checked by the tokenizer
-    if kind == "name":
-        return f"v_{node[1]}"
-    if kind == "neg":
-        return f"(-{_py(node[1])})"
-    if kind == "abs":
-        return f"abs({_py(node[1])})"
-    if kind == "not":
-        return f"(not {_py(node[1])})"
-    if kind in ("and", "or"):
-        return f"({_py(node[1])} {kind} {_py(node[2])})"
-    op, a, b = node[1], _py(node[2]), _py(node[3])
+def _py(node: Node, temps) -> str:
+    """Python source of a checked tree (never of the file's text); ``temps`` numbers the
+    temporaries (an ``itertools.count`` per compiled rule base)."""
+    if isinstance(node, Num):
+        return repr(node.value)  # finite: checked by the tokenizer
+    if isinstance(node, Name):
+        return f"v_{node.name}"
+    if isinstance(node, Unary):
+        arg = _py(node.arg, temps)
+        return {"-": f"(-{arg})", "abs": f"abs({arg})", "not": f"(not {arg})"}[node.op]
+    op, a, b = node.op, _py(node.left, temps), _py(node.right, temps)
     if op == "/":
         return f"_div({a}, {b})"
-    if op == "^" and node[3][:2] == ("num", 2.0):  # squares (RULE 0's r^2): no call, same value
-        if node[2][0] in ("name", "num"):
+    if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
+        if isinstance(node.left, (Name, Num)):
             return f"({a} * {a})"
-        t = f"_t{next(_TEMPS)}"
+        t = f"_t{next(temps)}"
         return f"(({t} := {a}) * {t})"
     if op == "^":
         return f"_pow({a}, {b})"
@@ -469,6 +503,7 @@ class RuleBase:
     w: float = 0.5
     source: str = "<rules>"
     definitions: tuple[Definition, ...] = ()
+    python_source: str = field(default="", repr=False)
     _fn: object = field(default=None, repr=False)
 
     @classmethod
@@ -481,7 +516,8 @@ class RuleBase:
         rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source,
                  definitions=tuple(parser.definitions), **params)
         rb._check()
-        rb._fn = rb._compile()
+        rb.python_source = rb._source()
+        rb._fn = rb._compile(rb.python_source)
         return rb
 
     @classmethod
@@ -544,16 +580,19 @@ class RuleBase:
                                 f"(known: {', '.join(sorted(known))})")
 
     # -------------------------------------------------------------- compile
-    def _compile(self):
+    def _source(self) -> str:
+        """The Python function the rules compile to (kept as :attr:`python_source`: what runs,
+        generated from the checked syntax tree, never from the file's text)."""
+        temps = itertools.count()
         n = self.n_joints
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
         lines = [f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):"]
         for d in self.definitions:
-            lines.append(f"    v_{d.name} = {_py(d.expr)}")
+            lines.append(f"    v_{d.name} = {_py(d.expr, temps)}")
         for r in (r for r in self.rules if r.out_of_reach):
-            lines.append(f"    if {_py(r.condition)}:")
+            lines.append(f"    if {_py(r.condition, temps)}:")
             lines.append(f"        return None, ({r.number},)")
         lines.append(f"    dq = [0.0] * {n}")
         lines.append(f"    free = [True] * {n}")
@@ -561,18 +600,21 @@ class RuleBase:
         for r in (r for r in self.rules if not r.out_of_reach):
             joints = sorted({a.joint - 1 for a in r.actions})
             guard = " and ".join(f"free[{j}]" for j in joints)
-            lines.append(f"    if {guard} and {_py(r.condition)}:")
+            lines.append(f"    if {guard} and {_py(r.condition, temps)}:")
             for a in r.actions:
                 j = a.joint - 1
                 if a.kind != "hold":
                     sign = "" if a.kind == "inc" else "-"
-                    lines.append(f"        dq[{j}] = {sign}({_py(a.step)})")
+                    lines.append(f"        dq[{j}] = {sign}({_py(a.step, temps)})")
                 lines.append(f"        free[{j}] = False")
             lines.append(f"        fired.append({r.number})")
         lines.append("    return dq, fired")
+        return "\n".join(lines) + "\n"
+
+    def _compile(self, source: str):
         namespace: dict = dict(_HELPERS)
         try:
-            code = compile("\n".join(lines), f"<compiled {self.source}>", "exec")
+            code = compile(source, f"<compiled {self.source}>", "exec")
         except (SyntaxError, RecursionError, MemoryError) as exc:  # beyond the stated limits
             raise UserError(f"{self.source}: rule base too large to compile "
                             f"({type(exc).__name__})") from None

@@ -33,3 +33,21 @@ def test_conditions_follow_not_and_or_precedence(cond, vals):
     py = cond.replace("AND", "and").replace("OR", "or").replace("NOT", "not")
     expected = bool(eval(py, {"__builtins__": {}}, dict(xd=xd, yd=yd, xg=xg, yg=yg)))
     assert fired == expected, (cond, vals)
+
+
+def test_python_source_is_what_runs():
+    """RuleBase.python_source is the exact function that runs: the same text every time it is
+    compiled, and executing it gives the compiled function's decisions."""
+    from itg_vision import rules
+    from itg_vision.rules import load_rules
+
+    a = load_rules("table2", 2, (100.0, 100.0), f=0.5)
+    b = load_rules("table2", 2, (100.0, 100.0), f=0.5)
+    assert a.python_source == b.python_source and "def _itg_step(" in a.python_source
+    ns = dict(rules._HELPERS)
+    exec(a.python_source, ns)  # noqa: S102 - our own generated source, as the library does
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        d, g, e = rng.uniform(-150, 150, (3, 3))
+        args = a.arguments(d, Markers(g, e), [10.0, 20.0])
+        assert ns["_itg_step"](*args) == a.compiled(*args)
