@@ -88,6 +88,10 @@ class InverseKinematics:
             return None
         return min(cands, key=lambda c: float(np.sum(_wrap_deg(c - q_now) ** 2)))
 
+    def params(self) -> dict:
+        """The parameters it runs with (none: the nominal model is all it knows)."""
+        return {}
+
     def step(self, desired_mm, markers, q_deg) -> Step:
         target = self.solve(desired_mm, q_deg)
         if target is None:
@@ -158,7 +162,7 @@ class JacobianTracker:
     max_step_deg : the servo rate limit it plans for (deg per iteration): a step whose largest
         joint increment exceeds it is scaled down as a whole, keeping its direction (the loop
         clips each joint on its own, which would bend the step). The runner sets it to the
-        run's ``max_step``, the limit every controller in a comparison runs under; None: no limit.
+        run's ``max_step_deg``, the limit every controller in a comparison runs under; None: no limit.
         Measured (three-link, line-ab-reach, ideal sensors, 2 deg/iteration): with the scaling
         the tracker settles at 0.0 mm; with per-joint clipping alone it chatters about the
         singular start (q2/q3 alternating by 2 deg) and never leaves it (E_track 141 mm).
@@ -174,6 +178,10 @@ class JacobianTracker:
         self.standoff = float(geometry.standoff_mm)
         self.damping = damping_mm
         self.max_step = max_step_deg
+
+    def params(self) -> dict:
+        """The parameters it runs with, for the record."""
+        return {"damping_mm": self.damping, "max_step_deg": self.max_step}
 
     def jacobian(self, g: np.ndarray, e: np.ndarray) -> np.ndarray:
         """d(gripper)/dq in mm/rad from the LED positions: shape (2, n) planar, (3, 3) else."""

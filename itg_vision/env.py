@@ -53,7 +53,7 @@ class TrackingEnv(gym.Env):
     Parameters
     ----------
     config : a :class:`itg_vision.runner.RunConfig`; or its fields as keyword arguments
-        (``arm``, ``trajectory``, ``feedback``, ``rig``, ``iterations``, ``max_step``, ``laps``,
+        (``arm``, ``trajectory``, ``feedback``, ``rig``, ``iterations``, ``max_step_deg``, ``laps``,
         ``noise_px``, ``true_links_mm``, ...). Its ``controller`` and rule settings are not used:
         you are the controller.
     """
@@ -65,8 +65,8 @@ class TrackingEnv(gym.Env):
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
-        if cfg.max_step is None:
-            cfg = dataclasses.replace(cfg, max_step=DEFAULT_MAX_STEP_DEG)
+        if cfg.max_step_deg is None:
+            cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
         self.config = cfg
         self._prep = prepare(cfg)
         model = self._prep.model
@@ -74,7 +74,7 @@ class TrackingEnv(gym.Env):
         box = gym.spaces.Box(-POSITION_BOUND_MM, POSITION_BOUND_MM, (3,), np.float64)
         self.observation_space = gym.spaces.Dict(
             {"desired_mm": box, **{f"{m}_mm": box for m in self.marker_names}})
-        self.action_space = gym.spaces.Box(-cfg.max_step, cfg.max_step, (model.n_joints,),
+        self.action_space = gym.spaces.Box(-cfg.max_step_deg, cfg.max_step_deg, (model.n_joints,),
                                            np.float64)
         self._world: World | None = None
         self._session: Session | None = None
@@ -92,7 +92,7 @@ class TrackingEnv(gym.Env):
         geometry = start_up_geometry(cfg, self._world, self._feedback, prep.model)
         self._session = Session(self._world, self._feedback, prep.trajectory.points_mm,
                                 iterations=cfg.iterations, planar=prep.model.planar,
-                                max_step_deg=cfg.max_step,
+                                max_step_deg=cfg.max_step_deg,
                                 tracking_start=prep.trajectory.tracking_start)
         return self._observation(self._session.observe()), {
             "geometry": geometry, "q_deg": self._world.q_deg.copy(), "k": 0}

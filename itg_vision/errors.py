@@ -11,6 +11,18 @@ class UserError(Exception):
     """A problem with the user's input, reported as one line (exit status 2)."""
 
 
+class ConfigError(UserError):
+    """A bad configuration field, named as the library knows it (``gain_deg_per_mm``); a
+    command line turns the field into its option (``--gain``) with :meth:`as_option`."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field}: {message}")
+        self.field, self.message = field, message
+
+    def as_option(self, options: dict[str, str]) -> UserError:
+        return UserError(f"{options.get(self.field, self.field)}: {self.message}")
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are one line: a bad option raises `UserError` (naming the option),
     which :func:`run_main` prints as ``error: ...`` with status 2, instead of printing the usage

@@ -67,7 +67,7 @@ def _simulate_points(base: RunConfig, points_mm: np.ndarray, **kw):
     with World(prep.true_arm) as w:
         ctl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model)
         return simulate(w, ctl, fb, points_mm, iterations=prep.config.iterations,
-                        planar=prep.model.planar, max_step_deg=prep.config.max_step)
+                        planar=prep.model.planar, max_step_deg=prep.config.max_step_deg)
 
 
 def exp1(base, out) -> dict:
@@ -80,7 +80,7 @@ def exp1(base, out) -> dict:
     control = _simulate_points(base, np.vstack([pts[:n], bridge, pts[n:]])).error_mm()[-n:]
     cd = e[n:]
     after = settle_index(np.abs(cd - control), 0.1)  # set points until the jump is forgotten
-    plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain, trace)], "Fig. 4.1", out / "exp1_path.png")
+    plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain_deg_per_mm, trace)], "Fig. 4.1", out / "exp1_path.png")
     plot.lines_figure({"with the jump": (np.arange(n), cd), "control: B-C crossed by 100 set points": (np.arange(n), control)},
                       "set point on C-D", "E_i (mm)", "experiment 1: E_i along C-D", out / "exp1_error.png",
                       logy=True, marker="")
@@ -111,7 +111,7 @@ def exp3(base, out) -> dict:
     res, series = {}, {}
     for f in EXP3_GAINS:
         eav = np.array([_run(base, arm="two-link", trajectory="ellipse-t1", points=int(n),
-                             gain=f)[1]["e_av_mm"] for n in ns])
+                             gain_deg_per_mm=f)[1]["e_av_mm"] for n in ns])
         slope = float(np.polyfit(np.log(ns), np.log(eav), 1)[0])
         res[f"{f:g}"] = {"e_av_mm": eav.tolist(), "loglog_slope": slope}
         series[f"f = {f:g} deg/mm (slope {slope:.2f})"] = (ns, eav)
@@ -126,7 +126,7 @@ def exp4(base, out) -> dict:
     fs = np.round(np.geomspace(0.02, 1.2, 19), 4)
     res, series = {}, {}
     for name in ("ellipse-t1", "ellipse-t2"):
-        eav = np.array([_run(base, arm="two-link", trajectory=name, gain=float(f))[1]["e_av_mm"] for f in fs])
+        eav = np.array([_run(base, arm="two-link", trajectory=name, gain_deg_per_mm=float(f))[1]["e_av_mm"] for f in fs])
         best = float(fs[int(np.argmin(eav))])
         good = fs[eav <= GOOD_F_FACTOR * eav.min()]
         res[name] = {"f": fs.tolist(), "e_av_mm": eav.tolist(), "best_f": best,
@@ -134,7 +134,7 @@ def exp4(base, out) -> dict:
         series[name.replace("ellipse-", "").upper()] = (fs, eav)
     # the paper's f = 0.001 read as rad/mm, with a few iterations per set point (its 3.2(i))
     res["paper_f_as_rad_per_mm_e_av_t1_mm"] = {
-        str(k): _run(base, arm="two-link", trajectory="ellipse-t1", gain=PAPER_F_AS_DEG_PER_MM,
+        str(k): _run(base, arm="two-link", trajectory="ellipse-t1", gain_deg_per_mm=PAPER_F_AS_DEG_PER_MM,
                      iterations=k)[1]["e_av_mm"] for k in (1, 10, 20)}
     plot.lines_figure(series, "f (deg/mm)", "E_av (mm)", "Fig. 4.4: E_av against f",
                       out / "exp4_eav_vs_f.png", logx=True, logy=True)
@@ -219,13 +219,13 @@ TIE_BIAS_MM = 0.05
 TIE_LINKS_MM = ((100.0, 100.0, 100.0), (105.0, 105.0, 105.0))
 
 
-def tie_experiment(max_step: float = 2.0, iterations: int = 5) -> list[dict]:
+def tie_experiment(max_step_deg: float = 2.0, iterations: int = 5) -> list[dict]:
     """Three-link, line-ab-reach, ideal sensors: the straight-up start's rg2 == re2 tie decided
     by a deterministic +-0.05 mm elbow bias, for nominal and 5 % long links."""
     rows = []
     for links in TIE_LINKS_MM:
         for bias in (+TIE_BIAS_MM, -TIE_BIAS_MM, 0.0):
-            prep = prepare(RunConfig(arm="three-link", feedback="truth", max_step=max_step,
+            prep = prepare(RunConfig(arm="three-link", feedback="truth", max_step_deg=max_step_deg,
                                      iterations=iterations, true_links_mm=links))
             with World(prep.true_arm) as w:
                 from .identify import measure_geometry
@@ -236,7 +236,7 @@ def tie_experiment(max_step: float = 2.0, iterations: int = 5) -> list[dict]:
                 m0 = fb.observe(w)
                 tie = float(np.sum(m0.gripper_mm[:2] ** 2) - np.sum(m0.elbow_mm[:2] ** 2))
                 tr = simulate(w, ctl, fb, prep.trajectory.points_mm, iterations=iterations,
-                              planar=False, max_step_deg=max_step)
+                              planar=False, max_step_deg=max_step_deg)
             rows.append({"links_mm": list(links), "elbow_bias_mm": bias, "rg2_minus_re2_mm2": tie,
                          "first_q3_rule": next((r for r in tr.fired[0] if r in (6, 7)), None),
                          **{k: tr.metrics()[k] for k in ("track_median_mm", "track_max_mm")}})
@@ -250,7 +250,7 @@ def exp6(base, out) -> dict:
                       "e_av_mm": s_full["e_av_mm"]}
     panels = []
     for label, kw in (("as the paper (1 iteration, no rate limit)", {}),
-                      ("servo limit 2 deg/iteration, 5 iterations", {"max_step": 2.0, "iterations": 5})):
+                      ("servo limit 2 deg/iteration, 5 iterations", {"max_step_deg": 2.0, "iterations": 5})):
         trace, s = _run(base, arm="three-link", trajectory="line-ab-reach", **kw)
         e = trace.error_mm()
         res[label] = {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"],
@@ -278,7 +278,7 @@ def report(r: dict, base: RunConfig) -> str:
     L = [
         "# The paper's experiments, reproduced",
         "",
-        f"Command: `python -m itg_vision.paper --out DIR` (feedback `{base.feedback}`, gain f = {base.gain} deg/mm "
+        f"Command: `python -m itg_vision.paper --out DIR` (feedback `{base.feedback}`, gain f = {base.gain_deg_per_mm} deg/mm "
         f"unless swept, {base.iterations} iteration per set point, no servo limit, start fully extended, "
         "two-link 100/100 mm, three-link 100/100/100 mm). All numbers below were measured by this run; each "
         "verdict is computed from the threshold written beside it.",
@@ -402,7 +402,7 @@ def report(r: dict, base: RunConfig) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     def body() -> int:
-        from .errors import ArgumentParser  # one-line option errors
+        from .errors import ArgumentParser, ConfigError  # one-line option errors
 
         ap: argparse.ArgumentParser = ArgumentParser(prog="python -m itg_vision.paper", description=__doc__.split("\n\n")[0])
         ap.add_argument("--out", default="paper-out",
@@ -416,8 +416,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--seed", type=int, default=0)
         ap.add_argument("--quiet", action="store_true")
         args = ap.parse_args(argv)
-        base = RunConfig(feedback=args.feedback, gain=args.gain, seed=args.seed)
-        base.validate()
+        base = RunConfig(feedback=args.feedback, gain_deg_per_mm=args.gain, seed=args.seed)
+        try:
+            base.validate()
+        except ConfigError as exc:
+            raise exc.as_option({"gain_deg_per_mm": "--gain", "seed": "--seed"}) from None
         results = {}
         with outputs.staged_dir(Path(args.out), "paper", force=args.force) as tmp:
             for name, fn in (("exp1", exp1), ("exp2", exp2), ("exp3", exp3), ("exp4", exp4),

@@ -526,6 +526,12 @@ class RuleBase:
         text = read_text(path, "rule file")
         return cls.from_text(text, n_joints, links_mm, source=str(path), **params)
 
+    def uses(self, name: str) -> bool:
+        """Whether a rule or a definition reads ``name`` (a parameter such as ``f``)."""
+        nodes = [d.expr for d in self.definitions]
+        nodes += [n for r in self.rules for n in [r.condition] + [a.step for a in r.actions]]
+        return any(n == name for node in nodes for n, _ in _names_in(node))
+
     def with_links(self, links_mm) -> "RuleBase":
         """The same compiled rules with ``L1..Ln`` bound to other lengths (measured ones)."""
         links = tuple(float(v) for v in links_mm)

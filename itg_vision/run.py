@@ -19,16 +19,26 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from . import outputs, plot
-from .errors import ArgumentParser, UserError, run_main
+from .errors import ArgumentParser, ConfigError, UserError, run_main
 from .progress import progress
-from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
+from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
+                     prepare)
 
 #: Largest --points accepted (a named trajectory; a vision run costs ~30 ms per point).
 MAX_POINTS = 100_000
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"), ("gain", "f"),
           ("step", "S"), ("tolerance", "w"), ("iterations", "it"), ("max_step", "maxstep"),
-          ("noise_px", "noise"), ("dropout", "dropout"), ("strobe", "strobe"), ("seed", "seed"))
+          ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
+          ("strobe", "strobe"), ("true_links", "truelinks"), ("joint_offset", "offset"),
+          ("seed", "seed"))
+#: RunConfig field -> the option that sets it (errors name the option).
+OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
+           "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
+           "step_deg": "--step", "tolerance_mm": "--tolerance", "iterations": "--iterations",
+           "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
+           "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
+           "seed": "--seed", "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset"}
 
 
 def _links(text: str) -> tuple[float, ...]:
@@ -68,12 +78,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--controller", default="itg", choices=CONTROLLERS,
                     help="itg (the rules), or a baseline: ik (closed-form inverse kinematics, "
                          "open loop) or jacobian (vision-fed damped least squares)")
-    ap.add_argument("--gain", type=float, default=0.5, metavar="F",
-                    help="f of the variable step f*|error|, in deg per mm (default %(default)s)")
-    ap.add_argument("--step", type=float, default=2.0, metavar="S",
-                    help="fixed step S in deg, for rules that use S (default %(default)s)")
-    ap.add_argument("--tolerance", type=float, default=0.5, metavar="W",
-                    help="tolerance w in mm (default %(default)s)")
+    ap.add_argument("--gain", type=float, metavar="F",
+                    help="f of the variable step f*|error|, in deg per mm, for rules that use f "
+                         f"(default {RULE_DEFAULTS['gain_deg_per_mm']})")
+    ap.add_argument("--step", type=float, metavar="S",
+                    help="fixed step S in deg, for rules that use S "
+                         f"(default {RULE_DEFAULTS['step_deg']})")
+    ap.add_argument("--tolerance", type=float, metavar="W",
+                    help=f"tolerance w in mm, for rules that use w (default {RULE_DEFAULTS['tolerance_mm']})")
     ap.add_argument("--iterations", type=int, default=1,
                     help="rule iterations per set point (default 1: the paper's one step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",
@@ -181,13 +193,16 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         cfg = RunConfig(arm=args.arm, links_mm=args.links, trajectory=args.trajectory,
                         points=args.points, controller=args.controller, rules=args.rules,
-                        gain=args.gain, step=args.step, tolerance=args.tolerance,
-                        iterations=args.iterations, max_step=args.max_step, laps=args.laps,
+                        gain_deg_per_mm=args.gain, step_deg=args.step, tolerance_mm=args.tolerance,
+                        iterations=args.iterations, max_step_deg=args.max_step, laps=args.laps,
                         feedback=args.feedback, rig=args.rig, noise_px=args.noise_px,
                         noise_mm=args.noise_mm, dropout=args.dropout, strobe=args.strobe,
                         seed=args.seed, true_links_mm=args.true_links,
                         joint_offset_deg=args.joint_offset, allow_unseen=args.allow_unseen)
-        prep = prepare(cfg)
+        try:
+            prep = prepare(cfg)
+        except ConfigError as exc:
+            raise exc.as_option(OPTIONS) from None
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")
         key = run_key(prep)
@@ -237,6 +252,8 @@ def summary_table(s: dict, out: Path) -> str:
              " / ".join(f(s[k]) for k in ("track_median_mm", "track_mean_mm", "track_p95_mm",
                                           "track_max_mm")) + " mm"),
             ("servo limit", "none" if s["max_step_deg"] is None else f"{s['max_step_deg']:g} deg/iteration"),
+            ("controller parameters", ", ".join(f"{k} {v}" for k, v in s["controller_params"].items())
+             or "none"),
             ("lengths the controller used", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",

@@ -12,7 +12,7 @@ from pathlib import Path
 from . import trajectory as traj
 from .arm import ArmSpec
 from .camera import CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401 (re-exported)
-from .errors import UserError
+from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .loop import Trace, simulate
@@ -21,6 +21,9 @@ from .world import World
 
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
+#: A rule base's parameters: their defaults (one place) and their names in the rules.
+RULE_DEFAULTS = {"gain_deg_per_mm": 0.5, "step_deg": 2.0, "tolerance_mm": 0.5}
+RULE_NAMES = {"gain_deg_per_mm": "f", "step_deg": "S", "tolerance_mm": "w"}
 
 
 @dataclass(frozen=True)
@@ -32,9 +35,17 @@ class RunConfig:
     model; under ``vision`` or ``truth`` feedback the lengths the rules and the Jacobian tracker
     use are measured from the LEDs at start-up (:mod:`itg_vision.identify`).
 
-    ``max_step`` is the servo rate limit (deg per iteration), applied by the loop to every
+    Controller parameters (None: not given; the rules' defaults are ``RULE_DEFAULTS``): the
+    gain f (``gain_deg_per_mm``), the fixed step S (``step_deg``) and the tolerance w
+    (``tolerance_mm``) of a rule base. A parameter the controller does not use is refused
+    (``ik`` takes no gain; ``table1`` uses S, not f), and only the parameters used are recorded.
+
+    ``max_step_deg`` is the servo rate limit (deg per iteration), applied by the loop to every
     controller alike. ``laps`` repeats a closed trajectory. ``noise_mm``: Gaussian noise (std
     per axis, mm) added to ``truth`` feedback.
+
+    Every field is checked by :meth:`validate` (and :func:`prepare`); a bad one raises
+    :class:`~itg_vision.errors.ConfigError` naming it.
     """
 
     arm: str = "two-link"
@@ -43,11 +54,11 @@ class RunConfig:
     points: int | None = None
     controller: str = "itg"
     rules: str | None = None
-    gain: float = 0.5
-    step: float = 2.0
-    tolerance: float = 0.5
+    gain_deg_per_mm: float | None = None
+    step_deg: float | None = None
+    tolerance_mm: float | None = None
     iterations: int = 1
-    max_step: float | None = None
+    max_step_deg: float | None = None
     laps: int = 1
     feedback: str = "vision"
     rig: str | None = None
@@ -61,24 +72,48 @@ class RunConfig:
     allow_unseen: bool = False  # skip the start-up check that the cameras can see the arm
 
     def validate(self) -> None:
+        """Check every field's range; raises `ConfigError` naming the first bad one."""
+        def positive(v):
+            return v is None or (math.isfinite(v) and v > 0)
+
         checks = [
-            (self.controller in CONTROLLERS, f"--controller: unknown {self.controller!r} (choose from {', '.join(CONTROLLERS)})"),
-            (self.feedback in FEEDBACKS, f"--feedback: unknown {self.feedback!r} (choose from {', '.join(FEEDBACKS)})"),
-            (math.isfinite(self.gain) and self.gain > 0, f"--gain: must be > 0 (deg/mm), got {self.gain}"),
-            (math.isfinite(self.step) and self.step > 0, f"--step: must be > 0 (deg), got {self.step}"),
-            (math.isfinite(self.tolerance) and self.tolerance >= 0, f"--tolerance: must be >= 0 (mm), got {self.tolerance}"),
-            (self.max_step is None or (math.isfinite(self.max_step) and self.max_step > 0),
-             f"--max-step: must be > 0 (deg per iteration), got {self.max_step}"),
-            (1 <= self.iterations <= 10000, f"--iterations: must be in 1..10000, got {self.iterations}"),
-            (math.isfinite(self.noise_px) and self.noise_px >= 0, f"--noise-px: must be >= 0, got {self.noise_px}"),
-            (math.isfinite(self.noise_mm) and self.noise_mm >= 0, f"--noise-mm: must be >= 0, got {self.noise_mm}"),
-            (self.noise_mm == 0 or self.feedback == "truth", "--noise-mm: applies to --feedback truth only"),
-            (0 <= self.dropout <= 1, f"--dropout: must be a probability in [0, 1], got {self.dropout}"),
-            (self.seed >= 0, f"--seed: must be >= 0, got {self.seed}"),
+            ("controller", self.controller in CONTROLLERS,
+             f"unknown {self.controller!r} (choose from {', '.join(CONTROLLERS)})"),
+            ("feedback", self.feedback in FEEDBACKS,
+             f"unknown {self.feedback!r} (choose from {', '.join(FEEDBACKS)})"),
+            ("gain_deg_per_mm", positive(self.gain_deg_per_mm) and (
+                self.gain_deg_per_mm is None or self.gain_deg_per_mm <= 1e6),
+             f"must be in (0, 1e6] deg/mm, got {self.gain_deg_per_mm}"),
+            ("step_deg", positive(self.step_deg) and (self.step_deg is None or self.step_deg <= 360),
+             f"must be in (0, 360] deg, got {self.step_deg}"),
+            ("tolerance_mm", self.tolerance_mm is None or (
+                math.isfinite(self.tolerance_mm) and 0 <= self.tolerance_mm <= 1e4),
+             f"must be in [0, 1e4] mm, got {self.tolerance_mm}"),
+            ("max_step_deg", positive(self.max_step_deg),
+             f"must be > 0 (deg per iteration), got {self.max_step_deg}"),
+            ("iterations", 1 <= self.iterations <= 10000,
+             f"must be in 1..10000, got {self.iterations}"),
+            ("noise_px", math.isfinite(self.noise_px) and self.noise_px >= 0,
+             f"must be >= 0, got {self.noise_px}"),
+            ("noise_mm", math.isfinite(self.noise_mm) and self.noise_mm >= 0,
+             f"must be >= 0, got {self.noise_mm}"),
+            ("noise_mm", self.noise_mm == 0 or self.feedback == "truth",
+             "applies to truth feedback only"),
+            ("noise_px", self.noise_px == 0 or self.feedback == "vision",
+             "applies to vision feedback only"),
+            ("dropout", self.dropout == 0 or self.feedback == "vision",
+             "applies to vision feedback only"),
+            ("strobe", not self.strobe or self.feedback == "vision",
+             "applies to vision feedback only"),
+            ("rig", self.rig is None or self.feedback == "vision",
+             "applies to vision feedback only"),
+            ("dropout", 0 <= self.dropout <= 1,
+             f"must be a probability in [0, 1], got {self.dropout}"),
+            ("seed", self.seed >= 0, f"must be >= 0, got {self.seed}"),
         ]
-        for ok, msg in checks:
+        for name, ok, msg in checks:
             if not ok:
-                raise UserError(msg)
+                raise ConfigError(name, msg)
 
     def _default(self, what: str) -> str:
         return ArmSpec.from_args(self.arm).defaults[what]  # the arm file says
@@ -136,14 +171,25 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
         raise UserError(f"arm {model.name} needs a 3-D trajectory (x_mm,y_mm,z_mm), "
                         f"{trajectory.name} is planar")
     info: dict = {}
+    given = {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
     if cfg.controller == "itg":
+        params = {**RULE_DEFAULTS, **given}
         controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
-                                f=cfg.gain, S=cfg.step, w=cfg.tolerance)
+                                **{RULE_NAMES[k]: v for k, v in params.items()})
+        used = {k for k, name in RULE_NAMES.items() if controller.uses(name)}
+        for k in given:
+            if k not in used:
+                raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
         info["rules"] = str(controller.source)
+        info["controller_params"] = {k: params[k] for k in RULE_DEFAULTS if k in used}
     else:
         from .controllers import make_controller
 
-        controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step)
+        for k in given:
+            raise ConfigError(k, f"the {cfg.controller} controller takes no {RULE_NAMES[k]} "
+                                 "(a rule base's parameter)")
+        controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step_deg)
+        info["controller_params"] = controller.params()
 
     if cfg.feedback == "model":
         def feedback_factory():
@@ -189,10 +235,10 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     t0 = time.perf_counter()
     with World(prep.true_arm) as world:
         geometry = start_up_geometry(cfg, world, feedback, prep.model)
-        controller = bind_geometry(prep.controller, geometry, prep.model, cfg.max_step)
+        controller = bind_geometry(prep.controller, geometry, prep.model, cfg.max_step_deg)
         trace = simulate(world, controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
-                         max_step_deg=cfg.max_step,
+                         max_step_deg=cfg.max_step_deg,
                          tracking_start=prep.trajectory.tracking_start, progress=progress,
                          recorder=recorder)
     wall_s = time.perf_counter() - t0
@@ -205,22 +251,25 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "trajectory": prep.trajectory.name,
         "controller": cfg.controller,
         "feedback": cfg.feedback,
-        "gain": cfg.gain,
-        "step_deg": cfg.step,
-        "tolerance_mm": cfg.tolerance,
         "iterations": cfg.iterations,
-        "max_step_deg": cfg.max_step,
+        "max_step_deg": cfg.max_step_deg,
         "laps": prep.trajectory.laps,
         "geometry": geometry.record(),
-        "noise_px": cfg.noise_px,
-        "noise_mm": cfg.noise_mm,
-        "dropout": cfg.dropout,
-        "strobe": cfg.strobe,
+        "feedback_params": feedback_params(cfg),
         "seed": cfg.seed,
         "wall_s": wall_s,
         **prep.info,
     }
     return trace, summary
+
+
+def feedback_params(cfg: RunConfig) -> dict:
+    """The parameters the run's feedback source uses (only those: nothing unused is recorded)."""
+    if cfg.feedback == "vision":
+        return {"noise_px": cfg.noise_px, "dropout": cfg.dropout, "strobe": cfg.strobe}
+    if cfg.feedback == "truth":
+        return {"noise_mm": cfg.noise_mm}
+    return {}
 
 
 def start_up_geometry(cfg: RunConfig, world, feedback, model):

@@ -231,12 +231,12 @@ def test_run_spec_maps_controllers_and_conditions_onto_run_config():
         if s.trajectory == "ellipse-t1"}
     cfg = noise.run_config(specs["ik", "clean"])
     # every controller of a trajectory runs under the same limits; ellipses run 2 laps
-    assert {(s.iterations, s.max_step, s.laps) for s in specs.values()} == {(1, 20.0, 2)}
-    assert (cfg.controller, cfg.feedback, cfg.iterations, cfg.max_step) == ("ik", "model", 1, 20.0)
+    assert {(s.iterations, s.max_step_deg, s.laps) for s in specs.values()} == {(1, 20.0, 2)}
+    assert (cfg.controller, cfg.feedback, cfg.iterations, cfg.max_step_deg) == ("ik", "model", 1, 20.0)
     cfg = noise.run_config(specs["itg-vision", "noise-1px+links+5%"])
     assert (cfg.controller, cfg.feedback, cfg.noise_px) == ("itg", "vision", 1.0)
     assert cfg.true_links_mm == pytest.approx((105.0, 105.0))
     assert noise.run_config(specs["jacobian-vision", "offset-1deg"]).joint_offset_deg == (1.0, 1.0)
     three = [s for s in build_sweep(trajectories=("line-ab-reach",), conditions=("clean",), seeds=1)]
-    assert all(isinstance(s, RunSpec) and s.arm == "three-link" and s.max_step == 2.0
+    assert all(isinstance(s, RunSpec) and s.arm == "three-link" and s.max_step_deg == 2.0
                and s.iterations == 5 for s in three)

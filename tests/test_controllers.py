@@ -107,7 +107,7 @@ def test_clean_ik_run_is_exact_on_every_arm(name):
 def test_jacobian_tracker_tracks_a_clean_run_on_every_arm(name):
     """Ideal sensors, the loop's servo limit: DLS follows each trajectory closely once started."""
     cfg = RunConfig(arm=name, controller="jacobian", feedback="truth",
-                    max_step=2.0 if name == "three-link" else 20.0,
+                    max_step_deg=2.0 if name == "three-link" else 20.0,
                     iterations=5 if name == "three-link" else 1)
     _, s = execute(prepare(cfg))
     # one iteration per set point lags one set-point spacing (~2 mm on the ellipse) times the
@@ -120,7 +120,7 @@ def test_three_link_jacobian_tracker_follows_line_ab_reach_under_vision_sized_no
     LED estimates as noisy as vision's (0.25 mm per axis): its tracking error is of the order
     of that noise (measured 0.39 mm median, 0.78 mm max, seed 0), not a failure (255 mm)."""
     cfg = RunConfig(arm="three-link", controller="jacobian", feedback="truth", noise_mm=0.25,
-                    max_step=2.0, iterations=5)
+                    max_step_deg=2.0, iterations=5)
     _, s = execute(prepare(cfg))
     # 0.25 mm per axis is 0.43 mm RMS in 3-D; DLS with 5 iterations averages little of it
     assert s["track_median_mm"] < 2 * 0.43 and s["track_max_mm"] < 5 * 0.43

@@ -35,7 +35,7 @@ def test_reset_with_a_seed_reproduces_the_episode():
 
 
 def test_actions_are_clipped_to_the_servo_limit_and_reward_is_minus_e_i():
-    env = TrackingEnv(feedback="truth", points=10, max_step=2.0)
+    env = TrackingEnv(feedback="truth", points=10, max_step_deg=2.0)
     env.reset(seed=0)
     q0 = env._world.q_deg.copy()
     _, reward, _, _, info = env.step(np.array([50.0, -50.0]))
@@ -49,13 +49,13 @@ def test_env_and_command_line_loop_run_the_same_steps(arm):
     """A controller driving the env through observations alone gives the trace that
     ``runner.execute`` gives with the same controller: one loop, not two."""
     cfg = RunConfig(arm=arm, controller="jacobian", feedback="truth", noise_mm=0.2,
-                    max_step=2.0 if arm == "three-link" else 20.0,
+                    max_step_deg=2.0 if arm == "three-link" else 20.0,
                     iterations=2, points=30, seed=5)
     trace, summary = execute(prepare(cfg))
     env = TrackingEnv(cfg)
     obs, info = env.reset(seed=cfg.seed)
     g = info["geometry"]  # what the start-up measurement found
-    tracker = JacobianTracker(g, arm != "three-link", len(g.links_mm), max_step_deg=cfg.max_step)
+    tracker = JacobianTracker(g, arm != "three-link", len(g.links_mm), max_step_deg=cfg.max_step_deg)
     done = False
     while not done:
         from itg_vision.feedback import Markers

@@ -24,7 +24,7 @@ Choices (documented in the report too):
 - Conditions that only perturb vision (noise, dropout, rig) cannot change the model-fed
   controllers; they are run anyway (no rendering, a few ms each) so every table cell is filled
   from real runs. Likewise every controller is run for every seed.
-- Three-link runs use ``max_step=2.0`` (deg per iteration, a servo rate limit) and
+- Three-link runs use ``max_step_deg=2.0`` (deg per iteration, a servo rate limit) and
   ``iterations=5``: the paper's three-link composition is not stable without a rate limit.
   Two-link runs use the defaults (gain 0.5 deg/mm, one iteration per set point).
 - ``links+X%``: every link of the simulated arm is X % longer than the nominal model;
@@ -180,7 +180,7 @@ class RunSpec:
     link_error: float
     offset_deg: float
     iterations: int
-    max_step: float | None
+    max_step_deg: float | None
     laps: int
 
     @property
@@ -346,12 +346,14 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
     true_links = (tuple(round(v * (1.0 + spec.link_error), 9) for v in nominal)
                   if spec.link_error else None)
     offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
+    # a condition's vision parameters reach vision-fed runs only (elsewhere they do nothing)
+    vision = spec.feedback == "vision"
     return RunConfig(arm=spec.arm, trajectory=spec.trajectory, points=spec.points,
                      controller=spec.rc_controller, feedback=spec.feedback,
-                     iterations=spec.iterations, max_step=spec.max_step, laps=spec.laps,
-                     rig=rig_path, noise_px=spec.noise_px,
+                     iterations=spec.iterations, max_step_deg=spec.max_step_deg, laps=spec.laps,
+                     rig=rig_path if vision else None, noise_px=spec.noise_px if vision else 0.0,
                      noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
-                     dropout=spec.dropout, seed=spec.seed,
+                     dropout=spec.dropout if vision else 0.0, seed=spec.seed,
                      true_links_mm=true_links, joint_offset_deg=offset)
 
 
@@ -406,7 +408,7 @@ def make_row(spec: RunSpec, s: dict) -> dict:
     row.update({k: s.get(k) for k in ["links_mm", "true_links_mm", "joint_offset_deg", "gain"]
                 + RUN_METRICS})
     row["measured_links_mm"] = s["geometry"]["links_mm"]
-    row["max_step_deg"] = spec.max_step
+    row["max_step_deg"] = spec.max_step_deg
     med = s.get("track_median_mm")
     row["diverged"] = "" if med is None else int(med > DIVERGED_MM)
     return {c: _cell(row.get(c)) for c in COLUMNS}
@@ -698,7 +700,8 @@ def _limits_line(specs: list[RunSpec], traj: str) -> str:
     s = next(s for s in specs if s.trajectory == traj)
     phase = (f"{s.laps} laps, tracking phase = laps 2..{s.laps}" if s.laps > 1
              else "tracking phase = second half of the set points")
-    limit = "no servo limit" if s.max_step is None else f"servo limit {s.max_step:g} deg/iteration"
+    limit = ("no servo limit" if s.max_step_deg is None
+             else f"servo limit {s.max_step_deg:g} deg/iteration")
     return (f"Every controller: {limit} (each joint), {s.iterations} iteration(s) per set point, "
             f"{phase}.")
 
