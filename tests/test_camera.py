@@ -203,3 +203,16 @@ def test_shipped_rigs_see_the_whole_workspace(path, kind):
         assert uv[:, 1].min() > margin and uv[:, 1].max() < H - 1 - margin
     B = np.linalg.norm(rig.cameras[0].position_mm - rig.cameras[1].position_mm)
     assert 300 <= B <= 400
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0, 3.0])
+def test_scaled_rig_keeps_the_field_of_view_at_pixel_centres(rig, factor):
+    """Rig.scaled(k): the same world point lands on the same place of the picture; pixel
+    (i, j)'s centre is at (i, j), so a point at u maps to (u + 0.5) k - 0.5 (with distortion:
+    it acts on normalised coordinates, which scaling leaves alone)."""
+    scaled = rig.scaled(factor)
+    X = np.random.default_rng(2).uniform([-150, -150, 0], [150, 150, 50], (20, 3))
+    for c0, c1 in zip(rig.cameras, scaled.cameras):
+        assert c1.size == (round(c0.image_width * factor), round(c0.image_height * factor))
+        assert np.allclose(c1.project(X), (c0.project(X) + 0.5) * factor - 0.5, atol=1e-9)
+        assert np.allclose(c1.R, c0.R) and np.allclose(c1.t_mm, c0.t_mm) and c1.dist == c0.dist

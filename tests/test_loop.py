@@ -1,0 +1,50 @@
+"""The loop: the servo limit, the set-point bookkeeping, and the trace's records."""
+
+import numpy as np
+import pytest
+
+from itg_vision.arm import ArmSpec
+from itg_vision.feedback import TruthFeedback
+from itg_vision.loop import simulate
+from itg_vision.rules import Step
+from itg_vision.world import World
+
+
+class Constant:
+    """A controller that always asks for the same joint step (deg)."""
+
+    def __init__(self, dq):
+        self.dq = np.asarray(dq, float)
+
+    def step(self, desired_mm, markers, q_deg):
+        return Step(self.dq.copy(), (7,), False)
+
+
+@pytest.mark.parametrize("limit", [None, 0.5, 3.0])
+def test_servo_limit_clips_each_joint_on_its_own(limit):
+    arm = ArmSpec.from_args("two-link")
+    pts = np.zeros((4, 3))
+    with World(arm) as world:
+        q0 = world.q_deg.copy()
+        trace = simulate(world, Constant([10.0, -1.0]), TruthFeedback(), pts, iterations=3,
+                         max_step_deg=limit)
+    per_iteration = np.array([10.0, -1.0]) if limit is None else np.clip([10.0, -1.0], -limit, limit)
+    moved = np.diff(np.vstack([q0, trace.q_deg]), axis=0)
+    assert np.allclose(moved, 3 * per_iteration)  # 3 iterations per set point
+
+
+def test_trace_records_one_entry_per_set_point_with_the_truth_after_it():
+    arm = ArmSpec.from_args("two-link")
+    pts = np.array([[100.0, 50.0, 0.0], [90.0, 60.0, 0.0], [80.0, 70.0, 0.0]])
+    with World(arm) as world:
+        trace = simulate(world, Constant([1.0, 2.0]), TruthFeedback(), pts, iterations=2,
+                         tracking_start=1)
+        after = world.true_markers()["gripper"]
+    assert len(trace.records) == 3 and trace.fired == [(7,)] * 3
+    assert np.allclose(trace.gripper_mm[-1], after)
+    assert np.allclose(trace.error_mm(), np.linalg.norm((pts - trace.gripper_mm)[:, :2], axis=1))
+    m = trace.metrics()
+    assert m["tracking_from"] == 1 and m["n_setpoints"] == 3
+    assert m["track_max_mm"] == pytest.approx(trace.error_mm()[1:].max())
+    # estimates seen by the controller are ideal here: the estimation error is zero
+    assert m["est_gripper_rms_mm"] == 0.0
