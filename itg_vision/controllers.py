@@ -18,7 +18,7 @@ import numpy as np
 
 from .arm import ArmSpec
 from .errors import UserError
-from .rules import Step
+from .contracts import Step
 
 
 def _wrap_deg(a):
@@ -68,6 +68,7 @@ class InverseKinematics:
     LED, stand-off included); picks the branch nearest the current q."""
 
     name = "ik"
+    uses_encoders = True  # open loop: the commanded angles are all it has
 
     def __init__(self, model: ArmSpec):
         self.model = model
@@ -169,6 +170,7 @@ class JacobianTracker:
     """
 
     name = "jacobian"
+    uses_encoders = False  # the Jacobian is built from the markers alone
 
     def __init__(self, geometry, planar: bool, n_joints: int, damping_mm: float = 5.0,
                  max_step_deg: float | None = None):

@@ -37,7 +37,7 @@ import gymnasium as gym
 import numpy as np
 
 from .loop import Session
-from .rules import Step
+from .contracts import Step
 from .runner import RunConfig, prepare, start_up_geometry
 from .world import World
 

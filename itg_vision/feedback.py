@@ -16,28 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .arm import ArmSpec, forward_kinematics
-
-
-@dataclass(frozen=True)
-class Markers:
-    """Marker position estimates in mm (world frame), as the rules see them.
-
-    Attributes
-    ----------
-    gripper_mm, elbow_mm : shape (3,); NaN where the arm has no such marker.
-    missed : markers not measured at this iteration (value held from the last good estimate).
-    residual_px : reprojection residual of each triangulated marker (vision only).
-    timing_ms : per-stage wall time of this observation (vision only).
-    """
-
-    gripper_mm: np.ndarray
-    elbow_mm: np.ndarray
-    missed: tuple[str, ...] = ()
-    residual_px: dict[str, float] = field(default_factory=dict)
-    timing_ms: dict[str, float] = field(default_factory=dict)
-
-    def get(self, name: str) -> np.ndarray:
-        return self.gripper_mm if name == "gripper" else self.elbow_mm
+from .contracts import Markers
 
 
 class ModelFeedback:

@@ -14,16 +14,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
-from .feedback import Markers
-from .rules import Step
-
-
-class Controller(Protocol):
-    def step(self, desired_mm: np.ndarray, markers: Markers, q_deg: np.ndarray) -> Step: ...
+from .contracts import Controller, Markers, Step
 
 
 @dataclass(frozen=True)
@@ -303,6 +298,7 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     while not session.done:
         estimate = session.observe()
         t0 = time.perf_counter()
-        step = controller.step(session.desired_mm, estimate, world.q_deg)
+        q_deg = world.q_deg if controller.uses_encoders else None
+        step = controller.step(session.desired_mm, estimate, q_deg)
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0))
     return session.trace

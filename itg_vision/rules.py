@@ -67,10 +67,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .contracts import Step
 from .errors import UserError
 from .inputs import clip, read_text
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
+#: The rule parameters and the field names (units included) they go by outside the rules.
+PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
 PARAM_NAMES = ("f", "S", "w")
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: Deepest condition or expression accepted (levels of nesting and of operators).
@@ -474,15 +477,6 @@ def _py(node: Node, temps) -> str:
     return f"({a} {op} {b})"
 
 
-@dataclass(frozen=True)
-class Step:
-    """The ITG's decision at one iteration: joint increments (deg) and the rules that fired."""
-
-    dq_deg: np.ndarray
-    fired: tuple[int, ...]
-    out_of_reach: bool = False
-
-
 @dataclass
 class RuleBase:
     """A compiled rule base for one arm.
@@ -531,6 +525,17 @@ class RuleBase:
         nodes = [d.expr for d in self.definitions]
         nodes += [n for r in self.rules for n in [r.condition] + [a.step for a in r.actions]]
         return any(n == name for node in nodes for n, _ in _names_in(node))
+
+    def params(self) -> dict:
+        """The parameters its rules read, by field name with units (``gain_deg_per_mm`` for f,
+        ``step_deg`` for S, ``tolerance_mm`` for w)."""
+        values = {"f": self.f, "S": self.S, "w": self.w}
+        return {field_: values[name] for name, field_ in PARAM_FIELDS.items() if self.uses(name)}
+
+    @property
+    def uses_encoders(self) -> bool:
+        """Whether a rule reads a joint angle ``q1..qn`` (then the loop passes the encoders)."""
+        return any(self.uses(f"q{i}") for i in range(1, self.n_joints + 1))
 
     def with_links(self, links_mm) -> "RuleBase":
         """The same compiled rules with ``L1..Ln`` bound to other lengths (measured ones)."""
@@ -647,9 +652,10 @@ class RuleBase:
         xg, yg, zg = float(g[0]), float(g[1]), float(g[2])
         xe, ye, ze = float(e[0]), float(e[1]), float(e[2])
         links = self.links_mm
+        nan_q = (math.nan,) * self.n_joints  # rules that read no q are not given the encoders
         return (xd, yd, zd, xg, yg, zg, xe, ye, ze,
                 xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
-                *(float(q) for q in q_deg), self.f, self.S, self.w, links[0], *links)
+                *(nan_q if q_deg is None else (float(q) for q in q_deg)), self.f, self.S, self.w, links[0], *links)
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""

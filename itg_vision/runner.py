@@ -16,14 +16,14 @@ from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .loop import Trace, simulate
-from .rules import load_rules
+from .rules import PARAM_FIELDS, load_rules
 from .world import World
 
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
 RULE_DEFAULTS = {"gain_deg_per_mm": 0.5, "step_deg": 2.0, "tolerance_mm": 0.5}
-RULE_NAMES = {"gain_deg_per_mm": "f", "step_deg": "S", "tolerance_mm": "w"}
+RULE_NAMES = {field_: name for name, field_ in PARAM_FIELDS.items()}
 
 
 @dataclass(frozen=True)
@@ -181,7 +181,7 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
             if k not in used:
                 raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
         info["rules"] = str(controller.source)
-        info["controller_params"] = {k: params[k] for k in RULE_DEFAULTS if k in used}
+        info["controller_params"] = controller.params()
     else:
         from .controllers import make_controller
 

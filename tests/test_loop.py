@@ -6,18 +6,39 @@ import pytest
 from itg_vision.arm import ArmSpec
 from itg_vision.feedback import TruthFeedback
 from itg_vision.loop import simulate
-from itg_vision.rules import Step
+from itg_vision.contracts import Controller, Step
 from itg_vision.world import World
 
 
 class Constant:
-    """A controller that always asks for the same joint step (deg)."""
+    """A controller that always asks for the same joint step (deg); it records the joint
+    angles it was given."""
 
-    def __init__(self, dq):
+    def __init__(self, dq, uses_encoders=False):
         self.dq = np.asarray(dq, float)
+        self.uses_encoders = uses_encoders
+        self.seen_q = []
+
+    def params(self):
+        return {}
 
     def step(self, desired_mm, markers, q_deg):
+        self.seen_q.append(q_deg)
         return Step(self.dq.copy(), (7,), False)
+
+
+@pytest.mark.parametrize("uses_encoders", [False, True])
+def test_encoders_reach_only_controllers_that_declare_them(uses_encoders):
+    arm = ArmSpec.from_args("two-link")
+    ctrl = Constant([1.0, 0.0], uses_encoders=uses_encoders)
+    assert isinstance(ctrl, Controller)
+    with World(arm) as world:
+        q0 = world.q_deg.copy()
+        simulate(world, ctrl, TruthFeedback(), np.zeros((2, 3)), iterations=1)
+    if uses_encoders:
+        assert np.allclose(ctrl.seen_q[0], q0) and np.allclose(ctrl.seen_q[1], q0 + [1.0, 0.0])
+    else:
+        assert ctrl.seen_q == [None, None]
 
 
 @pytest.mark.parametrize("limit", [None, 0.5, 3.0])

@@ -1,0 +1,96 @@
+"""The types every part of itg_vision speaks: what a feedback source returns, what a controller
+reads and returns.
+
+Data flow of one iteration (see ``loop.simulate``)::
+
+    FeedbackSource.observe(world) -> Markers
+    Controller.step(desired_mm, markers, q_deg or None) -> Step
+    Session.apply(step)            (servo limit, then the world moves)
+
+A controller reads the desired point and the marker estimates. It is given the joint angles
+only if it declares ``uses_encoders = True`` (the model-based IK, or a rule base whose rules
+read ``q1..qn``); otherwise it gets ``None`` and cannot peek at the encoders.
+
+Units: mm for positions, deg for joint angles and increments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+#: The markers an arm carries, in the order the rules and the trace name them.
+MARKERS = ("gripper", "elbow")
+
+
+@dataclass(frozen=True)
+class Markers:
+    """Marker position estimates in mm (world frame), as the controllers see them.
+
+    Attributes
+    ----------
+    gripper_mm, elbow_mm : shape (3,); NaN where the arm has no such marker.
+    missed : markers not measured at this iteration (value held from the last good estimate).
+    residual_px : reprojection residual of each triangulated marker (vision only).
+    timing_ms : per-stage wall time of this observation (vision only).
+    """
+
+    gripper_mm: np.ndarray
+    elbow_mm: np.ndarray
+    missed: tuple[str, ...] = ()
+    residual_px: dict[str, float] = field(default_factory=dict)
+    timing_ms: dict[str, float] = field(default_factory=dict)
+
+    def get(self, name: str) -> np.ndarray:
+        """The estimate of marker ``name`` (one of :data:`MARKERS`), shape (3,) mm."""
+        if name == "gripper":
+            return self.gripper_mm
+        if name == "elbow":
+            return self.elbow_mm
+        raise KeyError(f"unknown marker {name!r} (markers: {', '.join(MARKERS)})")
+
+
+@dataclass(frozen=True)
+class Step:
+    """A controller's decision at one iteration.
+
+    Attributes
+    ----------
+    dq_deg : (n_joints,) joint increments (deg), before the servo limit.
+    fired : numbers of the rules that fired (rule bases; empty for other controllers).
+    out_of_reach : the controller judges the set point out of reach.
+    """
+
+    dq_deg: np.ndarray
+    fired: tuple[int, ...]
+    out_of_reach: bool = False
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """Anything that turns a desired point and marker estimates into joint increments.
+
+    ``uses_encoders``: whether :meth:`step` needs the joint angles (else it gets ``None``).
+    ``params()``: the parameters it runs with, units in their names (recorded in summaries).
+    """
+
+    uses_encoders: bool
+
+    def params(self) -> dict: ...
+
+    def step(self, desired_mm: np.ndarray, markers: Markers,
+             q_deg: np.ndarray | None) -> Step: ...
+
+
+@runtime_checkable
+class FeedbackSource(Protocol):
+    """Where marker estimates come from (model, truth, vision). ``reset(seed)`` makes its
+    randomness reproducible; ``observe(world)`` returns the estimates now."""
+
+    name: str
+
+    def reset(self, seed: int | None = None) -> None: ...
+
+    def observe(self, world) -> Markers: ...

@@ -1,0 +1,58 @@
+"""The contracts every part speaks: Markers, Step, the Controller and FeedbackSource protocols,
+checked on every shipped controller and feedback source."""
+
+import numpy as np
+import pytest
+
+from itg_vision.arm import ArmSpec
+from itg_vision.contracts import Controller, FeedbackSource, Markers
+from itg_vision.controllers import make_controller
+from itg_vision.feedback import ModelFeedback, TruthFeedback
+from itg_vision.rules import load_rules
+
+
+def test_markers_get_names_each_marker_and_refuses_others():
+    m = Markers(np.array([1.0, 2, 3]), np.array([4.0, 5, 6]))
+    assert m.get("gripper")[0] == 1.0 and m.get("elbow")[0] == 4.0
+    with pytest.raises(KeyError, match="unknown marker 'wrist'"):
+        m.get("wrist")
+
+
+def test_rule_bases_get_the_encoders_only_if_a_rule_reads_a_joint_angle():
+    links = (100.0, 100.0)
+    assert not load_rules("table2", 2, links).uses_encoders
+    from itg_vision.rules import RuleBase
+    rb = RuleBase.from_text("RULE 1: IF q1 > 10 THEN q1 -= 1", 2, links)
+    assert rb.uses_encoders and isinstance(rb, Controller)
+    # without encoders a rule reading q sees NaN: its comparison is False, nothing moves
+    m = Markers(np.zeros(3), np.zeros(3))
+    assert rb.step(np.zeros(3), m, None).dq_deg.tolist() == [0.0, 0.0]
+    assert rb.step(np.zeros(3), m, np.array([20.0, 0.0])).dq_deg.tolist() == [-1.0, 0.0]
+
+
+@pytest.mark.parametrize("name", ["ik", "jacobian"])
+@pytest.mark.parametrize("arm_name", ["one-link", "two-link", "three-link"])
+def test_baselines_follow_the_controller_protocol(name, arm_name):
+    arm = ArmSpec.from_args(arm_name)
+    ctrl = make_controller(name, arm, max_step_deg=5.0)
+    assert isinstance(ctrl, Controller) and isinstance(ctrl.params(), dict)
+    assert ctrl.uses_encoders == (name == "ik")
+
+
+@pytest.mark.parametrize("make", [lambda arm: ModelFeedback(arm), lambda arm: TruthFeedback(0.5)],
+                         ids=["model", "truth"])
+def test_feedback_sources_follow_the_protocol_and_reproduce_with_a_seed(make):
+    from itg_vision.world import World
+    arm = ArmSpec.from_args("two-link")
+    fb = make(arm)
+    assert isinstance(fb, FeedbackSource)
+    with World(arm) as world:
+        runs = []
+        for _ in range(2):
+            fb.reset(7)
+            runs.append([fb.observe(world) for _ in range(3)])
+        truth = world.true_markers()
+    for a, b in zip(*runs):
+        assert isinstance(a, Markers) and np.array_equal(a.gripper_mm, b.gripper_mm)
+        # every source estimates the true LED: the model exactly (nominal arm), noise within 5 sigma
+        assert np.linalg.norm(a.gripper_mm - truth["gripper"]) < 5 * 0.5 * np.sqrt(3)
