@@ -1,7 +1,9 @@
+import importlib
 import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -18,3 +20,22 @@ def run_cli(module: str, *args, cwd=None, timeout=600):
 @pytest.fixture
 def cli():
     return run_cli
+
+
+@pytest.fixture
+def main_in_process(capsys):
+    """Call a command's ``main([...])`` in this process, as ``python -m`` would: returns its
+    exit status and what it printed (``returncode``, ``stdout``, ``stderr``), like ``cli``.
+    Use ``cli`` only where a real process matters (exit status, signals, the output contract)."""
+
+    def call(module: str, *args):
+        mod = importlib.import_module(module)
+        capsys.readouterr()
+        try:
+            code = mod.main([str(a) for a in args])
+        except SystemExit as exc:  # argparse: --help, usage errors
+            code = exc.code if isinstance(exc.code, int) else 2
+        out, err = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out, stderr=err)
+
+    return call

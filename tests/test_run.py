@@ -130,18 +130,19 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--trajectory", "spiral"], "unknown trajectory 'spiral'"),
     (["--gain", "-1"], "--gain"),
 ])
-def test_bad_input_one_line_exit_2_old_output_kept(cli, tmp_path, args, expect):
+def test_bad_input_one_line_exit_2_old_output_kept(main_in_process, tmp_path, args, expect):
     out = tmp_path / "r"
     out.mkdir()
     (out / "summary.json").write_text("old")
-    res = cli("itg_vision.run", "--feedback", "model", "--out", out, *args)
+    res = main_in_process("itg_vision.run", "--feedback", "model", "--out", out, *args)
     assert res.returncode == 2
     assert expect in res.stderr and "Traceback" not in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
     assert (out / "summary.json").read_text() == "old"
 
 
-def test_bad_files_name_file_and_line(cli, tmp_path):
+def test_bad_files_name_file_and_line(main_in_process, tmp_path):
+    cli = main_in_process
     bad_csv = tmp_path / "t.csv"
     bad_csv.write_text("x_mm,y_mm\n10,20\n10,twenty\n")
     res = cli("itg_vision.run", "--feedback", "model", "--trajectory", bad_csv, "--out", tmp_path / "o")
