@@ -1,5 +1,6 @@
-"""Calibration: board rendering and corners, the geometry helpers, a full calibration against
-the known rig, the failure cases and tracking on a calibrated rig."""
+"""Calibration (itg_vision.calibration and its command, itg_vision.calibrate): the geometry
+helpers, a full calibration against the known rig, the failure cases and tracking on a
+calibrated rig. The board itself: test_board.py."""
 
 import json
 
@@ -7,38 +8,22 @@ import numpy as np
 import pytest
 import yaml
 
-from itg_vision import calibrate as cal
+from itg_vision import calibration as cal
+from itg_vision.calibrate import summary_table
 from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig
 from itg_vision.world import World
 
-from conftest import ROOT
+from conftest import ROOT, random_rotation
 
 PLANAR = ROOT / "cameras" / "planar.yaml"
-
-
-def _rotation(rng):
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]), q
-
-
-def test_quaternion_round_trip():
-    rng = np.random.default_rng(0)
-    for _ in range(50):
-        R, q = _rotation(rng)
-        got = cal.quaternion_xyzw(R)
-        assert min(np.abs(got - q).max(), np.abs(got + q).max()) < 1e-9
 
 
 def test_circle_fit_recovers_centre_axis_and_radius():
     from itg_vision.identify import fit_circle, rotation_sense_axis, zero_direction
 
     rng = np.random.default_rng(1)
-    R, _ = _rotation(rng)
+    R, _ = random_rotation(rng)
     centre = rng.uniform(-300, 300, 3)
     q = np.linspace(-150, 150, 23)  # a joint sweep, increasing
     ring = np.c_[80 * np.cos(np.radians(q + 20)), 80 * np.sin(np.radians(q + 20)), np.zeros(23)]
@@ -92,40 +77,6 @@ def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name)
         assert rec["fit_rms_mm"] < 1.0
         assert rec["measured_links_mm"][0] == pytest.approx(
             true_arm.links_mm[0 if arm_name == "two-link" else 1], abs=0.5)
-
-
-def test_board_texture_has_the_pattern_and_an_asymmetric_corner():
-    b = cal.Board()
-    tex = b.texture()
-    ppm = b.px_per_mm
-    x0, y0, _, _ = b.extent_mm()
-
-    def at(x_mm, y_mm):
-        return tex[int((y_mm - y0) * ppm), int((x_mm - x0) * ppm)]
-
-    s = b.square_mm
-    assert at(-s / 2, -s / 2) == 0                                  # outside corner 0: black
-    assert at((b.cols - 0.5) * s, (b.rows - 0.5) * s) == 255        # outside the last: white
-    assert at(-s - b.margin_mm / 2, 0) == 255                       # margin
-    assert b.object_points().shape == (b.cols * b.rows, 3)
-
-
-def test_rendered_corners_match_the_projection_of_the_true_board():
-    """Texture orientation, UVs and the TinyRenderer pixel convention in one check: detected
-    corners against the true board corners projected through the camera (with distortion).
-    Measured 0.07 to 0.19 px RMS per view; a flipped texture or a UV offset gives tens of px."""
-    rig = Rig.from_yaml(PLANAR)
-    board = cal.Board()
-    rng = np.random.default_rng(3)
-    poses = cal.sample_board_poses(rig, board, 4, rng, target_mm=[0, 0, 0])[::2]  # stereo views
-    with World(ArmSpec.from_args("two-link")) as world:
-        views = cal.render_views(world, rig, board, poses, rng)
-    for pose, corners in zip(poses, views.corners):
-        for cam, c in zip(rig.cameras, corners):
-            assert c is not None
-            truth = cam.project(pose.points(board.object_points()))
-            rms = np.sqrt(np.mean(np.sum((c.reshape(-1, 2) - truth) ** 2, axis=1)))
-            assert rms < 0.25, (cam.name, rms)
 
 
 # ---------------------------------------------------------------------------- full calibration
@@ -200,7 +151,7 @@ def test_written_rig_round_trips_and_tracks(planar_result, tmp_path, cli):
 
 @pytest.mark.slow
 def test_summary_table_lists_the_figures(planar_result):
-    text = cal.summary_table(planar_result[1].record)
+    text = summary_table(planar_result[1].record)
     for word in ("reprojection RMS", "focal length", "principal point", "baseline",
                  "rotation", "world position", "LED triangulation"):
         assert word in text
