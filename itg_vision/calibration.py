@@ -533,19 +533,22 @@ def picture_path(out: Path) -> Path:
 
 
 def write_result(result: Result, out: Path, true_rig_path: Path) -> Path | None:
-    """Write the calibrated rig (and the corner picture beside it), each to a temporary name
-    then renamed; return the picture's path."""
-    out.parent.mkdir(parents=True, exist_ok=True)
+    """Write the calibrated rig ``out`` and the corner picture beside it as one result
+    (:func:`itg_vision.outputs.write_files`: both written to temporary names, then renamed, the
+    rig last); return the picture's path (None if the result has no picture)."""
     try:
         rel = os.path.relpath(Path(true_rig_path).resolve(), out.parent.resolve())
     except ValueError:  # another drive (Windows)
         rel = str(Path(true_rig_path).resolve())
+    files = {}
     pic = None
     if result.picture is not None:
         pic = picture_path(out)
         ok, buf = cv2.imencode(".png", cv2.cvtColor(result.picture, cv2.COLOR_RGB2BGR))
-        if ok:
-            outputs.write_bytes(pic, buf.tobytes())
+        if not ok:
+            raise RuntimeError("cv2.imencode could not encode the corner picture as PNG")
+        files[pic] = buf.tobytes()
     rig = Rig(result.rig.name, result.rig.cameras, "", result.record, rel)
-    rig.to_yaml(out)
+    files[out] = rig.yaml_text().encode()
+    outputs.write_files(files)
     return pic
