@@ -14,16 +14,17 @@ and a picture of the detected corners of one view (``<name>.calib.png`` beside i
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
-
-from .arm import arm_names
-from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, arm_of_rig, axis_sweeps, calibrate,
-                          picture_path, write_result)
+from .arm import ArmSpec, arm_names
+from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrate,
+                          picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
 from .errors import UserError, run_main
+from .progress import progress
 
 # ---------------------------------------------------------------------------- command line
 #: Where calibrations go by default (relative to the current folder, like ``runs/`` of run).
@@ -166,19 +167,31 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: list[str] | None = None) -> int:
-    # OpenCV's threaded reductions sum in a varying order (results differ at ~1e-10); one
-    # thread makes the same seed give the same file, bit for bit.
-    cv2.setNumThreads(1)
+@dataclass(frozen=True)
+class Job:
+    """What a command line asks for, checked: the arguments of
+    :func:`itg_vision.calibration.calibrate` and where the result goes."""
 
-    def body() -> int:
-        import dataclasses
+    rig_path: Path
+    true_rig: Rig
+    arm: ArmSpec
+    true_arm: ArmSpec
+    out: Path
+    views: int
+    seed: int
+    tilt_deg: float
+    check_poses: int
+    force: bool
+    quiet: bool
 
-        args = build_parser().parse_args(argv)
+    @property
+    def rig_name(self) -> str:
+        """The calibrated rig's name: its file's name without ``.yaml``."""
+        return self.out.name.removesuffix(".yaml")
 
-        from .arm import ArmSpec
-        from .progress import progress
-
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "Job":
+        """Check the options and load the rig and the arms; `UserError` names the option."""
         checks = [(1 <= args.views <= 1000, f"--views: must be in 1..1000, got {args.views}"),
                   (args.seed >= 0, f"--seed: must be >= 0, got {args.seed}"),
                   (0 <= args.tilt <= 75, f"--tilt: must be in 0..75 deg, got {args.tilt}"),
@@ -211,25 +224,36 @@ def main(argv: list[str] | None = None) -> int:
             except UserError as exc:
                 raise UserError(str(exc).replace("--links", "--true-links")) from None
         out = Path(args.out) if args.out else default_out(rig_path)
-        check_out(out, rig_path, args.force)  # before the work, not after it
-        total = args.views + sum(len(q) for q, _ in axis_sweeps(arm).values()) + args.check_poses
-        bar = progress(total, "calibrate", quiet=args.quiet, unit="view")
+        return cls(rig_path, true_rig, arm, true_arm, out, args.views, args.seed, args.tilt,
+                   args.check_poses, args.force, args.quiet)
+
+
+def report(result: Result, out: Path, picture: Path | None) -> str:
+    """What the command prints: the figures, the files written and the wall time."""
+    lines = [summary_table(result.record), f"{'calibrated rig':<31}  {out}"]
+    if picture is not None:
+        view = f"detected corners (view {result.record['picture_view']})"
+        lines.append(f"{view:<31}  {picture}")
+    lines.append(f"{'wall time':<31}  {result.timing_s['total_s']:.1f} s")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    def body() -> int:
+        job = Job.from_args(build_parser().parse_args(argv))
+        check_out(job.out, job.rig_path, job.force)  # before the work, not after it
+        bar = progress(progress_steps(job.arm, job.views, job.check_poses), "calibrate",
+                       quiet=job.quiet, unit="view")
         try:
-            result = calibrate(true_rig, arm, views=args.views, seed=args.seed,
-                               tilt_deg=args.tilt, true_arm=true_arm,
-                               check_poses=args.check_poses,
-                               name=f"{Path(out).name.removesuffix('.yaml')}",
+            result = calibrate(job.true_rig, job.arm, views=job.views, seed=job.seed,
+                               tilt_deg=job.tilt_deg, true_arm=job.true_arm,
+                               check_poses=job.check_poses, name=job.rig_name,
                                progress=lambda stage: bar.update())
         finally:
             bar.close()
-        pic = write_result(result, out, rig_path)
-        if not args.quiet:
-            print(summary_table(result.record))
-            print(f"{'calibrated rig':<31}  {out}")
-            if pic is not None:
-                print(f"{'detected corners (view ' + str(result.record['picture_view']) + ')':<31}"
-                      f"  {pic}")
-            print(f"{'wall time':<31}  {result.timing_s['total_s']:.1f} s")
+        picture = write_result(result, job.out, job.rig_path)
+        if not job.quiet:
+            print(report(result, job.out, picture))
         return 0
 
     return run_main(body)

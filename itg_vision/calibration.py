@@ -33,6 +33,7 @@ rendered, relative to the file's folder) and a picture of the detected corners o
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from dataclasses import dataclass, field
@@ -433,6 +434,28 @@ def _plain(obj, digits: int = 6):
     return obj
 
 
+def _one_opencv_thread(fn):
+    """Run ``fn`` with OpenCV on one thread (restored after): OpenCV's threaded reductions sum
+    in a varying order (results differ at ~1e-10); one thread makes the same seed give the same
+    calibration, bit for bit."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            cv2.setNumThreads(threads)
+    return wrapper
+
+
+def progress_steps(arm, views: int, check_poses: int) -> int:
+    """How many times :func:`calibrate` calls its ``progress``: once per board view and per arm
+    pose (the joint sweeps of ``arm`` and the check poses)."""
+    return views + sum(len(q) for q, _ in axis_sweeps(arm).values()) + check_poses
+
+
+@_one_opencv_thread
 def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
               board: Board = Board(), tilt_deg: float = 45.0,
               check_poses: int = 20, supersample: int = 2, name: str | None = None,
@@ -450,7 +473,9 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
     check_poses : arm poses for the LED check.
     true_arm : the simulated arm, if it differs from ``arm`` (model error); default ``arm``.
     supersample : rendering factor of the board views.
-    progress : optional callable(stage: str), called once per rendered view or arm pose.
+    progress : optional callable(stage: str), called once per rendered view or arm pose
+        (:func:`progress_steps` times). OpenCV runs on one thread meanwhile (the same seed
+        gives the same result, bit for bit).
 
     Raises
     ------
