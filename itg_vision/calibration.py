@@ -77,6 +77,10 @@ class StereoCalibration:
     ``x_cam2 = R @ x_cam1 + T_mm``. ``rms_px`` and ``per_view_rms_px`` are the monocular
     reprojection errors after outlier removal; ``used`` the view indices each camera's
     calibration kept, ``stereo_views`` those of the stereo calibration (board in both).
+    ``intrinsics_std_px``: per camera, the standard deviations of fx, fy, cx, cy (px) that
+    ``cv2.calibrateCameraExtended`` estimates. A principal-point error of ``dc`` px cannot be
+    told from a camera rotation of ``dc / f`` rad, so it bounds how well the camera's pose,
+    and with it the base frame seen from the camera, can be known.
     """
 
     K: tuple[np.ndarray, np.ndarray]
@@ -92,6 +96,7 @@ class StereoCalibration:
     focal_std_rel: tuple[float, float]
     tilt_span_deg: tuple[float, float]
     n_found: tuple[int, int] = (0, 0)
+    intrinsics_std_px: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def tilt_spans_deg(rvecs) -> tuple[float, float]:
@@ -170,7 +175,7 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
                         f"{spans[0]:.0f} x {spans[1]:.0f} deg over {len(res[0][0])} views (need "
                         f"{MIN_TILT_SPAN_DEG:.0f} about two axes; focal std "
                         f"{100 * max(std_rel):.2f} %): tilt the board more")
-    (u1, (rms1, K1, d1, _, pv1, _)), (u2, (rms2, K2, d2, _, pv2, _)) = res
+    (u1, (rms1, K1, d1, _, pv1, sd1)), (u2, (rms2, K2, d2, _, pv2, sd2)) = res
     srms, K1, d1, K2, d2, R, T, _, _ = cv2.stereoCalibrate(
         [obj_board] * len(both), [views.corners[k][0] for k in both],
         [views.corners[k][1] for k in both],
@@ -179,7 +184,7 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
     return StereoCalibration((K1, K2), (d1.ravel(), d2.ravel()), R, T.ravel(),
                              (float(rms1), float(rms2)), float(srms), (pv1, pv2),
                              (u1, u2), both, sorted(dropped), std_rel, spans,
-                             (len(seen[0]), len(seen[1])))
+                             (len(seen[0]), len(seen[1])), (sd1[:4], sd2[:4]))
 
 
 def rig_in_camera1_frame(true_rig: Rig, cal: StereoCalibration, name: str) -> Rig:
@@ -412,12 +417,14 @@ class Result:
     rig : the calibrated rig in the world (base) frame, ``calibration`` filled in.
     record : the ``calibration`` section (plain Python types).
     picture : RGB image of one view with its detected corners drawn (None if none).
+    stereo : what the board views gave (intrinsics, their uncertainty, the pair).
     """
 
     rig: Rig
     record: dict
     picture: np.ndarray | None = None
     timing_s: dict = field(default_factory=dict)
+    stereo: StereoCalibration | None = None
 
 
 def _plain(obj, digits: int = 6):
@@ -546,7 +553,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         record["picture_view"] = k
     return Result(rig, record, picture,
                   {"board_s": t1 - t0, "calibrate_s": t2 - t1, "leds_s": t3 - t2,
-                   "total_s": time.perf_counter() - t0})
+                   "total_s": time.perf_counter() - t0}, cal)
 
 
 

@@ -80,6 +80,33 @@ def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name)
 
 
 # ---------------------------------------------------------------------------- full calibration
+def _base_frame_bounds(res, true_rig):
+    """Bounds on the base frame's error, (rotation deg, origin mm), from the calibration's own
+    uncertainty rather than a fixed 0.1 deg / 1 mm (which seed 0 met and 8 of seeds 0-9 did not:
+    0.03 to 0.21 deg, 0.5 to 2.0 mm).
+
+    The frame is found from the LEDs triangulated with the calibrated pair and compared with
+    the truth through camera 1. A principal-point error dc of camera 1 cannot be told from a
+    camera rotation of dc / f (both give the same images), so the frame seen from camera 1
+    turns by it (measured: the rotation error follows the principal-point error, 1.2 dc / f),
+    and its origin, at distance d from the camera, moves by d times that angle; a baseline
+    error dB scales depths by dB / B. OpenCV's standard deviations of cx, cy give
+    sigma = hypot(s_cx / fx, s_cy / fy) rad (0.10 to 0.13 deg with 60 views). Bounds: the fit's
+    own 0.1 deg / 1 mm with the true pair (test_base_frame_from_joint_axes_...) plus 3 sigma,
+    and for the origin d * hypot(3 sigma, dB / B) with this run's baseline error dB (bounded on
+    its own by the baseline target). Seeds 0-9 reached at most 1.9 sigma in rotation and half
+    the origin bound.
+    """
+    cam1, cam2 = true_rig.cameras
+    s = res.stereo.intrinsics_std_px[0]  # fx, fy, cx, cy
+    sigma_rad = float(np.hypot(s[2] / cam1.fx, s[3] / cam1.fy))
+    d_mm = float(np.linalg.norm(cam1.position_mm))
+    b_mm = float(np.linalg.norm(cam2.position_mm - cam1.position_mm))
+    db_mm = res.record["error_vs_true"]["baseline_mm"]
+    return (0.1 + 3 * np.degrees(sigma_rad),
+            1.0 + d_mm * float(np.hypot(3 * sigma_rad, db_mm / b_mm)))
+
+
 @pytest.fixture(scope="module")
 def planar_result():
     """The default number of views (60; ~15-25 s): fewer views (30-40) measured focal errors up
@@ -109,7 +136,9 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
     assert led["points"] >= 20
     assert led["ratio"] <= 1.2                                              # target
     assert r["base_frame"]["fit_rms_mm"] < 1.0
-    assert e["base_frame"]["origin_mm"] < 1.0 and e["base_frame"]["rotation_deg"] < 0.1
+    rot_bound_deg, origin_bound_mm = _base_frame_bounds(res, true_rig)
+    assert e["base_frame"]["rotation_deg"] < rot_bound_deg, rot_bound_deg
+    assert e["base_frame"]["origin_mm"] < origin_bound_mm, origin_bound_mm
     # the calibrated rig differs from the true one (it was estimated, not copied)
     assert res.rig.cameras[0].fx != true_rig.cameras[0].fx
 
@@ -117,13 +146,16 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
 @pytest.mark.slow
 def test_calibration_with_links_five_percent_long_keeps_the_base_frame():
     """The simulated arm 5 % longer than the nominal model: the base frame comes from the joint
-    axes, not from the lengths, so it stays within 1 mm / 0.1 deg of the truth, and the
-    joint-axis fits measure the true lengths."""
+    axes, not from the lengths, so it stays within the bounds the calibration's own
+    uncertainty sets (see _base_frame_bounds), and the joint-axis fits measure the true
+    lengths."""
     rig = Rig.from_yaml(PLANAR)
     res = cal.calibrate(rig, ArmSpec.from_args("two-link"), views=cal.DEFAULT_VIEWS, seed=0,
                         check_poses=5, true_arm=ArmSpec.from_args("two-link", (105.0, 105.0)))
-    frame = res.record["error_vs_true"]["base_frame"]
-    assert frame["origin_mm"] < 1.0 and frame["rotation_deg"] < 0.1
+    e = res.record["error_vs_true"]
+    rot_bound_deg, origin_bound_mm = _base_frame_bounds(res, rig)
+    assert e["base_frame"]["rotation_deg"] < rot_bound_deg, rot_bound_deg
+    assert e["base_frame"]["origin_mm"] < origin_bound_mm, origin_bound_mm
     assert res.record["base_frame"]["measured_links_mm"] == pytest.approx([105, 105], abs=0.5)
 
 
