@@ -165,7 +165,6 @@ def board_visible(camera: Camera, board: Board, pose: BoardPose,
     return bool(np.all((uv >= border_px) & (uv <= np.array([W - 1, H - 1]) - border_px)))
 
 
-
 def sample_board_poses(rig: Rig, board: Board, n: int, rng: np.random.Generator, *,
                        target_mm, tilt_deg: float = 45.0, spin_deg: float = 20.0,
                        tries: int = 200) -> list[BoardPose]:

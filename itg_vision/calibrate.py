@@ -42,7 +42,6 @@ def default_out(rig_path: Path) -> Path:
     return DEFAULT_OUT_DIR / f"{Path(rig_path).stem}.calib.yaml"
 
 
-
 def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
     """Refuse, before any work, an ``--out`` the calibration must not write (`UserError`).
 
@@ -83,7 +82,6 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
         raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "
                         "picture; choose another --out, or add --force")
     probe_folder(out.parent)
-
 
 
 def summary_table(r: dict) -> str:

@@ -556,12 +556,10 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
                    "total_s": time.perf_counter() - t0}, cal)
 
 
-
 # ---------------------------------------------------------------------------- the file
 def picture_path(out: Path) -> Path:
     """The corner picture beside the calibrated rig: ``x.calib.yaml`` -> ``x.calib.png``."""
     return out.with_name(out.name.removesuffix(".yaml").removesuffix(".yml") + ".png")
-
 
 
 def write_result(result: Result, out: Path, true_rig_path: Path) -> Path | None:
