@@ -46,7 +46,7 @@ class ArmSpec:
     defaults : {"rules", "rig", "trajectory"}: what a run of this arm uses unless told.
     pose_ranges_deg : per joint (lo, hi): random poses the arm's rig sees.
     benchmark : {"max_step_deg", "iterations"}: the limits of the noise benchmark.
-    calibration : {"board_target_mm", "axis_sweeps"}: see itg_vision/calibrate.py.
+    calibration : {"board_target_mm", "axis_sweeps"}: see itg_vision/calibration.py.
     """
 
     name: str

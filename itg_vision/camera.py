@@ -363,20 +363,23 @@ class Rig:
             raise UserError(f"{path}: nested too deeply to be a rig file") from None
         return rig_from_dict(doc, path)
 
-    def to_yaml(self, path) -> None:
-        """Write the rig (exact pose as a rotation matrix), via a temporary name + rename."""
-        path = str(path)
+    def yaml_text(self) -> str:
+        """The rig file's text (exact pose as a rotation matrix), as :meth:`to_yaml` writes it."""
         doc: dict[str, Any] = {"name": self.name, "cameras": [_camera_to_dict(c)
                                                               for c in self.cameras]}
         if self.calibration is not None:
             doc["calibration"] = self.calibration
         if self.true_rig is not None:
             doc["true_rig"] = self.true_rig
-        from .outputs import write_text
-
         header = ("# Stereo rig (itg_vision). OpenCV conventions, mm; pose as R world->camera\n"
                   "# rows and t in x_cam = R X_world + t. See itg_vision/camera.py.\n")
-        write_text(path, header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))
+        return header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+
+    def to_yaml(self, path) -> None:
+        """Write the rig file (:meth:`yaml_text`) atomically (`itg_vision.outputs`)."""
+        from .outputs import write_text
+
+        write_text(path, self.yaml_text())
 
 
 def _camera_to_dict(c: Camera) -> dict:

@@ -13,7 +13,7 @@ base axis is the world z axis through x = y = 0):
   is L1, its distance from the base axis the stand-off, its radius L2; L3 = |gripper - elbow|.
   The arm then returns to its start pose exactly (the same increments, reversed).
 
-The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibrate`).
+The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 """
 
 from __future__ import annotations

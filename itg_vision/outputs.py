@@ -3,8 +3,9 @@
 Rules (what every command follows):
 
 - **Files** are written to a temporary name in the same folder, then renamed
-  (:func:`write_bytes`): a reader sees the old file or the new one, never a mix, and a failed or
-  killed run leaves the old file.
+  (:func:`write_bytes`; several files that belong together, such as a calibrated rig and its
+  picture, with :func:`write_files`: all written, then all renamed): a reader sees the old file
+  or the new one, never a mix, and a failed or killed run leaves the old file.
 - **Output folders** are built in a staging folder beside ``--out`` and swapped in whole when
   the command has finished (:func:`staged_dir`). A command replaces only a folder that it made
   itself: every output folder carries a small manifest, :data:`MANIFEST`, naming the command
@@ -41,20 +42,38 @@ MANIFEST = ".itg_vision-output.json"
 
 
 # ---------------------------------------------------------------------------- files
+def write_files(files: dict[str | Path, bytes]) -> None:
+    """Write several files as one result: every file to a temporary name in its own folder
+    first, then all renamed, in the order given (put the file that readers look for last).
+
+    If anything fails before the renames (a full disk, Ctrl-C), every temporary file is removed
+    and no file is replaced. This is the one place outputs are written; :func:`write_bytes`,
+    :func:`write_text` and :func:`write_json` are its one-file forms.
+    """
+    temps: list[tuple[str, Path]] = []
+    try:
+        for path, data in files.items():
+            path = Path(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+            temps.append((tmp, path))
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are for everyone to read
+        while temps:
+            tmp, path = temps[0]
+            os.replace(tmp, path)
+            temps.pop(0)
+    except BaseException:
+        for tmp, _ in temps:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise
+
+
 def write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are for everyone to read
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_files({path: data})
 
 
 def write_text(path: str | Path, text: str) -> None:

@@ -1,5 +1,6 @@
-"""Calibration: board rendering and corners, the geometry helpers, a full calibration against
-the known rig, the failure cases and tracking on a calibrated rig."""
+"""Calibration (itg_vision.calibration and its command, itg_vision.calibrate): the geometry
+helpers, a full calibration against the known rig, the failure cases and tracking on a
+calibrated rig. The board itself: test_board.py."""
 
 import json
 
@@ -7,38 +8,22 @@ import numpy as np
 import pytest
 import yaml
 
-from itg_vision import calibrate as cal
+from itg_vision import calibration as cal
+from itg_vision.calibrate import summary_table
 from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig
 from itg_vision.world import World
 
-from conftest import ROOT
+from conftest import ROOT, random_rotation
 
 PLANAR = ROOT / "cameras" / "planar.yaml"
-
-
-def _rotation(rng):
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]), q
-
-
-def test_quaternion_round_trip():
-    rng = np.random.default_rng(0)
-    for _ in range(50):
-        R, q = _rotation(rng)
-        got = cal.quaternion_xyzw(R)
-        assert min(np.abs(got - q).max(), np.abs(got + q).max()) < 1e-9
 
 
 def test_circle_fit_recovers_centre_axis_and_radius():
     from itg_vision.identify import fit_circle, rotation_sense_axis, zero_direction
 
     rng = np.random.default_rng(1)
-    R, _ = _rotation(rng)
+    R, _ = random_rotation(rng)
     centre = rng.uniform(-300, 300, 3)
     q = np.linspace(-150, 150, 23)  # a joint sweep, increasing
     ring = np.c_[80 * np.cos(np.radians(q + 20)), 80 * np.sin(np.radians(q + 20)), np.zeros(23)]
@@ -94,41 +79,34 @@ def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name)
             true_arm.links_mm[0 if arm_name == "two-link" else 1], abs=0.5)
 
 
-def test_board_texture_has_the_pattern_and_an_asymmetric_corner():
-    b = cal.Board()
-    tex = b.texture()
-    ppm = b.px_per_mm
-    x0, y0, _, _ = b.extent_mm()
-
-    def at(x_mm, y_mm):
-        return tex[int((y_mm - y0) * ppm), int((x_mm - x0) * ppm)]
-
-    s = b.square_mm
-    assert at(-s / 2, -s / 2) == 0                                  # outside corner 0: black
-    assert at((b.cols - 0.5) * s, (b.rows - 0.5) * s) == 255        # outside the last: white
-    assert at(-s - b.margin_mm / 2, 0) == 255                       # margin
-    assert b.object_points().shape == (b.cols * b.rows, 3)
-
-
-def test_rendered_corners_match_the_projection_of_the_true_board():
-    """Texture orientation, UVs and the TinyRenderer pixel convention in one check: detected
-    corners against the true board corners projected through the camera (with distortion).
-    Measured 0.07 to 0.19 px RMS per view; a flipped texture or a UV offset gives tens of px."""
-    rig = Rig.from_yaml(PLANAR)
-    board = cal.Board()
-    rng = np.random.default_rng(3)
-    poses = cal.sample_board_poses(rig, board, 4, rng, target_mm=[0, 0, 0])[::2]  # stereo views
-    with World(ArmSpec.from_args("two-link")) as world:
-        views = cal.render_views(world, rig, board, poses, rng)
-    for pose, corners in zip(poses, views.corners):
-        for cam, c in zip(rig.cameras, corners):
-            assert c is not None
-            truth = cam.project(pose.points(board.object_points()))
-            rms = np.sqrt(np.mean(np.sum((c.reshape(-1, 2) - truth) ** 2, axis=1)))
-            assert rms < 0.25, (cam.name, rms)
-
-
 # ---------------------------------------------------------------------------- full calibration
+def _base_frame_bounds(res, true_rig):
+    """Bounds on the base frame's error, (rotation deg, origin mm), from the calibration's own
+    uncertainty rather than a fixed 0.1 deg / 1 mm (which seed 0 met and 8 of seeds 0-9 did not:
+    0.03 to 0.21 deg, 0.5 to 2.0 mm).
+
+    The frame is found from the LEDs triangulated with the calibrated pair and compared with
+    the truth through camera 1. A principal-point error dc of camera 1 cannot be told from a
+    camera rotation of dc / f (both give the same images), so the frame seen from camera 1
+    turns by it (measured: the rotation error follows the principal-point error, 1.2 dc / f),
+    and its origin, at distance d from the camera, moves by d times that angle; a baseline
+    error dB scales depths by dB / B. OpenCV's standard deviations of cx, cy give
+    sigma = hypot(s_cx / fx, s_cy / fy) rad (0.10 to 0.13 deg with 60 views). Bounds: the fit's
+    own 0.1 deg / 1 mm with the true pair (test_base_frame_from_joint_axes_...) plus 3 sigma,
+    and for the origin d * hypot(3 sigma, dB / B) with this run's baseline error dB (bounded on
+    its own by the baseline target). Seeds 0-9 reached at most 1.9 sigma in rotation and half
+    the origin bound.
+    """
+    cam1, cam2 = true_rig.cameras
+    s = res.stereo.intrinsics_std_px[0]  # fx, fy, cx, cy
+    sigma_rad = float(np.hypot(s[2] / cam1.fx, s[3] / cam1.fy))
+    d_mm = float(np.linalg.norm(cam1.position_mm))
+    b_mm = float(np.linalg.norm(cam2.position_mm - cam1.position_mm))
+    db_mm = res.record["error_vs_true"]["baseline_mm"]
+    return (0.1 + 3 * np.degrees(sigma_rad),
+            1.0 + d_mm * float(np.hypot(3 * sigma_rad, db_mm / b_mm)))
+
+
 @pytest.fixture(scope="module")
 def planar_result():
     """The default number of views (60; ~15-25 s): fewer views (30-40) measured focal errors up
@@ -158,7 +136,9 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
     assert led["points"] >= 20
     assert led["ratio"] <= 1.2                                              # target
     assert r["base_frame"]["fit_rms_mm"] < 1.0
-    assert e["base_frame"]["origin_mm"] < 1.0 and e["base_frame"]["rotation_deg"] < 0.1
+    rot_bound_deg, origin_bound_mm = _base_frame_bounds(res, true_rig)
+    assert e["base_frame"]["rotation_deg"] < rot_bound_deg, rot_bound_deg
+    assert e["base_frame"]["origin_mm"] < origin_bound_mm, origin_bound_mm
     # the calibrated rig differs from the true one (it was estimated, not copied)
     assert res.rig.cameras[0].fx != true_rig.cameras[0].fx
 
@@ -166,13 +146,16 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
 @pytest.mark.slow
 def test_calibration_with_links_five_percent_long_keeps_the_base_frame():
     """The simulated arm 5 % longer than the nominal model: the base frame comes from the joint
-    axes, not from the lengths, so it stays within 1 mm / 0.1 deg of the truth, and the
-    joint-axis fits measure the true lengths."""
+    axes, not from the lengths, so it stays within the bounds the calibration's own
+    uncertainty sets (see _base_frame_bounds), and the joint-axis fits measure the true
+    lengths."""
     rig = Rig.from_yaml(PLANAR)
     res = cal.calibrate(rig, ArmSpec.from_args("two-link"), views=cal.DEFAULT_VIEWS, seed=0,
                         check_poses=5, true_arm=ArmSpec.from_args("two-link", (105.0, 105.0)))
-    frame = res.record["error_vs_true"]["base_frame"]
-    assert frame["origin_mm"] < 1.0 and frame["rotation_deg"] < 0.1
+    e = res.record["error_vs_true"]
+    rot_bound_deg, origin_bound_mm = _base_frame_bounds(res, rig)
+    assert e["base_frame"]["rotation_deg"] < rot_bound_deg, rot_bound_deg
+    assert e["base_frame"]["origin_mm"] < origin_bound_mm, origin_bound_mm
     assert res.record["base_frame"]["measured_links_mm"] == pytest.approx([105, 105], abs=0.5)
 
 
@@ -200,7 +183,7 @@ def test_written_rig_round_trips_and_tracks(planar_result, tmp_path, cli):
 
 @pytest.mark.slow
 def test_summary_table_lists_the_figures(planar_result):
-    text = cal.summary_table(planar_result[1].record)
+    text = summary_table(planar_result[1].record)
     for word in ("reprojection RMS", "focal length", "principal point", "baseline",
                  "rotation", "world position", "LED triangulation"):
         assert word in text

@@ -194,6 +194,21 @@ def test_write_bytes_keeps_the_old_file_when_writing_fails(tmp_path, monkeypatch
     assert p.read_text() == "old" and sorted(x.name for x in tmp_path.iterdir()) == ["f.txt"]
 
 
+def test_write_files_replaces_none_when_one_cannot_be_written(tmp_path):
+    """A calibrated rig and its picture are one result: if the second file cannot be written,
+    the first is not replaced either, and no temporary file is left."""
+    a = tmp_path / "x.calib.png"
+    a.write_text("old picture")
+    (tmp_path / "a-file").write_text("in the way")
+    with pytest.raises(OSError):
+        outputs.write_files({a: b"new picture", tmp_path / "a-file" / "x.calib.yaml": b"rig"})
+    assert a.read_text() == "old picture"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a-file", "x.calib.png"]
+    outputs.write_files({a: b"new picture", tmp_path / "x.calib.yaml": b"rig"})
+    assert a.read_bytes() == b"new picture" and (tmp_path / "x.calib.yaml").read_bytes() == b"rig"
+    assert oct(a.stat().st_mode & 0o777) == "0o644"
+
+
 # ----------------------------------------------------------------------------- errors, progress
 def test_interrupted_gets_a_line_of_its_own(capsys):
     def body():
