@@ -48,8 +48,8 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int) -> dict:
                         continue
                     errs[s].append(float(np.linalg.norm(m.get(name) - truth[name])))
                     if s == 0:
-                        for cam, uv in zip(rig.cameras, fb.last_uv_raw[name]):
-                            centroid_err.append(uv - cam.project(truth[name]).reshape(2))
+                        for cam, d in zip(rig.cameras, fb.last_observation.detections[name]):
+                            centroid_err.append(d.uv_raw_px - cam.project(truth[name]))
     c = np.array(centroid_err)
     sigma_render = float(np.sqrt(np.mean(np.sum(c**2, axis=1)) / 2))  # per axis
     out = {"n_poses": n_poses, "centroid_mean_px": c.mean(axis=0).tolist(),
