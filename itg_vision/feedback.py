@@ -21,9 +21,11 @@ from .arm import ArmSpec, forward_kinematics
 from .detect import Detection
 from .imaging import Patch
 
-#: Default supersampling of the vision loop: the best accuracy at >= 300 Hz in
-#: ``python -m itg_vision.bench speed`` (see the README's benchmark table).
-DEFAULT_SUPERSAMPLE = 2
+#: Default supersampling of the vision loop: the most accurate setting that keeps the stereo
+#: loop at >= 300 Hz on one core (``python -m itg_vision.bench speed`` and ``accuracy``:
+#: s = 3 ran at 366-392 Hz with 0.024 px centroid RMS; s = 4 at 256-282 Hz, 0.020 px; s = 2 at
+#: 510-530 Hz, 0.037 px).
+DEFAULT_SUPERSAMPLE = 3
 
 
 @dataclass(frozen=True)
@@ -202,7 +204,7 @@ class VisionFeedback:
     def capture_pair(self, world) -> dict[str, tuple[Patch | None, ...]]:
         """What both cameras see: marker -> per camera a window around its LED, or the whole
         frame (see the class docstring). Sensor noise from the feedback's generator."""
-        from .imaging import capture, capture_window, led_windows
+        from .imaging import capture_window, led_windows
         from .urdf import ARM_RGB, LED_RADIUS_MM, LED_RGB
 
         cams = self.render_rig.cameras
@@ -211,8 +213,7 @@ class VisionFeedback:
         out: dict[str, tuple] = {}
         try:
             if self.full_frame and not self.strobe:
-                frame = tuple(Patch(capture(world, c, self.rng, supersample=s, lighting=light),
-                                    (0, 0), c.size) for c in cams)
+                frame = tuple(self._frame(world, c) for c in cams)
                 return {n: frame for n in names}
             boxes = {}
             if not self.full_frame:
@@ -225,9 +226,7 @@ class VisionFeedback:
                     for n in names:
                         world.set_led_lit(n, LED_RGB[n] if n == lit else ARM_RGB)
                 if self.full_frame:
-                    out[lit] = tuple(Patch(capture(world, c, self.rng, supersample=s,
-                                                   lighting=light), (0, 0), c.size)
-                                     for c in cams)
+                    out[lit] = tuple(self._frame(world, c) for c in cams)
                     continue
                 out[lit] = tuple(None if box is None else capture_window(
                     world, c, self.rng, box, supersample=s, lighting=light)
@@ -237,6 +236,14 @@ class VisionFeedback:
                 for n in names:
                     world.set_led_lit(n, LED_RGB[n])
         return out
+
+    def _frame(self, world, camera) -> Patch:
+        """The camera's whole frame (lens applied to the supersampled render, as in windows)."""
+        from .imaging import capture
+
+        img = capture(world, camera, self.rng, supersample=self.supersample,
+                      lighting=self.lighting, lens_first=True)
+        return Patch(img, (0, 0), camera.size)
 
     def detect(self, patches: dict) -> dict[str, tuple[Detection, ...]]:
         """Each LED's centroid in each camera, undistorted with the estimate rig: one

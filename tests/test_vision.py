@@ -37,10 +37,10 @@ class _NoTruth:
 
 
 def test_two_link_accuracy_without_added_noise(planar):
-    """Windowed, flat LEDs, supersample 2: centroids ~0.04 px RMS (bench accuracy); with
-    ~1.1 mm/px laterally and Z/B ~ 1.8 in depth, ~0.08 mm RMS (measured 0.06-0.09 on 8 poses);
-    bound each error by 0.4 mm (the first-order error of a 0.1 px centroid error, x 3) and the
-    RMS by 0.2 mm."""
+    """Windowed, flat LEDs, supersample 3 (the default): centroids ~0.024 px RMS and markers
+    ~0.04 mm RMS (bench accuracy, 60 poses). Bounds: each error below 0.4 mm, what a 0.1 px
+    centroid error (4x the RMS at supersample 2) gives on this rig (~3.5 mm per px of centroid
+    noise, TECHNICAL.md); the RMS below 0.2 mm."""
     arm = ArmSpec.from_args("two-link")
     rng = np.random.default_rng(11)
     fb = VisionFeedback(planar, planar, arm)

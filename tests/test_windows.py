@@ -65,7 +65,8 @@ def test_window_pixels_equal_the_frame_pixels(supersample):
         world.set_q([40.0, 60.0, -70.0])
         X = np.array(list(world.led_centres_mm().values()))
         for cam in rig.cameras:
-            frame = capture(world, cam, None, supersample=supersample, lighting=FLAT_LIGHT)
+            frame = capture(world, cam, None, supersample=supersample, lighting=FLAT_LIGHT,
+                            lens_first=True)
             for box in led_windows(cam, X, LED_RADIUS_MM):
                 x0, y0, x1, y1 = box
                 p = capture_window(world, cam, None, box, supersample=supersample,
@@ -93,7 +94,8 @@ def test_known_point_projects_the_same_both_ways():
                 x0, y0, x1, y1 = box
                 assert x0 < uv[0] < x1 - 1 and y0 < uv[1] < y1 - 1
                 p = capture_window(world, cam, None, box, lighting=FLAT_LIGHT)
-                frame = Patch(capture(world, cam, None, lighting=FLAT_LIGHT), (0, 0), cam.size)
+                frame = Patch(capture(world, cam, None, lighting=FLAT_LIGHT, lens_first=True),
+                              (0, 0), cam.size)
                 for patch in (p, frame):
                     d = locate_led(patch, LED_RGB["gripper"])
                     assert d.ok and np.linalg.norm(d.uv_raw_px - uv) < 0.15, (d, uv)
