@@ -114,8 +114,12 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     x0, y0 = max(x - 1, 0), max(y - 1, 0)
     x1, y1 = min(x + w + 1, score.shape[1]), min(y + h + 1, score.shape[0])
     s = score[y0:y1, x0:x1].astype(np.float32)
-    if n > 2:
-        s[labels[y0:y1, x0:x1] != best] = 0  # other blobs out; keep the rim below MIN_SCORE
+    lab = labels[y0:y1, x0:x1]
+    if method == "intensity":  # other blobs out; the rim below MIN_SCORE stays
+        if n > 2:
+            s[(lab != best) & (lab != 0)] = 0
+    else:  # coverage and binary count the blob's own pixels only (calibration's numbers)
+        s[lab != best] = 0
     peak = float(s.max())
     core = (s >= 0.5 * peak).view(np.uint8)
     if method == "binary":
@@ -140,7 +144,8 @@ def _roundness(m: dict) -> float:
     n = m["m00"]
     if n < 3:
         return 0.0
-    a, b, c = m["mu20"] / n + 1 / 12, m["mu02"] / n + 1 / 12, m["mu11"] / n
+    # the sample covariance (n - 1), as np.cov
+    a, b, c = m["mu20"] / (n - 1) + 1 / 12, m["mu02"] / (n - 1) + 1 / 12, m["mu11"] / (n - 1)
     mean, d = 0.5 * (a + b), np.hypot(0.5 * (a - b), c)
     return float(np.sqrt(max(mean - d, 0.0) / (mean + d)))
 

@@ -4,16 +4,19 @@ PyBullet renders a pinhole image. :func:`capture` renders it slightly larger tha
 frame (a margin on every side, same focal length) so that barrel distortion has data for the
 output corners, optionally at ``supersample`` times the resolution (then area-averaged, which
 anti-aliases the LED edges), warps it with the camera's distortion through a remap table
-computed once per camera, then applies the exposure gain and Gaussian grey-level noise.
+computed once per camera, then applies the exposure gain and Gaussian grey-level noise. With
+``lens_first=True`` (the vision path) the lens acts on the supersampled render and the sensor
+averages after it (:func:`lens_maps`), which keeps the anti-aliased edges sharp.
 
 :func:`capture_window` does the same for a small window of the frame (a :class:`Patch`): the
-renderer draws only the pinhole pixels the window's distortion map reads, with
+renderer draws only the s-fold pinhole pixels the window's lens map reads, with
 K' = [[s fx, 0, s (cx - x0) + (s - 1) / 2], [0, s fy, s (cy - y0) + (s - 1) / 2], [0, 0, 1]]
-at (s w, s h) for a pinhole region whose top-left pixel is (x0, y0); then the same area
-average, the same remap table (sliced, its integer part shifted by the region's offset) and
-noise on the window only. At s = 1 without noise its pixels are the full frame's. TinyRenderer's
-cost is ~75 us per call plus ~0.1 us per pixel drawn, so four ~30 px windows cost a tenth of
-one 640x480 frame.
+for a pinhole region whose top-left (1x) coordinate is (x0, y0) (through the usual
+K-to-projection conversion, with TinyRenderer's +1 on cy); then the frame's s-fold lens map
+(sliced, its integer part shifted by the region's origin), the s x s average and noise on the
+window only. Its pixels are the frame's (``capture(..., lens_first=True)``), tested at s = 1..3.
+TinyRenderer's cost is ~75 us per call plus ~0.1 us per pixel drawn, so four ~15 px windows at
+s = 3 cost a twentieth of one 640x480 frame.
 """
 
 from __future__ import annotations
