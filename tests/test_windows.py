@@ -189,3 +189,34 @@ def test_observation_contents():
         full.observe(world)
     frames = full.last_observation.frames()
     assert len(frames) == 2 and frames[0].shape == (480, 640, 3)
+
+
+def test_supersample_option_rig_file_and_default(tmp_path, capsys):
+    """--supersample beats the rig file's ``supersample``, which beats the default; bad values
+    are one line naming the option or the field, exit 2."""
+    import yaml
+
+    from itg_vision.errors import UserError
+    from itg_vision.feedback import DEFAULT_SUPERSAMPLE
+    from itg_vision.run import main
+    from itg_vision.runner import RunConfig, feedback_params, prepare
+
+    doc = yaml.safe_load((ROOT / "cameras" / "planar.yaml").read_text())
+    doc["supersample"] = 2
+    rig_file = tmp_path / "ss2.yaml"
+    rig_file.write_text(yaml.safe_dump(doc))
+    assert Rig.from_yaml(rig_file).supersample == 2
+    assert prepare(RunConfig()).feedback_factory().supersample == DEFAULT_SUPERSAMPLE
+    assert prepare(RunConfig(rig=str(rig_file))).feedback_factory().supersample == 2
+    fb = prepare(RunConfig(rig=str(rig_file), supersample=1, full_frame=True)).feedback_factory()
+    assert (fb.supersample, fb.full_frame) == (1, True)
+    assert feedback_params(RunConfig(), 3)["supersample"] == 3
+    doc["supersample"] = 9
+    rig_file.write_text(yaml.safe_dump(doc))
+    with pytest.raises(UserError, match="supersample: must be in 1..8"):
+        Rig.from_yaml(rig_file)
+    for args, expect in ((["--supersample", "0"], "--supersample"),
+                         (["--feedback", "model", "--full-frame"], "--full-frame")):
+        assert main([*args, "--out", str(tmp_path / "r"), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expect in err[0], err
