@@ -23,8 +23,8 @@ from .imaging import Patch
 
 #: Default supersampling of the vision loop: the most accurate setting that keeps the stereo
 #: loop at >= 300 Hz on one core (``python -m itg_vision.bench speed`` and ``accuracy``:
-#: s = 3 ran at 366-392 Hz with 0.024 px centroid RMS; s = 4 at 256-282 Hz, 0.020 px; s = 2 at
-#: 510-530 Hz, 0.037 px).
+#: s = 3 ran at 346-392 Hz with 0.024 px centroid RMS; s = 4 at 252-282 Hz, 0.020 px; s = 2 at
+#: 460-530 Hz, 0.037 px).
 DEFAULT_SUPERSAMPLE = 3
 
 
