@@ -22,6 +22,8 @@ Rig files (``cameras/*.yaml``) use ROS ``camera_info`` names where natural::
           # position_mm + rotation_deg: [rx, ry, rz]  (Rodrigues vector of R world->camera, deg)
           # rotation_matrix: {rows: 3, cols: 3, data: [9]} + translation_mm: [3]  (exact; saved)
         sensor: {noise_sigma_gray: 2.0, exposure: 1.0}
+    supersample: 2                  # optional: the vision loop's rendering factor (run's
+                                    # --supersample overrides; default in feedback.py)
     calibration: {...}              # optional, written by calibration
     true_rig: cameras/planar.yaml   # optional, the rig a calibrated rig was measured from
 """
@@ -55,6 +57,8 @@ MAX_FOCAL_PX = 1e6
 MAX_HALF_FOV_DEG = 80.0
 #: Largest coordinate of a camera position accepted (mm).
 MAX_POSITION_MM = 1e6
+#: Largest rendering supersampling factor accepted (its cost grows as the square).
+MAX_SUPERSAMPLE = 8
 #: Cameras of a rig closer than this (mm) are at the same place: no stereo.
 MIN_BASELINE_MM = 1.0
 #: Largest sensor gain accepted (the image saturates long before).
@@ -314,6 +318,8 @@ class Rig:
     source : the file it was read from ("" if built in code).
     calibration : optional free-form record of how the rig was calibrated.
     true_rig : optional path of the rig a calibrated rig was measured from.
+    supersample : optional rendering factor of the vision loop for this rig (None: the
+        default of :mod:`itg_vision.feedback`).
     """
 
     name: str
@@ -321,6 +327,7 @@ class Rig:
     source: str = ""
     calibration: dict | None = field(default=None, compare=False)
     true_rig: str | None = None
+    supersample: int | None = None
 
     def scaled(self, factor: float) -> "Rig":
         """The same rig with every image ``factor`` times larger (same field of view).
@@ -337,7 +344,8 @@ class Rig:
             size = (int(round(c.image_width * factor)), int(round(c.image_height * factor)))
             cams.append(Camera.from_arrays(c.name, size, K, c.dist_coeffs, c.R, c.t_mm,
                                            c.noise_sigma_gray, c.exposure))
-        return Rig(self.name, tuple(cams), self.source, self.calibration, self.true_rig)
+        return Rig(self.name, tuple(cams), self.source, self.calibration, self.true_rig,
+                   self.supersample)
 
     @classmethod
     def from_yaml(cls, path) -> "Rig":
@@ -371,6 +379,8 @@ class Rig:
             doc["calibration"] = self.calibration
         if self.true_rig is not None:
             doc["true_rig"] = self.true_rig
+        if self.supersample is not None:
+            doc["supersample"] = self.supersample
         header = ("# Stereo rig (itg_vision). OpenCV conventions, mm; pose as R world->camera\n"
                   "# rows and t in x_cam = R X_world + t. See itg_vision/camera.py.\n")
         return header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
@@ -465,7 +475,12 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     true_rig = doc.get("true_rig")
     if true_rig is not None and not isinstance(true_rig, str):
         F.fail("true_rig", "must be a path string")
-    return Rig(name, cameras, path, calibration, true_rig)
+    supersample = doc.get("supersample")
+    if supersample is not None:
+        supersample = F.integer(supersample, "supersample")
+        if not 1 <= supersample <= MAX_SUPERSAMPLE:
+            F.fail("supersample", f"must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
+    return Rig(name, cameras, path, calibration, true_rig, supersample)
 
 
 def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:

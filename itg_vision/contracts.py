@@ -68,6 +68,42 @@ class Step:
     out_of_reach: bool = False
 
 
+@dataclass(frozen=True)
+class Observation:
+    """One look of the stereo eye: what :meth:`itg_vision.feedback.VisionFeedback.observe` saw and decided.
+
+    Attributes
+    ----------
+    markers : the estimates handed to the controller (held values for missed markers).
+    patches : marker -> per camera the image the LED was looked for in: a window around it,
+        or the whole frame (``--full-frame``, ``--video``); None where the LED's window falls
+        outside the frame. Whole frames are shared between markers unless strobing.
+    detections : marker -> per camera the `itg_vision.detect.Detection` (raw centroid in the
+        captured image, undistorted centroid, blob area, reason).
+    residual_px : marker -> RMS reprojection residual of its triangulation (markers that were
+        triangulated only).
+    reasons : marker -> why it was missed at this look ("" if measured).
+    timing_ms : wall time of the steps: "render" (capture: render, distort, noise), "detect",
+        "triangulate".
+    """
+
+    markers: Markers
+    patches: dict
+    detections: dict
+    residual_px: dict
+    reasons: dict
+    timing_ms: dict
+
+    def frames(self) -> tuple[np.ndarray, ...] | None:
+        """The whole frames of both cameras (the first marker's when strobing), or None if
+        only windows were captured."""
+        for ps in self.patches.values():
+            if all(p is not None and p.full_frame for p in ps):
+                return tuple(p.image for p in ps)
+            return None
+        return None
+
+
 @runtime_checkable
 class Controller(Protocol):
     """Anything that turns a desired point and marker estimates into joint increments.

@@ -9,7 +9,15 @@ shading, edge pixels by the fraction of the LED they hold, which anti-aliasing e
 Measured on rendered LEDs at 640x480 (60 detections, sensor noise 2 grey levels), RMS error
 against the projection: coverage 0.155 px (supersample 1) / 0.128 px (supersample 2); clip
 at 0.5 peak 0.18 / 0.13; binary mask 0.22 / 0.17; raw intensity weights 0.23 / 0.21 (biased
-~0.1 px by the shading). Hence coverage with clip 0.7.
+~0.1 px by the shading). Hence coverage with clip 0.7 for lit LEDs (calibration's images).
+
+The vision loop draws its LEDs flat (:data:`itg_vision.imaging.FLAT_LIGHT`), as an emitter
+looks; with no shading the plain intensity weights are unbiased: ``method="intensity"``
+weights every pixel of the blob's neighbourhood by its score, above :data:`WEIGHT_FLOOR` (the
+sensor noise of the background). Flat LED, intensity weights: 0.087 px RMS at supersample 1,
+0.034 at 2, 0.019 at 3 (TECHNICAL.md). :func:`locate_led` finds an LED in a window of the frame
+(an :class:`itg_vision.imaging.Patch`) and leaves undistortion to the caller (one batched
+``cv2.undistortPoints`` per camera).
 """
 
 from __future__ import annotations
@@ -29,6 +37,9 @@ MIN_AREA_PX = 3.0
 COVERAGE_CLIP = 0.7
 #: Half-size of the search window around a predicted position (px).
 HALF_WINDOW_PX = 24
+#: Intensity weights count scores from this level (grey levels): 4 sigma of a background
+#: pixel's score under 2 grey levels of sensor noise, ~4 % of a flat LED's 255.
+WEIGHT_FLOOR = 8
 
 
 @dataclass(frozen=True)
@@ -80,7 +91,7 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     ----------
     score : uint8, shape (h, w).
     method : "coverage" (weights min(score, 0.7 peak)), "binary" (mask at peak/2) or
-        "intensity" (weights = score).
+        "intensity" (weights = score, from :data:`WEIGHT_FLOOR`).
 
     Returns
     -------
@@ -89,7 +100,7 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     roundness : float, minor/major axis ratio of that half-peak mask (1 for a disc).
     reason : "" if a single blob was found, else why not.
     """
-    mask = (score >= MIN_SCORE).astype(np.uint8)
+    mask = (score >= MIN_SCORE).view(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return _nan2(), 0.0, 0.0, "not found"
@@ -103,39 +114,86 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     x0, y0 = max(x - 1, 0), max(y - 1, 0)
     x1, y1 = min(x + w + 1, score.shape[1]), min(y + h + 1, score.shape[0])
     s = score[y0:y1, x0:x1].astype(np.float32)
-    s[labels[y0:y1, x0:x1] != best] = 0  # other blobs out; keep the rim below MIN_SCORE
+    lab = labels[y0:y1, x0:x1]
+    if method == "intensity":  # other blobs out; the rim below MIN_SCORE stays
+        if n > 2:
+            s[(lab != best) & (lab != 0)] = 0
+    else:  # coverage and binary count the blob's own pixels only (calibration's numbers)
+        s[lab != best] = 0
     peak = float(s.max())
-    half = 0.5 * peak
-    core = s >= half
-    area = float(np.count_nonzero(core))
+    core = (s >= 0.5 * peak).view(np.uint8)
     if method == "binary":
         wgt = core.astype(np.float32)
     elif method == "intensity":
-        wgt = s
+        wgt = np.where(s >= WEIGHT_FLOOR, s, np.float32(0))
     else:
         wgt = np.minimum(s, COVERAGE_CLIP * peak)
-    total = float(wgt.sum())
-    jj, ii = np.mgrid[y0:y1, x0:x1]
-    uv = np.array([(wgt * ii).sum() / total, (wgt * jj).sum() / total])
-    rnd = _roundness(ii[core], jj[core])
+    m = cv2.moments(wgt)
+    uv = np.array([m["m10"] / m["m00"] + x0, m["m01"] / m["m00"] + y0])
+    mc = cv2.moments(core, binaryImage=True)
+    area = float(mc["m00"])
+    rnd = _roundness(mc)
     if x == 0 or y == 0 or x + w >= score.shape[1] or y + h >= score.shape[0]:
         return uv, area, rnd, "touches the border"
     return uv, area, rnd, ""
 
 
-def _roundness(i: np.ndarray, j: np.ndarray) -> float:
-    """Minor/major axis ratio of a pixel set's second moments (1 for a disc)."""
-    if i.size < 3:
+def _roundness(m: dict) -> float:
+    """Minor/major axis ratio of a pixel set's second moments (1 for a disc), from its
+    ``cv2.moments``; each pixel's own extent (1/12 px^2 per axis) included."""
+    n = m["m00"]
+    if n < 3:
         return 0.0
-    C = np.cov(np.stack([i, j]).astype(float)) + np.eye(2) / 12.0  # + pixel's own extent
-    ev = np.linalg.eigvalsh(C)
-    return float(np.sqrt(max(ev[0], 0.0) / ev[1]))
+    # the sample covariance (n - 1), as np.cov
+    a, b, c = m["mu20"] / (n - 1) + 1 / 12, m["mu02"] / (n - 1) + 1 / 12, m["mu11"] / (n - 1)
+    mean, d = 0.5 * (a + b), np.hypot(0.5 * (a - b), c)
+    return float(np.sqrt(max(mean - d, 0.0) / (mean + d)))
 
 
 def expected_area_px(camera: Camera, X_mm, radius_mm: float) -> float:
     """Projected area (px) of a sphere of ``radius_mm`` at world point ``X_mm`` (pinhole)."""
     z = float(camera.to_camera(X_mm)[2])
     return float(np.pi * camera.fx * camera.fy * (radius_mm / z) ** 2)
+
+
+def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 0.75
+               ) -> Detection:
+    """Find one LED in a window of the frame, without undistorting it.
+
+    Parameters
+    ----------
+    patch : `itg_vision.imaging.Patch`, the window (or the whole frame) as captured.
+    rgb : the LED colour.
+    method : centroid weighting, see :func:`blob_centroid`.
+    min_roundness : reject blobs less round than this (partly hidden LEDs).
+
+    Returns
+    -------
+    Detection with ``uv_raw_px`` in the frame's (distorted) pixels and ``uv_px`` NaN (the
+    caller undistorts the detections of a camera together). A blob touching a side of the
+    window is rejected: "at the image border" where that side is the frame's, else "touches
+    the window border" (the window was placed to hold the whole LED with a margin).
+    """
+    score = score_image(patch.image, rgb)
+    uv, area, rnd, reason = blob_centroid(score, method)
+    uv = uv + np.asarray(patch.origin_px, float)
+    if reason == "touches the border":
+        reason = "touches the window border"
+        if any(patch.at_frame_edge()) and _touches_frame_edge(score, patch):
+            reason = "at the image border"
+    elif not reason and rnd < min_roundness:
+        reason = f"not round ({rnd:.2f}): partly hidden?"
+    if reason:
+        return Detection(False, _nan2(), uv, area, reason)
+    return Detection(True, _nan2(), uv, area, "")
+
+
+def _touches_frame_edge(score: np.ndarray, patch) -> bool:
+    """Whether the LED's pixels reach a side of the window that is the frame's side."""
+    lit = score >= MIN_SCORE
+    left, top, right, bottom = patch.at_frame_edge()
+    return bool((left and lit[:, 0].any()) or (top and lit[0].any())
+                or (right and lit[:, -1].any()) or (bottom and lit[-1].any()))
 
 
 def find_led(image: np.ndarray, camera: Camera, rgb, *, predicted_uv=None,

@@ -6,17 +6,26 @@ the world, the model or the encoders.
 - :class:`ModelFeedback`: joint encoders + the nominal kinematic model (the paper's classical
   variant). Wrong when the true arm differs from the model.
 - :class:`TruthFeedback`: the simulator's marker positions (ideal sensors).
-- ``VisionFeedback``: render both cameras, distort, add noise, detect, triangulate.
+- :class:`VisionFeedback`: render both cameras (windows around the LEDs, or whole frames),
+  distort, add noise, detect, triangulate; each look is kept as an :class:`Observation`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from time import perf_counter
 
 import numpy as np
 
 from .arm import ArmSpec, forward_kinematics
-from .contracts import Markers
+from .contracts import Markers, Observation
+from .detect import Detection
+from .imaging import Patch
+
+#: Default supersampling of the vision loop: the most accurate setting that keeps the stereo
+#: loop at >= 300 Hz on one core (``python -m itg_vision.bench speed`` and ``accuracy``:
+#: s = 3 ran at 346-392 Hz with 0.024 px centroid RMS; s = 4 at 252-282 Hz, 0.020 px; s = 2 at
+#: 460-530 Hz, 0.037 px).
+DEFAULT_SUPERSAMPLE = 3
 
 
 class ModelFeedback:
@@ -66,7 +75,18 @@ class VisionFeedback:
 
     The images come from the *render* rig (the true cameras); centroids are undistorted and
     triangulated with the *estimate* rig (what the estimator believes, e.g. a calibrated rig).
-    The simulator's true marker positions are never read.
+    :meth:`observe` is three named steps, :meth:`capture_pair`, :meth:`detect` and
+    :meth:`triangulate`; the last look is kept in :attr:`last_observation`.
+
+    By default the renderer draws only a window around each LED in each camera (the simulator
+    places it, as a renderer knows its scene, with the LED's whole image and 2 px around it;
+    see :func:`itg_vision.imaging.capture_window`), in the arm's own scene, so links still
+    hide LEDs. The estimator sees only the window's pixels and their offset, and rejects a
+    blob that touches the window's border or is partly hidden. ``full_frame`` renders whole
+    frames instead (what ``--video`` shows) and searches a window around the last estimate's
+    projection first. LEDs are drawn flat (:data:`itg_vision.imaging.FLAT_LIGHT`) and
+    centroided with plain intensity weights. The simulator's marker positions are never read
+    by the estimation steps.
 
     Parameters
     ----------
@@ -76,22 +96,25 @@ class VisionFeedback:
     noise_px : std of Gaussian noise added to each detected centroid coordinate (px).
     dropout : probability that a marker's detection is dropped at an iteration.
     max_residual_px : reject a triangulated marker whose RMS reprojection residual exceeds it.
-    supersample : rendering factor (1 = off; 2 halves the centroid error but costs ~5x).
+    supersample : rendering factor (1 = off), then area-averaged: anti-aliased LED edges.
     strobe : image each LED in its own frame, the others dark (drawn in the arm's colour).
     min_area_ratio : reject a marker whose blob area is below this fraction of the area its
         sphere should cover at the triangulated distance (a partly hidden LED).
-    windowed : search a window around the last estimate's projection first.
+    full_frame : render whole frames rather than windows around the LEDs.
 
     Attributes
     ----------
-    reasons : dict marker -> why it was missed at the last observation ("" if measured).
+    last_observation : the last :class:`Observation` (None before the first look).
     """
 
     name = "vision"
 
     def __init__(self, render_rig, estimate_rig, arm: ArmSpec, *, noise_px: float = 0.0,
-                 dropout: float = 0.0, max_residual_px: float = 2.0, supersample: int = 1,
-                 strobe: bool = False, min_area_ratio: float = 0.5, windowed: bool = True):
+                 dropout: float = 0.0, max_residual_px: float = 2.0,
+                 supersample: int = DEFAULT_SUPERSAMPLE, strobe: bool = False,
+                 min_area_ratio: float = 0.5, full_frame: bool = False):
+        from .imaging import FLAT_LIGHT
+
         self.render_rig = render_rig
         self.estimate_rig = estimate_rig
         self.arm = arm
@@ -101,94 +124,171 @@ class VisionFeedback:
         self.supersample = int(supersample)
         self.strobe = bool(strobe)
         self.min_area_ratio = float(min_area_ratio)
-        self.windowed = bool(windowed)
+        self.full_frame = bool(full_frame)
+        self.lighting = FLAT_LIGHT
+        self.rng = np.random.default_rng(None)
+        self._last: dict[str, np.ndarray] = {}
+        self.last_observation: Observation | None = None
         self.reset(None)
 
     def reset(self, seed: int | None = None) -> None:
         """New generator from ``seed``; forget the last estimates."""
         self.rng = np.random.default_rng(seed)
         self._last = {n: np.full(3, np.nan) for n in ("gripper", "elbow")}
-        self.reasons: dict[str, str] = {}
+        self.last_observation = None
 
-    # -------------------------------------------------------------- one observation
-    def _images(self, world) -> dict[str | None, list[np.ndarray]]:
-        """Captured images per camera: keyed by marker when strobing, else by None."""
-        from .imaging import capture
-        from .urdf import ARM_RGB, LED_RGB
+    # -------------------------------------------------------------- the three steps
+    def capture_pair(self, world) -> dict[str, tuple[Patch | None, ...]]:
+        """What both cameras see: marker -> per camera a window around its LED, or the whole
+        frame (see the class docstring). Sensor noise from the feedback's generator."""
+        from .imaging import capture_window, led_windows
+        from .urdf import ARM_RGB, LED_RADIUS_MM, LED_RGB
 
         cams = self.render_rig.cameras
-        if not self.strobe:
-            return {None: [capture(world, c, self.rng, supersample=self.supersample)
-                           for c in cams]}
-        out = {}
         names = self.arm.marker_names
+        s, light = self.supersample, self.lighting
+        out: dict[str, tuple] = {}
         try:
+            if self.full_frame and not self.strobe:
+                frame = tuple(self._frame(world, c) for c in cams)
+                return {n: frame for n in names}
+            boxes = {}
+            if not self.full_frame:
+                centres = world.led_centres_mm()
+                X = np.array([centres[n] for n in names])
+                per_cam = [led_windows(c, X, LED_RADIUS_MM) for c in cams]
+                boxes = {n: [b[k] for b in per_cam] for k, n in enumerate(names)}
             for lit in names:
-                for n in names:
-                    world.set_led_lit(n, LED_RGB[n] if n == lit else ARM_RGB)
-                out[lit] = [capture(world, c, self.rng, supersample=self.supersample)
-                            for c in cams]
+                if self.strobe:
+                    for n in names:
+                        world.set_led_lit(n, LED_RGB[n] if n == lit else ARM_RGB)
+                if self.full_frame:
+                    out[lit] = tuple(self._frame(world, c) for c in cams)
+                    continue
+                out[lit] = tuple(None if box is None else capture_window(
+                    world, c, self.rng, box, supersample=s, lighting=light)
+                    for c, box in zip(cams, boxes[lit]))
         finally:
-            for n in names:
-                world.set_led_lit(n, LED_RGB[n])
+            if self.strobe:
+                for n in names:
+                    world.set_led_lit(n, LED_RGB[n])
         return out
 
-    def observe(self, world) -> Markers:
-        """Measure the markers in the current world (see the class docstring)."""
-        from time import perf_counter
+    def _frame(self, world, camera) -> Patch:
+        """The camera's whole frame (lens applied to the supersampled render, as in windows)."""
+        from .imaging import capture
 
-        from .detect import expected_area_px, find_led
-        from .triangulate import triangulate
-        from .urdf import LED_RADIUS_MM, LED_RGB
+        img = capture(world, camera, self.rng, supersample=self.supersample,
+                      lighting=self.lighting, lens_first=True)
+        return Patch(img, (0, 0), camera.size)
 
-        t0 = perf_counter()
-        images = self._images(world)
-        self.last_images = images
-        self.last_uv_raw: dict[str, list] = {}
-        t1 = perf_counter()
+    def detect(self, patches: dict) -> dict[str, tuple[Detection, ...]]:
+        """Each LED's centroid in each camera, undistorted with the estimate rig: one
+        ``cv2.undistortPoints`` per camera for all markers. Dropout and the added centroid
+        noise (``noise_px``, on the captured pixels) are applied here."""
+        from .detect import HALF_WINDOW_PX, locate_led
+        from .urdf import LED_RGB
+
         est_cams = self.estimate_rig.cameras
-        found: dict[str, tuple] = {}
-        self.reasons = {}
-        for name in self.arm.marker_names:
-            imgs = images[name if self.strobe else None]
-            last = self._last[name]
+        raw: dict[str, list[Detection]] = {}
+        for name, ps in patches.items():
             dets = []
-            for cam, img in zip(est_cams, imgs):
-                pred = cam.project(last) if self.windowed and np.all(np.isfinite(last)) else None
-                dets.append(find_led(img, cam, LED_RGB[name], predicted_uv=pred))
-            self.last_uv_raw[name] = [d.uv_raw_px if d.ok else None for d in dets]
-            bad = [d.reason for d in dets if not d.ok]
-            if bad:
-                self.reasons[name] = bad[0]
+            for cam, patch in zip(est_cams, ps):
+                if patch is None:
+                    dets.append(Detection(False, np.full(2, np.nan), np.full(2, np.nan), 0.0,
+                                          "outside the image"))
+                    continue
+                pred = None
+                if patch.full_frame and np.all(np.isfinite(self._last[name])):
+                    pred = cam.project(self._last[name])
+                dets.append(_find(patch, LED_RGB[name], pred, HALF_WINDOW_PX, locate_led))
+            if all(d.ok for d in dets) and self.dropout > 0 and self.rng.random() < self.dropout:
+                dets = [Detection(False, np.full(2, np.nan), d.uv_raw_px, d.area_px, "dropped")
+                        for d in dets]
+            if all(d.ok for d in dets) and self.noise_px > 0:
+                dets = [Detection(True, d.uv_px, d.uv_raw_px + self.rng.normal(
+                    0.0, self.noise_px, 2), d.area_px) for d in dets]
+            raw[name] = dets
+        # one undistortion per camera for all the markers it found
+        out = {name: list(dets) for name, dets in raw.items()}
+        for i, cam in enumerate(est_cams):
+            found = [n for n, dets in raw.items() if dets[i].ok]
+            if not found:
                 continue
-            if self.dropout > 0 and self.rng.random() < self.dropout:
-                self.reasons[name] = "dropped"
-                continue
-            raw = [d.uv_raw_px for d in dets]
-            if self.noise_px > 0:
-                raw = [r + self.rng.normal(0.0, self.noise_px, 2) for r in raw]
-                uv = [c.undistort(r) for c, r in zip(est_cams, raw)]
-            else:
-                uv = [d.uv_px for d in dets]
-            found[name] = (uv, [d.area_px for d in dets])
-        t2 = perf_counter()
+            und = cam.undistort(np.array([raw[n][i].uv_raw_px for n in found]).reshape(-1, 2))
+            for n, uv in zip(found, und.reshape(-1, 2)):
+                d = raw[n][i]
+                out[n][i] = Detection(True, uv, d.uv_raw_px, d.area_px)
+        return {n: tuple(d) for n, d in out.items()}
+
+    def triangulate(self, detections: dict) -> tuple[dict, dict, dict]:
+        """Triangulate the markers seen by both cameras (one batched call) and check them.
+
+        Returns
+        -------
+        points_mm : marker -> (3,) for the accepted markers.
+        residual_px : marker -> RMS reprojection residual, for every triangulated marker.
+        reasons : marker -> why it was missed ("" if accepted).
+        """
+        from .detect import expected_area_px
+        from .triangulate import triangulate
+        from .urdf import LED_RADIUS_MM
+
+        est_cams = self.estimate_rig.cameras
+        reasons = {n: next((d.reason for d in dets if not d.ok), "")
+                   for n, dets in detections.items()}
+        both = [n for n in detections if not reasons[n]]
+        points: dict[str, np.ndarray] = {}
         residual: dict[str, float] = {}
-        for name, (uv, areas) in found.items():
-            X, rms = triangulate(self.estimate_rig, uv[0], uv[1])
-            residual[name] = rms
-            if not np.isfinite(rms) or rms > self.max_residual_px:
-                self.reasons[name] = f"residual {rms:.2f} px"
+        if not both:
+            return points, residual, reasons
+        uv1 = np.array([detections[n][0].uv_px for n in both])
+        uv2 = np.array([detections[n][1].uv_px for n in both])
+        X, rms = triangulate(self.estimate_rig, uv1, uv2, method="optimal")
+        for n, Xn, r in zip(both, X, rms):
+            residual[n] = float(r)
+            if not np.isfinite(r) or r > self.max_residual_px:
+                reasons[n] = f"residual {r:.2f} px"
                 continue
-            ratio = min(a / expected_area_px(c, X, LED_RADIUS_MM) for a, c in zip(areas, est_cams))
+            ratio = min(d.area_px / expected_area_px(c, Xn, LED_RADIUS_MM)
+                        for d, c in zip(detections[n], est_cams))
             if ratio < self.min_area_ratio:
-                self.reasons[name] = f"blob area {ratio:.2f} of expected: partly hidden"
+                reasons[n] = f"blob area {ratio:.2f} of expected: partly hidden"
                 continue
-            self._last[name] = X
+            points[n] = Xn
+        return points, residual, reasons
+
+    def observe(self, world) -> Markers:
+        """Measure the markers in the current world (see the class docstring); the full
+        record is kept in :attr:`last_observation`."""
+        t0 = perf_counter()
+        patches = self.capture_pair(world)
+        t1 = perf_counter()
+        detections = self.detect(patches)
+        t2 = perf_counter()
+        points, residual, reasons = self.triangulate(detections)
         t3 = perf_counter()
-        missed = tuple(n for n in self.arm.marker_names if n in self.reasons)
-        for n in self.arm.marker_names:
-            self.reasons.setdefault(n, "")
+        self._last.update(points)
+        missed = tuple(n for n in self.arm.marker_names if reasons[n])
         timing = {"render": 1e3 * (t1 - t0), "detect": 1e3 * (t2 - t1),
                   "triangulate": 1e3 * (t3 - t2)}
-        return Markers(self._last["gripper"].copy(), self._last["elbow"].copy(), missed,
-                       residual, timing)
+        markers = Markers(self._last["gripper"].copy(), self._last["elbow"].copy(), missed,
+                          residual, timing)
+        self.last_observation = Observation(markers, patches, detections, residual, reasons,
+                                            timing)
+        return markers
+
+
+def _find(patch: Patch, rgb, predicted_uv, half_window: int, locate) -> Detection:
+    """An LED in a patch; in a whole frame, a window around ``predicted_uv`` first (the
+    whole frame if the LED is not found there)."""
+    if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
+        (W, H), img = patch.frame_size, patch.image
+        u, v = (int(round(float(c))) for c in predicted_uv)
+        x0, y0 = max(u - half_window, 0), max(v - half_window, 0)
+        x1, y1 = min(u + half_window + 1, W), min(v + half_window + 1, H)
+        if x1 - x0 > 2 and y1 - y0 > 2:
+            d = locate(Patch(img[y0:y1, x0:x1], (x0, y0), (W, H)), rgb)
+            if d.ok or d.reason == "several candidates":
+                return d
+    return locate(patch, rgb)

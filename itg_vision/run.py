@@ -30,7 +30,8 @@ MAX_POINTS = 100_000
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"), ("gain", "f"),
           ("step", "S"), ("tolerance", "w"), ("iterations", "it"), ("max_step", "maxstep"),
           ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
-          ("strobe", "strobe"), ("true_links", "truelinks"), ("joint_offset", "offset"),
+          ("strobe", "strobe"), ("supersample", "ss"), ("full_frame", "fullframe"),
+          ("true_links", "truelinks"), ("joint_offset", "offset"),
           ("seed", "seed"))
 #: RunConfig field -> the option that sets it (errors name the option).
 OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
@@ -38,7 +39,8 @@ OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", 
            "step_deg": "--step", "tolerance_mm": "--tolerance", "iterations": "--iterations",
            "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
            "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
-           "seed": "--seed", "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset"}
+           "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",
+           "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset"}
 
 
 def _links(text: str) -> tuple[float, ...]:
@@ -115,6 +117,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--strobe", action="store_true",
                     help="light one LED per frame (as active-marker systems do) instead of telling "
                          "them apart by colour; doubles the rendering")
+    ap.add_argument("--supersample", type=int, metavar="S",
+                    help="vision: render at S times the resolution and area-average down "
+                         "(anti-aliased LEDs; 1..8; default: the rig file's, else 2)")
+    ap.add_argument("--full-frame", action="store_true",
+                    help="vision: render whole frames instead of windows around the LEDs "
+                         "(~10-50x slower; --video implies it)")
     ap.add_argument("--seed", type=int, default=0, help="seed of every random thing (default %(default)s)")
     ap.add_argument("--allow-unseen", action="store_true",
                     help="run even if the cameras cannot see the arm along the trajectory (refused "
@@ -197,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
                         iterations=args.iterations, max_step_deg=args.max_step, laps=args.laps,
                         feedback=args.feedback, rig=args.rig, noise_px=args.noise_px,
                         noise_mm=args.noise_mm, dropout=args.dropout, strobe=args.strobe,
+                        supersample=args.supersample,
+                        full_frame=args.full_frame or (args.video and args.feedback == "vision"),
                         seed=args.seed, true_links_mm=args.true_links,
                         joint_offset_deg=args.joint_offset, allow_unseen=args.allow_unseen)
         try:

@@ -11,10 +11,11 @@ from pathlib import Path
 
 from . import trajectory as traj
 from .arm import ArmSpec
-from .camera import CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401 (re-exported)
+from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
 from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
+from .imaging import opencv_threads
 from .loop import Trace, simulate
 from .rules import PARAM_FIELDS, load_rules
 from .world import World
@@ -66,6 +67,8 @@ class RunConfig:
     noise_mm: float = 0.0
     dropout: float = 0.0
     strobe: bool = False
+    supersample: int | None = None  # None: the rig file's, else DEFAULT_SUPERSAMPLE
+    full_frame: bool = False  # render whole frames, not windows around the LEDs
     seed: int = 0
     true_links_mm: tuple[float, ...] | None = None
     joint_offset_deg: tuple[float, ...] | None = None
@@ -106,6 +109,13 @@ class RunConfig:
             ("strobe", not self.strobe or self.feedback == "vision",
              "applies to vision feedback only"),
             ("rig", self.rig is None or self.feedback == "vision",
+             "applies to vision feedback only"),
+            ("supersample", self.supersample is None or self.feedback == "vision",
+             "applies to vision feedback only"),
+            ("supersample", self.supersample is None or (
+                isinstance(self.supersample, int) and 1 <= self.supersample <= MAX_SUPERSAMPLE),
+             f"must be a whole number in 1..{MAX_SUPERSAMPLE}, got {self.supersample}"),
+            ("full_frame", not self.full_frame or self.feedback == "vision",
              "applies to vision feedback only"),
             ("dropout", 0 <= self.dropout <= 1,
              f"must be a probability in [0, 1], got {self.dropout}"),
@@ -212,10 +222,23 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
 
+        supersample = supersample_of(cfg, estimate_rig)
+
         def feedback_factory():
             return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,
-                                  dropout=cfg.dropout, strobe=cfg.strobe)
+                                  dropout=cfg.dropout, strobe=cfg.strobe,
+                                  supersample=supersample, full_frame=cfg.full_frame)
     return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info)
+
+
+def supersample_of(cfg: RunConfig, rig) -> int:
+    """The vision loop's supersampling: the run's option, else the rig file's, else the
+    default (:data:`itg_vision.feedback.DEFAULT_SUPERSAMPLE`)."""
+    from .feedback import DEFAULT_SUPERSAMPLE
+
+    if cfg.supersample is not None:
+        return int(cfg.supersample)
+    return int(rig.supersample or DEFAULT_SUPERSAMPLE)
 
 
 def resolve_relative(path: str, relative_to: Path) -> Path:
@@ -233,7 +256,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     feedback = prep.feedback_factory()
     feedback.reset(cfg.seed)
     t0 = time.perf_counter()
-    with World(prep.true_arm) as world:
+    with World(prep.true_arm) as world, opencv_threads(1):
         geometry = start_up_geometry(cfg, world, feedback, prep.model)
         controller = bind_geometry(prep.controller, geometry, prep.model, cfg.max_step_deg)
         trace = simulate(world, controller, feedback, prep.trajectory.points_mm,
@@ -255,7 +278,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "max_step_deg": cfg.max_step_deg,
         "laps": prep.trajectory.laps,
         "geometry": geometry.record(),
-        "feedback_params": feedback_params(cfg),
+        "feedback_params": feedback_params(
+            cfg, feedback.supersample if cfg.feedback == "vision" else None),
         "seed": cfg.seed,
         "wall_s": wall_s,
         **prep.info,
@@ -263,10 +287,13 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     return trace, summary
 
 
-def feedback_params(cfg: RunConfig) -> dict:
-    """The parameters the run's feedback source uses (only those: nothing unused is recorded)."""
+def feedback_params(cfg: RunConfig, supersample: int | None = None) -> dict:
+    """The parameters the run's feedback source uses (only those: nothing unused is recorded);
+    vision: ``supersample``, the factor it renders with (the option's, the rig's or the
+    default)."""
     if cfg.feedback == "vision":
-        return {"noise_px": cfg.noise_px, "dropout": cfg.dropout, "strobe": cfg.strobe}
+        return {"noise_px": cfg.noise_px, "dropout": cfg.dropout, "strobe": cfg.strobe,
+                "supersample": supersample, "full_frame": cfg.full_frame}
     if cfg.feedback == "truth":
         return {"noise_mm": cfg.noise_mm}
     return {}

@@ -6,6 +6,8 @@ by :func:`itg_vision.detect.find_led`; points are in mm, world frame.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -53,18 +55,38 @@ def _jacobian(rig: Rig, X: np.ndarray) -> np.ndarray:
     return np.concatenate([projection_jacobian(c1, X), projection_jacobian(c2, X)], axis=1)
 
 
-def triangulate(rig: Rig, uv1_px, uv2_px, *, refine_steps: int = 3
+def fundamental_matrix(rig: Rig) -> np.ndarray:
+    """F of the rig's pinhole pair (``x2^T F x1 = 0`` in pixels), shape (3, 3); cached."""
+    return _fundamental(*rig.cameras)
+
+
+@lru_cache(maxsize=32)
+def _fundamental(c1: Camera, c2: Camera) -> np.ndarray:
+    R = c2.R @ c1.R.T
+    t = c2.t_mm - R @ c1.t_mm
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    F = np.linalg.inv(c2.K).T @ tx @ R @ np.linalg.inv(c1.K)
+    F = F / np.linalg.norm(F)
+    F.flags.writeable = False
+    return F
+
+
+def triangulate(rig: Rig, uv1_px, uv2_px, *, refine_steps: int = 3, method: str = "gauss-newton"
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate matching undistorted pixels of the rig's two cameras.
 
-    DLT (``cv2.triangulatePoints`` with ``K [R | t]``), then ``refine_steps`` Gauss-Newton
-    steps minimising the reprojection error in both images.
+    ``method="gauss-newton"``: DLT (``cv2.triangulatePoints`` with ``K [R | t]``), then
+    ``refine_steps`` Gauss-Newton steps minimising the reprojection error in both images.
+    ``method="optimal"``: ``cv2.correctMatches`` (Hartley-Sturm: the nearest pair of points
+    on matching epipolar lines, the same minimum in closed form), then DLT of the corrected
+    pair, whose rays meet; ~5x cheaper, what the vision loop uses.
 
     Parameters
     ----------
     rig : the rig the estimator believes.
     uv1_px, uv2_px : array-like, shape (2,) or (n, 2); undistorted pixels in camera 0 and 1.
     refine_steps : Gauss-Newton iterations (0: plain DLT).
+    method : "gauss-newton" or "optimal".
 
     Returns
     -------
@@ -76,6 +98,14 @@ def triangulate(rig: Rig, uv1_px, uv2_px, *, refine_steps: int = 3
     uv1 = a.reshape(-1, 2)
     uv2 = np.asarray(uv2_px, float).reshape(-1, 2)
     c1, c2 = rig.cameras
+    if method == "optimal":
+        n1, n2 = cv2.correctMatches(fundamental_matrix(rig), uv1[None], uv2[None])
+        Xh = cv2.triangulatePoints(c1.P, c2.P, n1[0].T.copy(), n2[0].T.copy())
+        X = (Xh[:3] / Xh[3]).T
+        rms = np.sqrt(np.mean(np.hstack([n1[0] - uv1, n2[0] - uv2]) ** 2, axis=1))
+        return (X[0], float(rms[0])) if single else (X, rms)
+    if method != "gauss-newton":
+        raise ValueError(f"method must be 'gauss-newton' or 'optimal', got {method!r}")
     Xh = cv2.triangulatePoints(c1.P, c2.P, uv1.T.copy(), uv2.T.copy())
     X = (Xh[:3] / Xh[3]).T
     for _ in range(refine_steps):

@@ -72,7 +72,7 @@ def open_writer(path: Path, fps: float, size: tuple[int, int]):
 
 
 class VideoRecorder:
-    """Writes one frame per set point from a ``VisionFeedback``'s last images.
+    """Writes one frame per set point from a ``VisionFeedback``'s last observation.
 
     ``path``: the file to write; its suffix is set by the codec found (see the module
     docstring), so read :attr:`path` after the first frame.
@@ -85,16 +85,18 @@ class VideoRecorder:
         self._writer = None
 
     def frame(self, feedback, desired_mm: np.ndarray) -> None:
-        images = getattr(feedback, "last_images", None)
-        if not images:
+        """One frame from ``feedback.last_observation`` (whole frames: the run forces
+        ``full_frame`` with ``--video``); nothing if it has none."""
+        obs = feedback.last_observation
+        views = obs.frames() if obs is not None else None
+        if not views:
             return
-        views = next(iter(images.values()))
         panels = []
         for i, (img, cam) in enumerate(zip(views, feedback.estimate_rig.cameras)):
             bgr = np.ascontiguousarray(img[..., ::-1])
-            for name, uvs in feedback.last_uv_raw.items():
-                uv = uvs[i]
-                if uv is not None:
+            for name, dets in obs.detections.items():
+                if dets[i].ok:
+                    uv = dets[i].uv_raw_px
                     colour = tuple(int(255 * c) for c in LED_RGB[name][::-1])
                     cv2.circle(bgr, (int(round(uv[0])), int(round(uv[1]))), 9, colour, 1, cv2.LINE_AA)
             d = cam.project(np.asarray(desired_mm, float)).reshape(-1)

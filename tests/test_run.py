@@ -184,6 +184,7 @@ def test_run_video_writes_a_browser_playable_video(cli, tmp_path):
     assert res.stderr == ""  # FFmpeg's complaints about encoders it lacks are silenced
     import cv2
     summary = json.loads((tmp_path / "v" / "summary.json").read_text())
+    assert summary["feedback_params"]["full_frame"] is True  # a video needs whole frames
     from itg_vision.video import CODECS
     assert (summary["video"], summary["video_codec"]) in [(f"video{suffix}", note) for _, suffix, note in CODECS[:2]]
     cap = cv2.VideoCapture(str(tmp_path / "v" / summary["video"]))
