@@ -207,37 +207,39 @@ def place_rig(rig_c1: Rig, R_w: np.ndarray, t_w: np.ndarray, name: str) -> Rig:
 
 
 # ---------------------------------------------------------------------------- LEDs
-def led_images(world, rig: Rig, arm, q_list, rng, *, supersample: int = 1, progress=None):
-    """Capture both cameras of ``rig`` at each joint pose; yield (q, images, true LEDs)."""
-    from .imaging import capture
+def led_images(world, rig: Rig, arm, q_list, rng, *, progress=None):
+    """What the tracker's eye sees of the LEDs at each joint pose: both cameras of ``rig``
+    through :meth:`itg_vision.feedback.VisionFeedback.capture_pair` (sensor noise from
+    ``rng``). Returns a list of (q, patches, true LEDs)."""
+    from .feedback import VisionFeedback
 
+    eye = VisionFeedback(rig, rig, arm)
+    eye.reset(int(rng.integers(2**32)))
     out = []
     for q in q_list:
         world.set_q(q)
-        imgs = [capture(world, c, rng, supersample=supersample) for c in rig.cameras]
-        out.append((np.asarray(q, float), imgs, world.true_markers()))
+        out.append((np.asarray(q, float), eye.capture_pair(world), world.true_markers()))
         if progress is not None:
             progress()
     return out
 
 
-def triangulate_leds(rig: Rig, arm, images) -> dict[str, np.ndarray]:
-    """Detect each LED in both images with ``rig``'s cameras and triangulate (rig's frame).
+def triangulate_leds(rig: Rig, arm, patches) -> dict[str, np.ndarray]:
+    """The LEDs in ``patches`` (from :func:`led_images`) located, undistorted and
+    triangulated with ``rig``'s cameras, by the tracker's own
+    :meth:`~itg_vision.feedback.VisionFeedback.detect` and
+    :meth:`~itg_vision.feedback.VisionFeedback.triangulate` (its residual and blob-area
+    checks included).
 
     Returns
     -------
-    dict marker -> X_mm (3,) for the markers found in both images.
+    dict marker -> X_mm (3,) (rig's frame) for the markers accepted.
     """
-    from .detect import find_led
-    from .triangulate import triangulate
-    from .urdf import LED_RGB
+    from .feedback import VisionFeedback
 
-    out = {}
-    for name in arm.marker_names:
-        dets = [find_led(img, c, LED_RGB[name]) for img, c in zip(images, rig.cameras)]
-        if all(d.ok for d in dets):
-            out[name] = triangulate(rig, dets[0].uv_px, dets[1].uv_px)[0]
-    return out
+    eye = VisionFeedback(rig, rig, arm)
+    points, _, _ = eye.triangulate(eye.detect(patches))
+    return points
 
 
 def axis_sweeps(arm) -> dict[int, tuple[np.ndarray, tuple[str, ...]]]:
