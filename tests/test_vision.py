@@ -129,17 +129,26 @@ def test_wrong_estimate_rig_is_rejected_by_the_residual(planar):
 
 
 def test_seeded_noise_is_reproducible_and_sized(planar):
+    """1 px of added centroid noise: the same seed gives the same estimates, and their spread
+    matches the first-order prediction sigma^2 (J^T J)^-1 for sigma = 1 px (the rendering's own
+    0.02-0.04 px adds < 0.1 %). With n = 40 looks the sample RMS (about the sample mean,
+    expected sqrt((n-1)/n) of the prediction) has a relative spread of ~1/sqrt(2n) = 0.11 or
+    less: bounds 0.65-1.35 (3 sigma)."""
+    from itg_vision.triangulate import predicted_rms_error_mm
+
     arm = ArmSpec.from_args("one-link")
+    n = 40
     with World(arm) as world:
         runs = []
         for _ in range(2):
-            fb = VisionFeedback(planar, planar, arm, noise_px=1.0)
+            fb = VisionFeedback(planar, planar, arm, noise_px=1.0, max_residual_px=np.inf)
             fb.reset(5)
-            runs.append(np.array([fb.observe(world).gripper_mm for _ in range(6)]))
-        assert np.array_equal(runs[0], runs[1])
-        # 1 px of centroid noise: ~3 mm RMS predicted on this rig; different every frame
-        spread = np.linalg.norm(runs[0] - runs[0].mean(axis=0), axis=1)
-        assert 0.3 < np.sqrt(np.mean(spread**2)) < 10
+            runs.append(np.array([fb.observe(world).gripper_mm for _ in range(n)]))
+        truth = world.true_markers()["gripper"]
+    assert np.array_equal(runs[0], runs[1])
+    spread = np.linalg.norm(runs[0] - runs[0].mean(axis=0), axis=1)
+    ratio = np.sqrt(np.mean(spread**2) * n / (n - 1)) / predicted_rms_error_mm(planar, truth, 1.0)
+    assert 0.65 < ratio < 1.35, ratio
 
 
 @pytest.mark.parametrize("full_frame", [False, True])
@@ -153,11 +162,15 @@ def test_strobe_gives_the_same_estimate(planar, full_frame):
         b.reset(6)
         ma, mb = a.observe(world), b.observe(world)
         truth = world.true_markers()
-    assert mb.missed == ()
+    assert mb.missed == () and ma.missed == ()
     for name in ("gripper", "elbow"):
-        # both within the no-noise accuracy (0.4 mm, see above) of the truth
+        # the same estimate: strobing changes which LEDs are lit, not where they are seen.
+        # They differ by the sensor noise and by TinyRenderer's draw order where the LED meets
+        # its link: recolouring an LED (strobe) moves it later in the draw order, which flips
+        # 1-2 edge pixels from link to LED (measured: up to 0.23 mm at this pose). Bound: the
+        # no-noise accuracy (0.4 mm, see above), here between the two estimates.
+        assert np.linalg.norm(ma.get(name) - mb.get(name)) < 0.4
         assert np.linalg.norm(mb.get(name) - truth[name]) < 0.4
-        assert np.linalg.norm(ma.get(name) - truth[name]) < 0.4
 
 
 @pytest.mark.slow
