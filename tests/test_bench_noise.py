@@ -12,8 +12,18 @@ import time
 import numpy as np
 import pytest
 
-from itg_vision.bench import noise
-from itg_vision.bench.noise import CONTROLLERS, RunSpec, build_sweep, main, perturb_rig
+from itg_vision.bench.execute import run_one
+from itg_vision.bench.noise import main
+from itg_vision.bench.store import definition_hash
+from itg_vision.bench.sweep import (CONTROLLERS, RIG_ANGLE_DEG, RIG_SHIFT_MM, RunSpec, build_sweep,
+                                    run_config)
+from itg_vision.camera import perturbed
+
+
+def perturb_rig(rig, seed, each_camera=False):
+    """The bench's rig perturbation: 1 degree and 5 mm."""
+    return perturbed(rig, seed, angle_deg=RIG_ANGLE_DEG, shift_mm=RIG_SHIFT_MM,
+                     each_camera=each_camera)
 
 
 def _rows(out):
@@ -79,7 +89,7 @@ def test_run_ids_are_stable_and_distinct():
     a, b = build_sweep(quick=True), build_sweep(quick=True)
     assert [s.run_id for s in a] == [s.run_id for s in b]
     assert len({s.run_id for s in a}) == len(a)
-    assert noise.definition_hash(a) != noise.definition_hash(build_sweep(quick=True, seeds=3))
+    assert definition_hash(a) != definition_hash(build_sweep(quick=True, seeds=3))
 
 
 # ---------------------------------------------------------------------------- Dask
@@ -97,7 +107,7 @@ def test_dask_path_on_a_local_cluster(tmp_path):
     assert len(rows) == 4 and {r["controller"] for r in rows} == {"itg-vision", "ik"}
     assert all(math.isfinite(float(r["e_av_mm"])) for r in rows)
     # the same runs give the same numbers in a local pool (seeded, independent)
-    local = noise.run_one(next(s for s in build_sweep(
+    local = run_one(next(s for s in build_sweep(
         quick=True, conditions=("clean",), seeds=1, controllers=("itg-vision",))))
     dask_row = next(r for r in rows if r["controller"] == "itg-vision" and r["condition"] == "clean")
     assert float(dask_row["e_av_mm"]) == pytest.approx(float(local["e_av_mm"]), rel=1e-6)
@@ -208,7 +218,7 @@ def test_model_error_hurts_the_model_based_controllers_not_the_vision_fed_ones()
         for cond in ("clean", "links+5%"):
             spec = build_sweep(conditions=(cond,), controllers=(ctrl,), trajectories=("ellipse-t1",),
                                seeds=1)[0]
-            row = noise.run_one(spec)
+            row = run_one(spec)
             res[ctrl, cond] = (float(row["track_median_mm"]), row["measured_links_mm"])
 
     def grow(ctrl):
@@ -229,14 +239,14 @@ def test_run_spec_maps_controllers_and_conditions_onto_run_config():
         conditions=("clean", "links+5%", "offset-1deg", "noise-1px+links+5%"),
         trajectories=("ellipse-t1", "line-ab-reach"), seeds=1)
         if s.trajectory == "ellipse-t1"}
-    cfg = noise.run_config(specs["ik", "clean"])
+    cfg = run_config(specs["ik", "clean"])
     # every controller of a trajectory runs under the same limits; ellipses run 2 laps
     assert {(s.iterations, s.max_step_deg, s.laps) for s in specs.values()} == {(1, 20.0, 2)}
     assert (cfg.controller, cfg.feedback, cfg.iterations, cfg.max_step_deg) == ("ik", "model", 1, 20.0)
-    cfg = noise.run_config(specs["itg-vision", "noise-1px+links+5%"])
+    cfg = run_config(specs["itg-vision", "noise-1px+links+5%"])
     assert (cfg.controller, cfg.feedback, cfg.noise_px) == ("itg", "vision", 1.0)
     assert cfg.true_links_mm == pytest.approx((105.0, 105.0))
-    assert noise.run_config(specs["jacobian-vision", "offset-1deg"]).joint_offset_deg == (1.0, 1.0)
+    assert run_config(specs["jacobian-vision", "offset-1deg"]).joint_offset_deg == (1.0, 1.0)
     three = [s for s in build_sweep(trajectories=("line-ab-reach",), conditions=("clean",), seeds=1)]
     assert all(isinstance(s, RunSpec) and s.arm == "three-link" and s.max_step_deg == 2.0
                and s.iterations == 5 for s in three)

@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from itg_vision.bench.noise import COLUMNS, Results, build_sweep, main
+from itg_vision.bench.noise import main
+from itg_vision.bench.store import COLUMNS, Results
+from itg_vision.bench.sweep import build_sweep
 from itg_vision.errors import UserError
 
 ROOT = Path(__file__).resolve().parent.parent
