@@ -250,6 +250,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics)
     if plots:
         L += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in plots] + [""]
+    elif not rows:
+        L += ["## Plots", "", "None: no run of this sweep has finished.", ""]
     outputs.write_text(out / "report.md", "\n".join(L))
     return plots
 
@@ -288,6 +290,8 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]
                 label = PLOT_METRICS[metric]
                 series = {k: curve(t, k, pairs, metric) for k in ctrls}
                 series = {k: v for k, v in series.items() if v[0]}
+                if not series:  # no run of these conditions finished: nothing to draw
+                    continue
                 path = out / f"{metric}_vs_{name}-{t}.png"
                 plot.lines_figure(series, xlabel, f"median over seeds of {label} (mm; < 0.001 "
                                   "drawn at 0.001)", f"{t}: {label} against {xlabel}", path,
@@ -295,6 +299,8 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]
                 made.append(path)
         for metric in metrics:
             values = {k: [med(t, c, k, metric) for c in conds] for k in ctrls}
+            if not any(math.isfinite(v) for vs in values.values() for v in vs):
+                continue  # no finished run: a log axis has nothing to scale
             path = out / f"{metric}_by_condition-{t}.png"
             plot.grouped_bars_figure(conds, values, f"median over seeds of {PLOT_METRICS[metric]} (mm)",
                                      f"{t}: {PLOT_METRICS[metric]} per controller and condition",

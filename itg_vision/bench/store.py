@@ -29,7 +29,7 @@ RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
             "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
-            "measured_links_mm", "iterations", "max_step_deg", "gain"] + RUN_METRICS
+            "measured_links_mm", "iterations", "max_step_deg", "controller_params"] + RUN_METRICS
            + ["diverged"])
 
 
@@ -48,11 +48,18 @@ def _cell(v) -> str:
     return str(v)
 
 
+def params_cell(params: dict) -> str:
+    """The parameters a controller ran with, as ``name=value`` pairs joined by ``;`` in the
+    order given (``gain_deg_per_mm=0.5;tolerance_mm=0.5``); empty when it takes none (IK)."""
+    return ";".join(f"{k}={_cell(v)}" for k, v in params.items())
+
+
 def make_row(spec: RunSpec, s: dict) -> dict:
     row = {"run_id": spec.run_id, **dataclasses.asdict(spec)}
     row["points"] = s["n_setpoints"] // max(1, spec.laps)
-    row.update({k: s.get(k) for k in ["links_mm", "true_links_mm", "joint_offset_deg", "gain"]
+    row.update({k: s.get(k) for k in ["links_mm", "true_links_mm", "joint_offset_deg"]
                 + RUN_METRICS})
+    row["controller_params"] = params_cell(s["controller_params"])
     row["measured_links_mm"] = s["geometry"]["links_mm"]
     row["max_step_deg"] = spec.max_step_deg
     med = s.get("track_median_mm")

@@ -89,7 +89,7 @@ SWEEPS = {
                   "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
 }
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 2
+SCHEMA = 3  # 3: the gain column (always empty) became controller_params
 
 
 @dataclass(frozen=True)
