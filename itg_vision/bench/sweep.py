@@ -34,39 +34,53 @@ from pathlib import Path
 from ..arm import ArmSpec
 from ..errors import UserError
 
-#: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm).
-CONTROLLERS: dict[str, tuple[str, str, float]] = {
-    "itg-vision": ("itg", "vision", 0.0),
-    "itg-model": ("itg", "model", 0.0),
-    "ik": ("ik", "model", 0.0),
-    "jacobian-vision": ("jacobian", "vision", 0.0),
+#: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
+#: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
+#: ``itg_plus_rules`` (issue 13's ITG+); None for the baselines).
+CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
+    "itg-vision": ("itg", "vision", 0.0, "rules"),
+    "itg-model": ("itg", "model", 0.0, "rules"),
+    "ik": ("ik", "model", 0.0, None),
+    "jacobian-vision": ("jacobian", "vision", 0.0, None),
+    "itg-plus-vision": ("itg", "vision", 0.0, "itg_plus_rules"),
+    "itg-plus-model": ("itg", "model", 0.0, "itg_plus_rules"),
 }
-#: Controllers only the ``start-tie`` sweep uses: ideal LED positions plus Gaussian noise of
-#: about vision's size, many seeds cheaply.
+#: Controllers only the ``start-tie`` and ``itg-plus-three-link`` sweeps use: ideal LED
+#: positions plus Gaussian noise of about vision's size, many seeds cheaply.
 TRUTH_NOISE_MM = 0.25
-EXTRA_CONTROLLERS: dict[str, tuple[str, str, float]] = {
-    "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM),
-    "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM),
+EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
+    "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "rules"),
+    "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM, None),
+    "itg-plus-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "itg_plus_rules"),
 }
 ALL_CONTROLLERS = {**CONTROLLERS, **EXTRA_CONTROLLERS}
 CONTROLLER_TITLES = {
-    "itg-vision": "ITG fed by vision (no model)",
-    "itg-model": "ITG fed by encoders + nominal model",
+    "itg-vision": "ITG (the paper's rules) fed by vision (no model)",
+    "itg-model": "ITG (the paper's rules) fed by encoders + nominal model",
     "ik": "closed-form IK of the nominal model, open loop",
     "jacobian-vision": "vision-fed Jacobian tracker (DLS, no model)",
+    "itg-plus-vision": "ITG+ rules (issue 13) fed by vision (no model); S = the servo limit",
+    "itg-plus-model": "ITG+ rules fed by encoders + nominal model; S = the servo limit",
     "itg-truth-noise": f"ITG fed by the simulator's LED positions + {TRUTH_NOISE_MM} mm noise",
     "jacobian-truth-noise": f"Jacobian tracker fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
+    "itg-plus-truth-noise": f"ITG+ fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
 }
-#: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B.
+#: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
+#: ``peanut`` (closed) and ``helix`` are held-out curves, files in data/trajectories.
 TRAJECTORIES: dict[str, str] = {
     "ellipse-t1": "two-link",
     "ellipse-t2": "two-link",
     "abcd": "two-link",
     "line-ab-reach": "three-link",
+    "peanut": "two-link",
+    "helix": "three-link",
 }
+TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv"}
 NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
 DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
+#: Conditions of the itg-plus-three-link sweep only (links 5 % short, and with a joint offset).
+EXTRA_LINK_ERRORS = (-0.05,)
 RIG_ANGLE_DEG = 1.0
 RIG_SHIFT_MM = 5.0
 #: Closed paths run this many laps; the tracking phase is the laps after the first.
@@ -78,16 +92,6 @@ FULL_SEEDS = 5
 QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
-#: Named sweeps: ``robustness`` (the default: every condition) and ``start-tie`` (the
-#: three-link arm from its straight-up start, many seeds: how often does it diverge?).
-SWEEPS = {
-    "robustness": {"controllers": tuple(CONTROLLERS), "trajectories": tuple(TRAJECTORIES),
-                   "conditions": None, "seeds": FULL_SEEDS},
-    "start-tie": {"controllers": ("itg-vision", "itg-truth-noise", "jacobian-vision",
-                                  "jacobian-truth-noise"),
-                  "trajectories": ("line-ab-reach",),
-                  "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
-}
 #: Bump when the meaning of a column or of a run's parameters changes.
 SCHEMA = 3  # 3: the gain column (always empty) became controller_params
 
@@ -134,7 +138,43 @@ def _all_conditions() -> dict[str, Condition]:
     return by
 
 
-CONDITIONS: dict[str, Condition] = _all_conditions()
+def _extra_conditions(by: dict[str, Condition]) -> dict[str, Condition]:
+    """Conditions only named sweeps use: links shorter than the model, and with an offset."""
+    extra = {f"links{100 * e:+g}%": Condition(f"links{100 * e:+g}%", link_error=e)
+             for e in EXTRA_LINK_ERRORS}
+    every = {**by, **extra}
+    for a in ("links-5%", "links+5%"):
+        c = every[a].combine(every["offset-1deg"])
+        extra[c.name] = c
+    return extra
+
+
+#: The robustness sweep's conditions (its default: every one of them).
+ROBUSTNESS_CONDITIONS: tuple[str, ...] = tuple(_all_conditions())
+CONDITIONS: dict[str, Condition] = {**_all_conditions(), **_extra_conditions(_all_conditions())}
+
+#: Named sweeps: ``robustness`` (the default: every robustness condition), ``start-tie`` (the
+#: three-link arm from its straight-up start, many seeds: how often does it diverge?), and
+#: ``itg-plus`` / ``itg-plus-three-link`` (issue 13's targets, see ``bench itg-plus``).
+SWEEPS = {
+    "robustness": {"controllers": tuple(CONTROLLERS),
+                   "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "line-ab-reach"),
+                   "conditions": ROBUSTNESS_CONDITIONS, "seeds": FULL_SEEDS},
+    "start-tie": {"controllers": ("itg-vision", "itg-truth-noise", "jacobian-vision",
+                                  "jacobian-truth-noise"),
+                  "trajectories": ("line-ab-reach",),
+                  "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
+    # issue 13's targets (bench itg-plus): two-link tracking under vision, clean and 1 px
+    "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision"),
+                 "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut"),
+                 "conditions": ("clean", "noise-1px"), "seeds": 3},
+    # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
+    "itg-plus-three-link": {"controllers": ("itg-plus-truth-noise", "jacobian-truth-noise"),
+                            "trajectories": ("line-ab-reach", "helix"),
+                            "conditions": ("clean", "links-5%", "links+5%", "offset-1deg",
+                                           "links-5%+offset-1deg", "links+5%+offset-1deg"),
+                            "seeds": 40},
+}
 
 
 @dataclass(frozen=True)
@@ -149,6 +189,7 @@ class RunSpec:
     seed: int
     rc_controller: str
     feedback: str
+    rules: str  # the rule base of an itg controller ("" for the baselines)
     noise_mm: float
     noise_px: float
     dropout: float
@@ -178,7 +219,23 @@ class RunSpec:
 def _default_points(trajectory: str) -> int:
     from ..trajectory import DEFAULT_POINTS
 
+    if trajectory in TRAJECTORY_FILES:
+        return len(load_trajectory(trajectory))
     return DEFAULT_POINTS[trajectory]
+
+
+def trajectory_source(name: str) -> str:
+    """What :class:`~itg_vision.runner.RunConfig` takes: the name, or the path of its file."""
+    from ..trajectory import TRAJECTORIES_DIR
+
+    return str(TRAJECTORIES_DIR / TRAJECTORY_FILES[name]) if name in TRAJECTORY_FILES else name
+
+
+def load_trajectory(name: str):
+    """A benchmark trajectory (one lap), placed on its arm."""
+    from ..trajectory import load
+
+    return load(trajectory_source(name), None, arm=ArmSpec.from_args(TRAJECTORIES[name]))
 
 
 def _parse_names(text: str | None, known, what: str, noun: str) -> tuple[str, ...] | None:
@@ -208,7 +265,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     closed trajectories run ``LAPS`` laps.
     """
     base = SWEEPS[sweep]
-    conds = conditions or (QUICK["conditions"] if quick else base["conditions"] or tuple(CONDITIONS))
+    conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
     ctrls = controllers or base["controllers"]
     trajs = trajectories or (QUICK["trajectories"] if quick else base["trajectories"])
     n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
@@ -218,15 +275,14 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
         points = QUICK["points"]
     if points is not None and points < 2:
         raise UserError(f"--points: must be >= 2, got {points}")
-    from ..trajectory import named
-
     rig_sha: dict[str, str] = {}
     specs = []
     for traj_name in trajs:
         arm = TRAJECTORIES[traj_name]
-        limits = ArmSpec.from_args(arm).benchmark  # the servo limit every controller runs under
-        laps = LAPS if named(traj_name).closed else 1
-        n = points
+        spec_arm = ArmSpec.from_args(arm)
+        limits = spec_arm.benchmark  # the servo limit every controller runs under
+        laps = LAPS if load_trajectory(traj_name).closed else 1
+        n = None if traj_name in TRAJECTORY_FILES else points  # a file has its own points
         if n is not None and traj_name == "abcd" and n % 2:
             n += 1  # abcd needs an even number of points (two segments)
         for cname in conds:
@@ -238,11 +294,15 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                 sha = rig_sha[arm]
             for seed in range(n_seeds):
                 for ctrl in ctrls:
-                    rc, fb, noise_mm = ALL_CONTROLLERS[ctrl]
+                    rc, fb, noise_mm, rules_key = ALL_CONTROLLERS[ctrl]
                     specs.append(RunSpec(
-                        ctrl, cname, traj_name, arm, n, seed, rc, fb, noise_mm, cond.noise_px,
-                        cond.dropout, cond.rig, sha, cond.link_error, cond.offset_deg,
-                        int(limits["iterations"]), float(limits["max_step_deg"]), laps))
+                        controller=ctrl, condition=cname, trajectory=traj_name, arm=arm,
+                        points=n, seed=seed, rc_controller=rc, feedback=fb,
+                        rules=spec_arm.defaults[rules_key] if rules_key else "",
+                        noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
+                        rig=cond.rig, rig_sha=sha, link_error=cond.link_error,
+                        offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
+                        max_step_deg=float(limits["max_step_deg"]), laps=laps))
     return specs
 
 
@@ -267,8 +327,9 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
     offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
     # a condition's vision parameters reach vision-fed runs only (elsewhere they do nothing)
     vision = spec.feedback == "vision"
-    return RunConfig(arm=spec.arm, trajectory=spec.trajectory, points=spec.points,
-                     controller=spec.rc_controller, feedback=spec.feedback,
+    return RunConfig(arm=spec.arm, trajectory=trajectory_source(spec.trajectory),
+                     points=spec.points, controller=spec.rc_controller,
+                     rules=spec.rules or None, feedback=spec.feedback,
                      iterations=spec.iterations, max_step_deg=spec.max_step_deg, laps=spec.laps,
                      rig=rig_path if vision else None, noise_px=spec.noise_px if vision else 0.0,
                      noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
