@@ -59,3 +59,89 @@ def test_itg_plus_runs_in_every_table_under_the_same_limits_as_the_others():
     for t, c, k in cells:
         if k == "itg-vision":
             assert (t, c, "itg-plus-vision") in cells and (t, c, "itg-plus-model") in cells
+
+
+# ---------------------------------------------------------------------------- targets
+from itg_vision.bench import itg_plus  # noqa: E402
+
+
+def _row(controller, seed, trajectory="ellipse-t1", condition="clean", **metrics):
+    row = {"controller": controller, "seed": str(seed), "trajectory": trajectory,
+           "condition": condition, "diverged": "0", "first_error_mm": "1",
+           "start_error_mm": "2", "track_max_mm": "1", "track_median_mm": "0.1",
+           "e_av_mm": "1"}
+    row.update({k: str(v) for k, v in metrics.items()})
+    return row
+
+
+@pytest.mark.parametrize("value, op, threshold, met", [
+    (2.999, "<", 3.0, True), (3.0, "<", 3.0, False), (3.0, "<=", 3.0, True),
+    (50.0, ">=", 50.0, True), (49.9, ">=", 50.0, False), (0.0, "==", 0.0, True),
+    (float("nan"), "<", 3.0, False)])
+def test_a_verdict_is_the_comparison_of_measured_and_threshold(value, op, threshold, met):
+    assert itg_plus.Target("x", "y", value, op, threshold).met is met
+
+
+def test_tracking_targets_from_rows():
+    rows = [_row(itg_plus.SUBJECT, 0, track_max_mm=2.5, track_median_mm=0.2, e_av_mm=2),
+            _row(itg_plus.SUBJECT, 1, track_max_mm=3.5, track_median_mm=0.4, e_av_mm=4),
+            _row(itg_plus.DLS, 0, track_median_mm=0.1, e_av_mm=5),
+            _row(itg_plus.DLS, 1, track_median_mm=0.2, e_av_mm=5),
+            _row(itg_plus.TABLE2, 0, e_av_mm=3), _row(itg_plus.TABLE2, 1, e_av_mm=3),
+            # 1 px: ITG+ doubles on seed 0 and triples on seed 1; DLS doubles on both
+            _row(itg_plus.SUBJECT, 0, condition="noise-1px", track_median_mm=0.4),
+            _row(itg_plus.SUBJECT, 1, condition="noise-1px", track_median_mm=1.2),
+            _row(itg_plus.DLS, 0, condition="noise-1px", track_median_mm=0.2),
+            _row(itg_plus.DLS, 1, condition="noise-1px", track_median_mm=0.4)]
+    got = {t.what.split(" (")[0]: t for t in itg_plus.tracking_targets(rows, ["ellipse-t1", "abcd"])}
+    assert len(got) == 5  # abcd has no rows: no target invented for it
+    assert got["tracking-phase max E_i"].measured == 3.5 and not got["tracking-phase max E_i"].met
+    med = got["tracking median E_i"]
+    assert med.measured == pytest.approx(0.3) and med.threshold == pytest.approx(0.3) and med.met
+    assert got["E_av below Table 2's"].measured == 3 and not got["E_av below Table 2's"].met
+    assert got["E_av below DLS's"].met
+    noise = got["1 px noise: tracking median / clean"]
+    assert noise.measured == pytest.approx(2.5) and noise.threshold == pytest.approx(2.0)
+    assert not noise.met
+
+
+def test_first_step_and_three_link_targets_count_runs():
+    rows = [_row(itg_plus.SUBJECT_3, s, "helix", first_error_mm=1, start_error_mm=2)
+            for s in range(3)]
+    rows += [_row(itg_plus.DLS_3, s, "helix", diverged=int(s == 0)) for s in range(3)]
+    assert itg_plus.first_step_target(rows, itg_plus.SUBJECT_3, "c").met
+    rows[1]["first_error_mm"] = "2.5"
+    t = itg_plus.first_step_target(rows, itg_plus.SUBJECT_3, "c")
+    assert t.measured == 1 and not t.met
+    div, med = itg_plus.three_link_targets(rows, ["helix", "line-ab-reach"])
+    assert div.measured == 0 and div.met and "DLS 1" in div.note
+    rows[2]["diverged"] = "1"
+    assert not itg_plus.three_link_targets(rows, ["helix"])[0].met
+
+
+def test_speed_target_is_the_ratio_of_the_times():
+    t = itg_plus.speed_target({"itg_plus_compiled_us": 0.5, "ik_pybullet_us": 30.0,
+                               "rules_compiled_us": 0.4})
+    assert t.measured == pytest.approx(60.0) and t.met
+
+
+@pytest.mark.slow
+def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys):
+    """A small run (1 seed, 20 points): every printed verdict agrees with its own numbers."""
+    import re
+
+    out = tmp_path / "ip"
+    assert itg_plus.main(["--out", str(out), "--seeds", "1", "--seeds-three-link", "1",
+                          "--points", "20", "--quiet"]) in (0, 1)
+    text = (out / "targets.md").read_text()
+    rows = [line for line in text.splitlines() if line.startswith("| ") and " | case |" not in line]
+    assert len(rows) >= 20
+    ops = itg_plus.Target.OPS
+    for line in rows:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        measured = float(cells[2].split()[0])
+        op, threshold = cells[3].split()[:2]
+        # the table prints 3 significant digits: the verdict is checked where they decide it
+        if abs(measured - float(threshold)) > 0.01 * max(abs(measured), abs(float(threshold))):
+            assert (cells[4] == "met") == ops[op](measured, float(threshold)), line
+    assert (out / "tracking" / "report.md").exists() and (out / "three-link" / "report.md").exists()
