@@ -55,8 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     ap = ArgumentParser(
         prog="python -m itg_vision.bench noise",
-        description="Noise-robustness benchmark: ITG fed by vision against ITG + nominal model, "
-                    "open-loop IK and a vision-fed Jacobian tracker, under centroid noise, LED "
+        description="Noise-robustness benchmark: ITG (the paper's rules and ITG+) fed by vision "
+                    "against the same rules fed by the nominal model, open-loop IK and a "
+                    "vision-fed Jacobian tracker, under centroid noise, LED "
                     "dropout, rig errors and kinematic model errors. Writes results.csv, "
                     "report.md and plots to --out; rerun with the same --out to resume. "
                     "Pool workers exit when this process dies, however it dies.")
@@ -66,8 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "(rerun to resume), an empty or a new one")
     ap.add_argument("--sweep", default="robustness", choices=tuple(SWEEPS),
                     help="robustness (default: every condition, 4 trajectories, "
-                         f"{FULL_SEEDS} seeds) or start-tie (the three-link arm from its "
-                         "straight-up start, links +0/2/5 %%, 40 seeds: how often it diverges)")
+                         f"{FULL_SEEDS} seeds), start-tie (the three-link arm from its "
+                         "straight-up start, links +0/2/5 %%, 40 seeds: how often it diverges), "
+                         "itg-plus or itg-plus-three-link (issue 13's targets; see "
+                         "`bench itg-plus`)")
     ap.add_argument("--plot-metrics", metavar="A,B,...", default="e_av,track_median,track_max",
                     help="what the plots show, any of " + ", ".join(PLOT_METRICS)
                          + " (default %(default)s)")

@@ -209,15 +209,19 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
               + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
     L += ["## Setup", "",
           "Controllers, on the same runs (same trajectory, condition, seed, servo limit):", ""]
+    rules = {s.controller: s.rules for s in specs}
     L += [f"- `{k}`: {CONTROLLER_TITLES[k]} (RunConfig controller={ALL_CONTROLLERS[k][0]}, "
-          f"feedback={ALL_CONTROLLERS[k][1]})" for k in ctrls]
+          f"feedback={ALL_CONTROLLERS[k][1]}" + (f", rules {rules[k]}" if rules.get(k) else "")
+          + ")" for k in ctrls]
     L += ["", "Trajectories: " + ", ".join(
         f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points per lap)"
         for t in trajs) + ".", ""]
     L += [f"- `{t}`: {_limits_line(specs, t)}" for t in trajs]
     L += ["", "Under vision (or truth) feedback the rules' link lengths and the Jacobian "
           "tracker's shoulder and LED stand-off are measured from the LEDs at start-up "
-          "(`measured_links_mm` in results.csv); only `itg-model` and `ik` use the nominal model. "
+          "(`measured_links_mm` in results.csv); only the `-model` controllers and `ik` use the "
+          "nominal model. The ITG+ rules' S is the servo limit (`controller_params` in "
+          "results.csv). "
           "The Jacobian tracker scales a step whose largest joint increment exceeds the servo "
           "limit as a whole (keeping its direction); the loop clips every controller's joints "
           "to the same limit.", "",
@@ -230,7 +234,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
           "link of the simulated arm X % longer than the nominal model; `offset-1deg` puts every "
           "simulated joint 1 degree off its command; `a+b` combines both. Images are always "
           "rendered with the true rig.", "",
-          "Vision-only conditions (noise, dropout, rig) cannot affect `itg-model` and `ik` "
+          "Vision-only conditions (noise, dropout, rig) cannot affect the `-model` controllers and `ik` "
           "(no rendering): they are run anyway, a few ms each, so every cell comes from real "
           "runs (their numbers equal clean). `ik` is deterministic: its IQR is zero.", "",
           "E_i = distance from the set point to the true gripper after the set point's "
@@ -241,6 +245,9 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
           f"run's statistic, mm; a run diverged when its tracking median exceeds {DIVERGED_MM:g} mm.",
           ""]
     L += ["## Conclusion", ""] + conclusion(summary, trajs, conds, ctrls) + [""]
+    if "itg-plus-vision" in ctrls:
+        L += ["## Conclusion for ITG+", ""] + conclusion(summary, trajs, conds, ctrls,
+                                                           subject="itg-plus-vision") + [""]
     for t in trajs:
         lim = _limits_line(specs, t)
         L += [f"## {t}: E_av (mm), median [IQR] over seeds", "", lim, ""] \
