@@ -5,9 +5,11 @@ resolved and a ``run_id`` hashed from them; :func:`run_config` turns a spec into
 :class:`itg_vision.runner.RunConfig` a worker runs. Nothing here runs, writes or prints.
 
 Choices (documented in the report too):
-- The four controllers map onto :class:`itg_vision.runner.RunConfig`: ``itg-vision`` =
+- The controllers map onto :class:`itg_vision.runner.RunConfig`: ``itg-vision`` =
   (itg, vision), ``itg-model`` = (itg, model), ``ik`` = (ik, model: IK ignores the feedback,
-  'model' wastes no rendering), ``jacobian-vision`` = (jacobian, vision).
+  'model' wastes no rendering), ``jacobian-vision`` = (jacobian, vision); ``itg-plus-vision``
+  and ``itg-plus-model``: the arm file's ITG+ rule base (issue 13) fed by vision or by the
+  model, its S bound to the same servo limit as every other controller.
 - Conditions that only perturb vision (noise, dropout, rig) cannot change the model-fed
   controllers; they are run anyway (no rendering, a few ms each) so every table cell is filled
   from real runs. Likewise every controller is run for every seed.
