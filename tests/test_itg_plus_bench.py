@@ -145,3 +145,17 @@ def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys
         if abs(measured - float(threshold)) > 0.01 * max(abs(measured), abs(float(threshold))):
             assert (cells[4] == "met") == ops[op](measured, float(threshold)), line
     assert (out / "tracking" / "report.md").exists() and (out / "three-link" / "report.md").exists()
+
+
+@pytest.mark.parametrize("make", ["file", "foreign"])
+def test_bench_itg_plus_refuses_an_out_it_did_not_make(tmp_path, capsys, make):
+    out = tmp_path / "o"
+    if make == "file":
+        out.write_text("mine")
+    else:
+        out.mkdir()
+        (out / "notes.txt").write_text("mine")
+    assert itg_plus.main(["--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --out")
+    assert (out.read_text() if make == "file" else (out / "notes.txt").read_text()) == "mine"

@@ -210,6 +210,8 @@ def main(argv: list[str] | None = None) -> int:
 
         args = build_parser().parse_args(argv)
         out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise UserError(f"--out {out}: exists and is not a folder")
         if out.exists() and any(out.iterdir()):
             made = outputs.read_manifest(out)
             if made is None or made.get("command") != COMMAND:
