@@ -43,7 +43,8 @@ class ArmSpec:
     led_standoff_mm : the LEDs' offset from the joints.
     start_pose_deg : the paper's initial pose.
     joint_offset_deg : added to every commanded joint angle by the *true* arm (model error).
-    defaults : {"rules", "rig", "trajectory"}: what a run of this arm uses unless told.
+    defaults : {"rules", "rig", "trajectory"}: what a run of this arm uses unless told; and
+        "itg_plus_rules", the arm's ITG+ rule base (issue 13; the benchmark's itg-plus-*).
     pose_ranges_deg : per joint (lo, hi): random poses the arm's rig sees.
     benchmark : {"max_step_deg", "iterations"}: the limits of the noise benchmark.
     calibration : {"board_target_mm", "axis_sweeps"}: see itg_vision/calibration.py.
@@ -190,8 +191,11 @@ def load_arm(name_or_path: str) -> ArmSpec:
     if len(ranges) != n:
         fail("pose_ranges_deg", f"needs one [lo, hi] per joint ({n})")
     defaults = get("defaults")
-    if not isinstance(defaults, dict) or set(defaults) != {"rules", "rig", "trajectory"}:
-        fail("defaults", "must name the default rules, rig and trajectory")
+    if not isinstance(defaults, dict) or not (
+            {"rules", "rig", "trajectory"} <= set(defaults) <= {"rules", "rig", "trajectory",
+                                                                 "itg_plus_rules"}):
+        fail("defaults", "must name the default rules, rig and trajectory (and may name the "
+                         "itg_plus_rules)")
     bench = get("benchmark")
     if not isinstance(bench, dict) or set(bench) != {"max_step_deg", "iterations"}:
         fail("benchmark", "must give max_step_deg and iterations")

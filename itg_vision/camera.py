@@ -621,3 +621,65 @@ def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndar
     else:
         F.fail(where, "needs look_at_mm, rotation_deg or rotation_matrix + translation_mm")
     return R, -R @ C
+
+
+def perturbed(rig: Rig, seed: int, *, angle_deg: float, shift_mm: float,
+              each_camera: bool = False, true_rig: str | Path | None = None) -> Rig:
+    """A copy of ``rig`` whose extrinsics are off by ``angle_deg`` and ``shift_mm``.
+
+    ``each_camera=False`` (condition ``rig-perturbed``): the rig moves as one body, turned by
+    exactly ``angle_deg`` about a random axis through the midpoint of the camera centres and
+    shifted by exactly ``shift_mm`` in a random direction: the stereo geometry stays consistent
+    and every triangulated point lands in a wrong world frame (a badly measured base frame).
+    ``each_camera=True`` (``rig-perturbed-cams``): each camera turns and moves on its own by those
+    amounts (inconsistent stereo: rays no longer meet).
+
+    The random directions come from ``numpy.random.default_rng([seed, 0x5EED])``. Intrinsics and
+    distortion are unchanged. The copy's ``true_rig`` names the rig the images are rendered with
+    (``true_rig``, default the original's file), so a run believing the copy renders with the
+    truth and estimates with the copy.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig believed to be true.
+    seed : int
+        The run's seed; the same seed gives the same perturbation.
+    angle_deg, shift_mm : float
+        The size of the turn (deg) and of the shift (mm), exactly.
+
+    Returns
+    -------
+    Rig
+        The perturbed copy (its ``true_rig`` names the rig to render with).
+    """
+    import dataclasses
+
+    rng = np.random.default_rng([int(seed), 0x5EED])
+
+    def draw():
+        axis, d = rng.normal(size=3), rng.normal(size=3)
+        rvec = np.asarray(axis, float) / np.linalg.norm(axis) * math.radians(angle_deg)
+        return cv2.Rodrigues(rvec)[0], shift_mm * d / np.linalg.norm(d)
+
+    centres = [c.position_mm for c in rig.cameras]
+    pivot = np.mean(centres, axis=0)
+    dR, shift = draw()
+    cams = []
+    for cam, C in zip(rig.cameras, centres):
+        if each_camera:
+            dR, shift = draw()
+            C_new = C + shift
+        else:
+            C_new = pivot + dR @ (C - pivot) + shift
+        R = cam.R @ dR.T  # the camera's axes turn with the body: R' = R dR^T
+        cams.append(dataclasses.replace(cam, rotation=tuple(tuple(float(v) for v in r) for r in R),
+                                        translation_mm=tuple(float(v) for v in -R @ C_new)))
+    truth = true_rig if true_rig is not None else (rig.true_rig or rig.source)
+    if not truth:
+        raise ValueError("perturbed: the rig has no source file; pass true_rig")
+    record = {"perturbed": {"from": str(rig.source or truth), "seed": int(seed),
+                            "angle_deg": float(angle_deg), "shift_mm": float(shift_mm),
+                            "each_camera": bool(each_camera)}}
+    return Rig(f"{rig.name}-perturbed", tuple(cams), "", record, str(Path(truth).resolve()))
+

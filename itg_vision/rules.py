@@ -49,6 +49,11 @@ level). Beyond them the file is refused at the line and column where the limit i
 A rule base loaded for an arm (:func:`load_rules`) must move every joint of it: ``table1``
 (one joint) on the two-link arm is refused rather than run with q2 frozen.
 
+A line ``#! S is the servo limit`` (a comment to the parser) declares that the rules' S is the
+loop's servo limit: :attr:`RuleBase.servo_step` is then true, and the runner binds S to the
+run's ``max_step_deg`` rather than to ``--step`` (the ITG+ rule bases, whose steps are clipped
+to +-S and whose compensations assume each joint moves what the rules ask).
+
 Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm); radial squares
 ``rd2 rg2 re2`` (x^2 + y^2, mm^2); joints ``q1..qn`` (deg); gain ``f`` (deg/mm), fixed step
 ``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm.
@@ -75,6 +80,8 @@ MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg
 #: The rule parameters and the field names (units included) they go by outside the rules.
 PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
 PARAM_NAMES = ("f", "S", "w")
+#: The declaration that a rule base's S is the loop's servo limit (a line of its own).
+SERVO_STEP = re.compile(r"^#![ \t]*S is the servo limit[ \t]*$", re.M)
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: Deepest condition or expression accepted (levels of nesting and of operators).
 MAX_DEPTH = 50
@@ -487,6 +494,7 @@ class RuleBase:
     n_joints : joints the arm has (rules naming others are refused).
     links_mm : link lengths bound to ``L1..Ln`` and ``L``.
     f, S, w : gain (deg/mm), fixed step (deg), tolerance (mm).
+    servo_step : the file declares ``#! S is the servo limit`` (see the module docstring).
     """
 
     rules: list[Rule]
@@ -496,6 +504,7 @@ class RuleBase:
     S: float = 0.5
     w: float = 0.5
     source: str = "<rules>"
+    servo_step: bool = False
     definitions: tuple[Definition, ...] = ()
     python_source: str = field(default="", repr=False)
     _fn: object = field(default=None, repr=False)
@@ -508,6 +517,7 @@ class RuleBase:
         rules = [Rule(r.number, r.condition, r.actions, r.line, lines[r.line - 1].strip())
                  for r in rules]
         rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source,
+                 servo_step=bool(SERVO_STEP.search(text)),
                  definitions=tuple(parser.definitions), **params)
         rb._check()
         rb.python_source = rb._source()
@@ -690,6 +700,11 @@ class RuleBase:
 RULES_DIR = Path(__file__).resolve().parent.parent / "data" / "rules"
 
 
+def shipped_rules() -> list[str]:
+    """The names of the rule bases in ``data/rules`` (``table2``, ``itg-plus-two-link``, ...)."""
+    return sorted(q.stem for q in RULES_DIR.glob("*.rules"))
+
+
 def resolve_rules_path(name_or_path: str) -> Path:
     """A shipped rule base by name (``table1``, ``table2``, ``three-link``) or a file path."""
     p = Path(name_or_path)
@@ -699,7 +714,7 @@ def resolve_rules_path(name_or_path: str) -> Path:
         return p
     candidate = RULES_DIR / f"{name_or_path}.rules"
     if not candidate.exists():
-        shipped = sorted(q.stem for q in RULES_DIR.glob("*.rules"))
+        shipped = shipped_rules()
         raise UserError(f"unknown rule base {name_or_path!r} (shipped: {', '.join(shipped)}; "
                         "or give a path to a .rules file)")
     return candidate

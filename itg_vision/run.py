@@ -21,6 +21,7 @@ from pathlib import Path
 from . import outputs, plot
 from .errors import ArgumentParser, ConfigError, UserError, run_main
 from .progress import progress
+from .rules import shipped_rules
 from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
                      prepare)
 
@@ -76,7 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--points", type=_points, metavar="N",
                     help=f"number of set points of a named trajectory (2..{MAX_POINTS})")
     ap.add_argument("--rules", metavar="NAME|PATH",
-                    help="rule base: table1, table2, three-link or a .rules file (default: the arm's)")
+                    help="rule base: one shipped in data/rules (" + ", ".join(shipped_rules())
+                         + ") or a .rules file (default: the arm's). The itg-plus rule bases "
+                         "take S from the servo limit (--max-step, default the arm file's)")
     ap.add_argument("--controller", default="itg", choices=CONTROLLERS,
                     help="itg (the rules), or a baseline: ik (closed-form inverse kinematics, "
                          "open loop) or jacobian (vision-fed damped least squares)")

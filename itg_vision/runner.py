@@ -8,6 +8,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 
 from . import trajectory as traj
 from .arm import ArmSpec
@@ -186,6 +187,11 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
         params = {**RULE_DEFAULTS, **given}
         controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
                                 **{RULE_NAMES[k]: v for k, v in params.items()})
+        if controller.servo_step:  # the rules' S is the loop's servo limit (#! in the file)
+            cfg, servo_note = servo_limit_for_rules(cfg, model, controller.source)
+            params["step_deg"] = cfg.max_step_deg
+            controller = dataclasses.replace(controller, S=cfg.max_step_deg)
+            info["servo_limit"] = servo_note
         used = {k for k, name in RULE_NAMES.items() if controller.uses(name)}
         for k in given:
             if k not in used:
@@ -241,6 +247,21 @@ def supersample_of(cfg: RunConfig, rig) -> int:
     return int(rig.supersample or DEFAULT_SUPERSAMPLE)
 
 
+def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[RunConfig, str]:
+    """The configuration of a rule base whose S is the servo limit, and where the limit came
+    from: the run's ``max_step_deg``, else the arm file's benchmark limit (which the loop then
+    applies too). ``step_deg`` may only repeat it (`ConfigError` otherwise)."""
+    servo, note = cfg.max_step_deg, "the run's max_step_deg"
+    if servo is None:
+        servo = float(model.benchmark["max_step_deg"])
+        note = f"the arm file's benchmark limit (data/arms/{model.name}.yaml)"
+        cfg = dataclasses.replace(cfg, max_step_deg=servo)
+    if cfg.step_deg is not None and cfg.step_deg != servo:
+        raise ConfigError("step_deg", f"{source}: S is the servo limit ({servo:g} deg per "
+                                      "iteration): set max_step_deg instead")
+    return cfg, f"S = servo limit = {servo:g} deg/iteration, from {note}"
+
+
 def resolve_relative(path: str, relative_to: Path) -> Path:
     """A path named inside a file: relative to that file's folder (as written), else as given."""
     p = Path(path)
@@ -259,14 +280,21 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
     with World(prep.true_arm) as world, opencv_threads(1):
         geometry = start_up_geometry(cfg, world, feedback, prep.model)
         controller = bind_geometry(prep.controller, geometry, prep.model, cfg.max_step_deg)
+        start_gripper_mm = world.true_markers()["gripper"]
         trace = simulate(world, controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
                          max_step_deg=cfg.max_step_deg,
                          tracking_start=prep.trajectory.tracking_start, progress=progress,
                          recorder=recorder)
     wall_s = time.perf_counter() - t0
+    dims = 2 if prep.model.planar else 3
     summary = {
         **trace.metrics(),
+        # the first set point: its distance from the gripper at the start, and E_i after its
+        # iterations (a first step that moves the gripper away shows as first > start)
+        "start_error_mm": float(np.linalg.norm((prep.trajectory.points_mm[0]
+                                                - start_gripper_mm)[:dims])),
+        "first_error_mm": float(trace.error_mm()[0]),
         "arm": prep.model.name,
         "links_mm": list(prep.model.links_mm),
         "true_links_mm": list(prep.true_arm.links_mm),

@@ -43,7 +43,8 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
         "arm", "controller", "controller_params", "e_av_mm", "e_max_mm", "e_rms_mm",
         "est_elbow_rms_mm", "est_gripper_rms_mm", "feedback", "feedback_params", "geometry",
         "iterations", "joint_offset_deg", "laps", "links_mm", "max_step_deg", "n_missed",
-        "n_out_of_reach", "n_setpoints", "rules", "seed", "timing_ms", "track_max_mm",
+        "n_out_of_reach", "n_setpoints", "rules", "seed", "start_error_mm", "first_error_mm",
+        "timing_ms", "track_max_mm",
         "track_mean_mm", "track_median_mm", "track_p95_mm", "tracking_from", "trajectory",
         "true_links_mm", "wall_s"}
     # only what was used is recorded: Table 2 reads f alone; model feedback takes no parameter
@@ -191,3 +192,18 @@ def test_run_video_writes_a_browser_playable_video(cli, tmp_path):
     assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 12
     ok, frame = cap.read()
     assert ok and frame.shape[1] == 2 * 640
+
+
+def test_start_and_first_errors_against_the_forward_kinematics():
+    """start_error_mm: the first set point's distance from the gripper at the start pose (the
+    nominal forward kinematics, independent of the simulator); first_error_mm: E_1."""
+    from itg_vision.arm import ArmSpec, forward_kinematics
+    from itg_vision.trajectory import load
+
+    arm = ArmSpec.from_args("two-link")
+    trace, s = execute(prepare(RunConfig(feedback="model", points=20)))
+    p0 = load("ellipse-t1", 20, arm=arm).points_mm[0]
+    g0 = forward_kinematics(arm, arm.start_pose_deg)["gripper"]
+    # PyBullet keeps positions in metres as float32-accurate link frames: ~1e-6 m at most
+    assert s["start_error_mm"] == pytest.approx(np.linalg.norm((p0 - g0)[:2]), abs=1e-3)
+    assert s["first_error_mm"] == pytest.approx(trace.error_mm()[0])

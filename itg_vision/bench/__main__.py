@@ -1,11 +1,11 @@
-"""python -m itg_vision.bench {speed,accuracy,noise} [options]"""
+"""python -m itg_vision.bench {speed,accuracy,noise,itg-plus} [options]"""
 
 from __future__ import annotations
 
 import sys
 
-NAMES = ("speed", "accuracy", "noise")
-USAGE = ("usage: python -m itg_vision.bench {speed,accuracy,noise} [options]  "
+NAMES = ("speed", "accuracy", "noise", "itg-plus")
+USAGE = ("usage: python -m itg_vision.bench {speed,accuracy,noise,itg-plus} [options]  "
          "(--help after the name for its options)")
 
 
@@ -25,8 +25,10 @@ def main(argv: list[str] | None = None) -> int:
         from .accuracy import main as run
     elif name == "noise":
         from .noise import main as run
+    elif name == "itg-plus":
+        from .itg_plus import main as run
     else:
-        print(f"error: unknown benchmark {name!r} (choose speed, accuracy or noise)", file=sys.stderr)
+        print(f"error: unknown benchmark {name!r} (choose {', '.join(NAMES)})", file=sys.stderr)
         return 2
     return run(rest)
 

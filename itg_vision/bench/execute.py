@@ -1,0 +1,168 @@
+"""The noise benchmark's execution: one run in a worker, and one path for every executor.
+
+:func:`run_one` executes a :class:`~itg_vision.bench.sweep.RunSpec` anywhere (it builds its own
+World and rig: nothing is shared but the spec). :func:`results` feeds specs to any
+``concurrent.futures.Executor`` and yields each spec with its row as runs finish: the local
+process pool (:func:`local_executor`; workers die with their parent, however it dies), the
+calling process (``workers == 1``) and a Dask cluster (:func:`dask_executor`, the client's
+``get_executor()``) all go through it.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
+
+from ..errors import UserError
+from .store import make_row
+from .sweep import RIG_ANGLE_DEG, RIG_SHIFT_MM, RunSpec, calibrated_rig_path, run_config
+
+
+def run_one(spec: RunSpec) -> dict:
+    """Execute one spec (in a worker); return its results row, or ``{'run_id', 'error'}``.
+
+    Builds its own World (PyBullet clients are per process) and, for ``rig-perturbed``, its own
+    perturbed rig in memory: nothing is shared with the caller but the spec.
+    """
+    from ..camera import Rig, default_rig_path, perturbed
+    from ..runner import execute, prepare
+
+    try:
+        rig_path, rig = None, None
+        if spec.vision and spec.rig == "calibrated":
+            rig_path = str(calibrated_rig_path(spec.arm))
+        elif spec.vision and spec.rig in ("perturbed", "perturbed-cams"):
+            true_path = default_rig_path(spec.arm)
+            rig = perturbed(Rig.from_yaml(true_path), spec.seed, angle_deg=RIG_ANGLE_DEG,
+                            shift_mm=RIG_SHIFT_MM, each_camera=spec.rig == "perturbed-cams",
+                            true_rig=true_path)
+        prep = prepare(run_config(spec, rig_path), estimate_rig=rig)
+        _, s = execute(prep)
+    except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
+        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+    return make_row(spec, s)
+
+
+def results(executor: Executor, specs, in_flight: int):
+    """Yield ``(spec, row)`` as the runs of ``specs`` finish on ``executor``.
+
+    At most ``in_flight`` runs are submitted at a time (the rest wait here), so that an
+    interruption has little to cancel and an inline executor yields each row as it is made.
+    A run whose worker died yields an error row (reported per run), never an exception.
+    """
+    todo = iter(specs)
+    pending: dict[Future, RunSpec] = {}
+
+    def fill() -> None:
+        while len(pending) < max(1, in_flight):
+            spec = next(todo, None)
+            if spec is None:
+                return
+            pending[executor.submit(run_one, spec)] = spec
+
+    fill()
+    while pending:
+        done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+        for fut in done:
+            spec = pending.pop(fut)
+            yield spec, _outcome(spec, fut)
+        fill()
+
+
+def _outcome(spec: RunSpec, future) -> dict:
+    """A finished future's row, or an error row when its worker died (reported per run)."""
+    try:
+        return future.result()
+    except Exception as exc:  # noqa: BLE001 - a dead or lost worker
+        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
+
+
+class InlineExecutor(Executor):
+    """``workers == 1``: each submitted call runs at once in this process."""
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the future like a pool does
+            if not isinstance(exc, Exception):
+                raise
+            fut.set_exception(exc)
+        return fut
+
+
+def _exit_with_parent() -> None:
+    """Pool initializer: end this worker as soon as its parent dies, however it dies.
+
+    A pool's workers otherwise outlive a parent killed by SIGKILL (they wait forever on the call
+    queue, whose write end they hold themselves; the resource tracker lives as long as they do;
+    cpython#111873). A daemon thread waits on the parent sentinel that ``spawn`` hands every
+    child (a pipe closed by the kernel when the parent exits) and then ``os._exit`` s.
+    """
+    import multiprocessing
+    import threading
+
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        parent.join()
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def local_executor(workers: int) -> Executor:
+    """A spawn process pool of ``workers`` whose workers exit when this process dies (even by
+    SIGKILL, see :func:`_exit_with_parent`), or the calling process when ``workers == 1``."""
+    if workers <= 1:
+        return InlineExecutor()
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_exit_with_parent)
+
+
+def check_scheduler_address(address: str) -> None:
+    """``[tcp|tls|ws|wss://]HOST:PORT``, port 1..65535, or a `UserError` naming --scheduler.
+
+    Checked before a Dask Client is made: one built on a malformed address raises, and the
+    half-made Client then prints a traceback and hangs 10 s when garbage-collected.
+    """
+    import re
+
+    m = re.fullmatch(r"(?:(tcp|tls|ws|wss)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})", address)
+    if not m or not 1 <= int(m.group(3)) <= 65535:
+        raise UserError(f"--scheduler {address}: expected tcp://HOST:PORT (port 1..65535)")
+
+
+def dask_executor(address: str, timeout_s: float = 5.0) -> tuple[Executor, int, object]:
+    """The Dask cluster at ``address`` as a ``concurrent.futures`` executor (workers must be
+    able to import itg_vision); returns ``(executor, threads, client)``."""
+    check_scheduler_address(address)  # a Client that fails on a bad address hangs in __del__
+    try:
+        from distributed import Client
+    except ImportError:
+        raise UserError("--scheduler needs dask.distributed: pip install 'itg_vision[cluster]'") from None
+    try:
+        client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
+    except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError (bad address)
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise UserError(f"--scheduler {address}: cannot connect ({msg})") from None
+    threads = max(1, sum(w.get("nthreads", 1) for w in
+                         client.scheduler_info().get("workers", {}).values()))
+    return client.get_executor(pure=False), threads, client
+
+
+def shutdown(executor: Executor, cancel: bool = False, client=None) -> None:
+    """Stop ``executor``; ``cancel`` (an interruption) also stops the runs in flight (their rows
+    were not written). A Dask executor stops with its ``client``."""
+    if client is not None:
+        client.close()
+        return
+    if cancel:
+        for proc in list((getattr(executor, "_processes", None) or {}).values()):
+            proc.terminate()
+    executor.shutdown(wait=not cancel, cancel_futures=cancel)

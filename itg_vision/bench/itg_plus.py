@@ -1,0 +1,260 @@
+"""python -m itg_vision.bench itg-plus: issue 13's targets for the ITG+ rule bases, measured.
+
+Runs two sweeps of the noise benchmark (same definition, store, executors and report; each its
+own folder under ``--out``, resumable):
+
+- ``tracking/``: sweep ``itg-plus``: the two-link arm under vision feedback on T1, T2, ``abcd``
+  and the held-out closed curve ``peanut`` (2 laps), clean and with 1 px centroid noise, ITG+
+  against the DLS Jacobian tracker and the paper's Table 2, same seeds, same servo limit;
+- ``three-link/``: sweep ``itg-plus-three-link``: the three-link arm from its straight-up start
+  on ``line-ab-reach`` and the held-out ``helix``, links -5/0/+5 % x joint offset 0/1 deg,
+  40 seeds, fed the simulator's LED positions plus 0.25 mm Gaussian noise (about vision's
+  error, 480 runs per controller at a fraction of the rendering cost);
+
+then times one compiled ITG+ step against PyBullet's numerical IK on the same set points
+(as ``bench speed`` does for Table 2), and writes ``targets.md``: each target with its
+measured value, its threshold and a verdict computed from the two (printed too).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import operator
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import outputs
+from ..errors import UserError, run_main
+
+#: What each target compares (issue 13).
+TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
+MEDIAN_FACTOR = 2.0  # tracking median within this factor of the DLS tracker's
+SPEED_FACTOR = 50.0  # compiled ITG+ step at least this many times cheaper than PyBullet IK
+SUBJECT, DLS, TABLE2 = "itg-plus-vision", "jacobian-vision", "itg-vision"
+SUBJECT_3, DLS_3 = "itg-plus-truth-noise", "jacobian-truth-noise"
+COMMAND = "bench itg-plus"
+
+
+@dataclass(frozen=True)
+class Target:
+    """One target: ``measured op threshold`` decides the verdict (never typed)."""
+
+    what: str
+    case: str
+    measured: float
+    op: str  # "<", "<=", ">=", "=="
+    threshold: float
+    unit: str = ""
+    note: str = ""
+
+    OPS = {"<": operator.lt, "<=": operator.le, ">=": operator.ge, "==": operator.eq}
+
+    @property
+    def met(self) -> bool:
+        return (math.isfinite(self.measured) and math.isfinite(self.threshold)
+                and bool(self.OPS[self.op](self.measured, self.threshold)))
+
+
+def _f(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _median(rows, col) -> float:
+    v = [x for x in (_f(r[col]) for r in rows) if math.isfinite(x)]
+    return float(np.median(v)) if v else float("nan")
+
+
+def _pick(rows, **eq) -> list[dict]:
+    return [r for r in rows if all(r[k] == v for k, v in eq.items())]
+
+
+def tracking_targets(rows: list[dict], trajectories) -> list[Target]:
+    """Two-link vision targets per trajectory, from the ``itg-plus`` sweep's rows."""
+    out = []
+    for t in trajectories:
+        clean = {k: _pick(rows, trajectory=t, condition="clean", controller=k)
+                 for k in (SUBJECT, DLS, TABLE2)}
+        if not all(clean.values()):
+            continue
+        worst = {k: max(_f(r["track_max_mm"]) for r in rs) for k, rs in clean.items()}
+        out.append(Target("tracking-phase max E_i (worst seed)", t, worst[SUBJECT], "<",
+                          TRACK_MAX_MM, "mm", f"DLS {worst[DLS]:.3g}, Table 2 {worst[TABLE2]:.3g}"))
+        med, med_dls = _median(clean[SUBJECT], "track_median_mm"), _median(clean[DLS], "track_median_mm")
+        out.append(Target("tracking median E_i (median over seeds)", t, med, "<=",
+                          MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}"))
+        eav = _median(clean[SUBJECT], "e_av_mm")
+        for other, label in ((TABLE2, "Table 2"), (DLS, "DLS")):
+            ref = _median(clean[other], "e_av_mm")
+            out.append(Target(f"E_av below {label}'s (median over seeds)", t, eav, "<", ref, "mm",
+                              f"{label} {ref:.3g}"))
+        noisy = {k: _pick(rows, trajectory=t, condition="noise-1px", controller=k) for k in (SUBJECT, DLS)}
+        if all(noisy.values()):
+            ratio = {k: _degradation(clean[k], noisy[k]) for k in (SUBJECT, DLS)}
+            noisy_med = {k: _median(noisy[k], "track_median_mm") for k in (SUBJECT, DLS)}
+            out.append(Target("1 px noise: tracking median / clean (same seeds)", t, ratio[SUBJECT],
+                              "<=", ratio[DLS], "x", f"DLS {ratio[DLS]:.3g}x; with 1 px: ITG+ "
+                              f"{noisy_med[SUBJECT]:.3g} mm, DLS {noisy_med[DLS]:.3g} mm"))
+    return out
+
+
+def _degradation(clean: list[dict], noisy: list[dict]) -> float:
+    """Median over seeds of (noisy / clean) tracking median E_i, seed by seed."""
+    by_seed = {r["seed"]: _f(r["track_median_mm"]) for r in clean}
+    ratios = [_f(r["track_median_mm"]) / by_seed[r["seed"]] for r in noisy
+              if r["seed"] in by_seed and by_seed[r["seed"]] > 0]
+    return float(np.median(ratios)) if ratios else float("nan")
+
+
+def first_step_target(rows: list[dict], controller: str, case: str) -> Target:
+    """How many runs ended their first set point farther from it than they started."""
+    runs = _pick(rows, controller=controller)
+    farther = sum(_f(r["first_error_mm"]) > _f(r["start_error_mm"]) for r in runs)
+    return Target("first set point: runs ending farther than they started", case,
+                  float(farther), "==", 0.0, "runs", f"of {len(runs)}")
+
+
+def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
+    """Divergences and median against DLS, per trajectory, over every condition and seed."""
+    out = []
+    for t in trajectories:
+        mine, dls = _pick(rows, trajectory=t, controller=SUBJECT_3), _pick(rows, trajectory=t, controller=DLS_3)
+        if not mine or not dls:
+            continue
+        div = sum(r["diverged"] == "1" for r in mine)
+        conds = sorted({r["condition"] for r in mine})
+        seeds = len({r["seed"] for r in mine})
+        out.append(Target("three-link divergences", t, float(div), "==", 0.0, "runs",
+                          f"of {len(mine)}: {seeds} seeds x {len(conds)} conditions; DLS "
+                          f"{sum(r['diverged'] == '1' for r in dls)}"))
+        med, med_dls = _median(mine, "track_median_mm"), _median(dls, "track_median_mm")
+        out.append(Target("three-link tracking median E_i (median over runs)", t, med, "<=",
+                          MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}"))
+    return out
+
+
+def speed_target(costs: dict) -> Target:
+    ratio = costs["ik_pybullet_us"] / costs["itg_plus_compiled_us"]
+    return Target("PyBullet IK / compiled ITG+ step (time per decision)", "two-link", ratio, ">=",
+                  SPEED_FACTOR, "x", f"{costs['itg_plus_compiled_us']:.2f} us vs "
+                                     f"{costs['ik_pybullet_us']:.1f} us; Table 2 "
+                                     f"{costs['rules_compiled_us']:.2f} us")
+
+
+def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
+    """Microseconds per decision: the compiled ITG+ two-link step and PyBullet's IK, on the
+    same set points and arm states as ``bench speed`` (its Table 2 figure beside them)."""
+    from ..arm import ArmSpec, forward_kinematics
+    from ..feedback import Markers
+    from ..rules import load_rules
+    from ..trajectory import named
+    from .speed import _per_call_us, decision_costs as table2_costs
+
+    arm = ArmSpec.from_args("two-link")
+    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
+                    S=float(arm.benchmark["max_step_deg"]), w=0.5)
+    pts = named("ellipse-t1", n_points).points_mm
+    qs = np.random.default_rng(0).uniform(-170, 170, (n_points, 2))
+    args = []
+    for p, q in zip(pts, qs):
+        m = forward_kinematics(arm, q)
+        args.append(rb.arguments(p, Markers(m["gripper"], m["elbow"]), q))
+    costs = table2_costs(n_points, repeat)
+    costs["itg_plus_compiled_us"] = _per_call_us(rb.compiled, args, repeat)
+    return costs
+
+
+def table(targets: list[Target]) -> list[str]:
+    lines = ["| target | case | measured | threshold | verdict | note |", "|---|---|---|---|---|---|"]
+    for t in targets:
+        lines.append(f"| {t.what} | {t.case} | {t.measured:.3g} {t.unit} | {t.op} "
+                     f"{t.threshold:.3g} {t.unit} | {'met' if t.met else '**missed**'} | {t.note} |")
+    return lines
+
+
+# ---------------------------------------------------------------------------- command line
+def build_parser() -> argparse.ArgumentParser:
+    from ..errors import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m itg_vision.bench itg-plus",
+                        description="Issue 13's targets for ITG+: runs the itg-plus and "
+                                    "itg-plus-three-link sweeps of the noise benchmark (resumable) "
+                                    "and a decision-cost timing, then writes targets.md: each "
+                                    "target's measured value, threshold and computed verdict.")
+    ap.add_argument("--out", default="runs/bench-itg-plus", metavar="DIR",
+                    help="output folder (default %(default)s); rerun to resume")
+    ap.add_argument("--seeds", type=int, metavar="K", help="seeds of the two-link vision sweep "
+                    "(default: the itg-plus sweep's)")
+    ap.add_argument("--seeds-three-link", type=int, metavar="K",
+                    help="seeds of the three-link sweep (default: its 40)")
+    ap.add_argument("--points", type=int, metavar="N",
+                    help="set points of the named trajectories (default: each one's own)")
+    ap.add_argument("--workers", type=int, metavar="N", help="local worker processes")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+
+    def body() -> int:
+        from . import noise
+        from .store import Results
+        from .sweep import SWEEPS
+
+        args = build_parser().parse_args(argv)
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise UserError(f"--out {out}: exists and is not a folder")
+        if out.exists() and any(out.iterdir()):
+            made = outputs.read_manifest(out)
+            if made is None or made.get("command") != COMMAND:
+                raise UserError(f"--out {out}: is a folder this benchmark did not make; choose "
+                                "another --out")
+        common = (["--workers", str(args.workers)] if args.workers else []) \
+            + (["--quiet"] if args.quiet else [])
+        status = 0
+        rows = {}
+        for sweep, sub, seeds in (("itg-plus", "tracking", args.seeds),
+                                  ("itg-plus-three-link", "three-link", args.seeds_three_link)):
+            extra = (["--seeds", str(seeds)] if seeds is not None else []) \
+                + (["--points", str(args.points)] if args.points is not None else [])
+            out.mkdir(parents=True, exist_ok=True)
+            if not (out / outputs.MANIFEST).exists():
+                outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
+            status = max(status, noise.main(["--sweep", sweep, "--out", str(out / sub)] + extra + common))
+            if status == 2:
+                return 2
+            rows[sweep] = list(Results(out / sub / "results.csv").rows.values())
+        targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"])
+        targets.append(first_step_target(rows["itg-plus"], SUBJECT, "two-link, vision, every run"))
+        targets += three_link_targets(rows["itg-plus-three-link"],
+                                      SWEEPS["itg-plus-three-link"]["trajectories"])
+        targets.append(first_step_target(rows["itg-plus-three-link"], SUBJECT_3,
+                                         "three-link, truth + 0.25 mm, every run"))
+        costs = decision_costs()
+        targets.append(speed_target(costs))
+        command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
+        text = ["# ITG+ against issue 13's targets", "", f"Produced by `{command.strip()}`.", "",
+                "Two-link: vision feedback, 2 laps, servo limit and iterations from "
+                "data/arms/two-link.yaml for every controller (tracking/report.md); three-link: "
+                "LED positions + 0.25 mm noise, from the straight-up start (three-link/report.md). "
+                "Verdicts are computed from the measured value and the threshold.", ""]
+        text += table(targets) + [""]
+        text += [f"{sum(t.met for t in targets)} of {len(targets)} targets met.", ""]
+        outputs.write_text(out / "targets.md", "\n".join(text))
+        print("\n".join(table(targets)))
+        print(f"{sum(t.met for t in targets)} of {len(targets)} targets met; {out / 'targets.md'}")
+        return status
+
+    return run_main(body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

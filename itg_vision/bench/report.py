@@ -1,0 +1,318 @@
+"""The noise benchmark's report: summaries over seeds, tables, a conclusion computed from the
+numbers, ``report.md`` and the plots (drawn by :mod:`itg_vision.plot`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import outputs
+from .sweep import ALL_CONTROLLERS, CONDITIONS, CONTROLLER_TITLES, DIVERGED_MM, TRAJECTORIES, Condition, RunSpec
+
+def _float(v: str) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _stats(values) -> tuple[float, float, float]:
+    v = np.asarray([x for x in values if math.isfinite(x)], float)
+    if not v.size:
+        return (float("nan"),) * 3
+    q1, med, q3 = np.percentile(v, [25, 50, 75])
+    return float(med), float(q1), float(q3)
+
+
+def _fmt_mm(v: float) -> str:
+    if not math.isfinite(v):
+        return "n/a"
+    if v == 0:
+        return "0"
+    if abs(v) < 0.01:
+        return f"{v:.0e}"
+    return f"{v:.3g}" if abs(v) < 100 else f"{v:.0f}"
+
+
+def _ratio(a: float, b: float) -> str:
+    """How many times ``a`` is ``b`` (both errors in mm), for prose."""
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return "n/a"
+    if b < 1e-3:
+        return "> 1000x" if a >= 1.0 else f"{a / max(b, 1e-9):.3g}x"
+    return f"{a / b:.2g}x"
+
+
+#: Per-run statistics summarised over seeds: (column, short label).
+STATS = (("e_av_mm", "E_av"), ("e_max_mm", "E_max"), ("track_median_mm", "median"),
+         ("track_mean_mm", "mean"), ("track_p95_mm", "p95"), ("track_max_mm", "max"))
+#: What the plots can show (``--plot-metrics``).
+PLOT_METRICS = {"e_av": "E_av", "track_median": "tracking median E_i",
+                "track_mean": "tracking mean E_i", "track_p95": "tracking p95 E_i",
+                "track_max": "tracking max E_i"}
+
+
+def summarize(rows: list[dict]) -> dict:
+    """(trajectory, condition, controller) -> per-run statistics over seeds.
+
+    ``s["track_max"] = (median, q1, q3)`` over seeds of each run's statistic (keys: the
+    ``STATS`` columns without ``_mm``), ``worst_max`` the largest tracking-phase E_i of any
+    seed, ``diverged`` and ``n`` the number of diverged runs and of runs.
+    """
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["trajectory"], r["condition"], r["controller"]), []).append(r)
+    out = {}
+    for key, rs in groups.items():
+        s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in rs) for col, _ in STATS}
+        worst = [_float(r["track_max_mm"]) for r in rs]
+        s.update({"worst_max": max((w for w in worst if math.isfinite(w)), default=float("nan")),
+                  "diverged": sum(r["diverged"] == "1" for r in rs),
+                  "missed": float(np.mean([_float(r["n_missed"]) for r in rs])),
+                  "wall": float(np.sum([_float(r["wall_s"]) for r in rs])), "n": len(rs)})
+        out[key] = s
+    return out
+
+
+def _limits_line(specs: list[RunSpec], traj: str) -> str:
+    s = next(s for s in specs if s.trajectory == traj)
+    phase = (f"{s.laps} laps, tracking phase = laps 2..{s.laps}" if s.laps > 1
+             else "tracking phase = second half of the set points")
+    limit = ("no servo limit" if s.max_step_deg is None
+             else f"servo limit {s.max_step_deg:g} deg/iteration")
+    return (f"Every controller: {limit} (each joint), {s.iterations} iteration(s) per set point, "
+            f"{phase}.")
+
+
+def _grid(summary, traj, conds, ctrls, cell) -> list[str]:
+    """A markdown table, a row per condition and a column per controller: ``cell(s)``."""
+    lines = ["| condition | " + " | ".join(ctrls) + " |", "|---|" + "---|" * len(ctrls)]
+    for c in conds:
+        cells = [cell(summary[(traj, c, k)]) if (traj, c, k) in summary else "-" for k in ctrls]
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _table(summary, traj, conds, ctrls, metric) -> list[str]:
+    """Median [IQR] over seeds of one per-run statistic."""
+    def cell(s):
+        med, q1, q3 = s[metric]
+        return f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]"
+
+    return _grid(summary, traj, conds, ctrls, cell)
+
+
+def _tail_table(summary, traj, conds, ctrls) -> list[str]:
+    """Tracking phase per cell: median / mean / p95 / max of E_i (medians over seeds), the
+    worst max of any seed, and the diverged runs."""
+    def cell(s):
+        text = " / ".join(_fmt_mm(s[m][0]) for m in ("track_median", "track_mean", "track_p95",
+                                                     "track_max"))
+        text += f" ({_fmt_mm(s['worst_max'])})"
+        return text + (f" **{s['diverged']}/{s['n']} diverged**" if s["diverged"] else "")
+
+    return _grid(summary, traj, conds, ctrls, cell)
+
+
+def _compare(med, trajs, conds, a_ctrl, b_ctrl):
+    wins, losses, ties = [], [], []
+    for t in trajs:
+        for c in conds:
+            a, b = med.get((t, c, a_ctrl)), med.get((t, c, b_ctrl))
+            if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
+                continue
+            item = (t, c, a, b)
+            if abs(a - b) <= 0.05 * max(a, b) + 0.01:
+                ties.append(item)
+            elif a < b:
+                wins.append(item)
+            else:
+                losses.append(item)
+    return wins, losses, ties
+
+
+def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> list[str]:
+    """Plain-words findings computed from the medians over seeds (thresholds stated inline)."""
+    out = []
+    if subject not in ctrls:
+        return [f"({subject} not in this sweep: no comparison.)"]
+    for metric, label in (("e_av", "E_av (the paper's metric, start transient included)"),
+                          ("track_mean", "tracking-phase mean E_i"),
+                          ("track_max", "tracking-phase max E_i (the tail)")):
+        med = {k: v[metric][0] for k, v in summary.items()}
+        parts = []
+        for other in [c for c in ctrls if c != subject]:
+            wins, losses, ties = _compare(med, trajs, conds, subject, other)
+            n = len(wins) + len(losses) + len(ties)
+            if not n:
+                continue
+            text = (f"vs `{other}`: lower in {len(wins)} of {n} cells, higher in "
+                    f"{len(losses)}, within 5 % + 0.01 mm in {len(ties)}")
+            if losses:
+                t, c, a, b = max(losses, key=lambda w: w[2] / max(w[3], 1e-9))
+                text += (f" (largest loss: {c} on {t}, {_fmt_mm(a)} against {_fmt_mm(b)} mm, "
+                         f"{_ratio(a, b)})")
+            parts.append(text)
+        if parts:
+            out.append(f"- **{label}**, median over seeds, `{subject}`: " + "; ".join(parts) + ".")
+    if "clean" in conds:
+        model_conds = [c for c in conds if not CONDITIONS[c].vision_only]
+        for t in trajs:
+            parts = []
+            for k in ctrls:
+                base = summary.get((t, "clean", k))
+                if base is None:
+                    continue
+                deltas = [f"{c} {summary[(t, c, k)]['track_median'][0] - base['track_median'][0]:+.2f}"
+                          for c in model_conds if (t, c, k) in summary
+                          and math.isfinite(summary[(t, c, k)]["track_median"][0])]
+                if deltas:
+                    parts.append(f"{k}: " + ", ".join(deltas))
+            if parts:
+                out.append(f"- **Model error on {t}** (change of the median tracking E_i from "
+                           "clean, mm): " + "; ".join(parts) + ".")
+    div = [(key, s) for key, s in summary.items() if s["diverged"]]
+    if div:
+        out.append(f"- **Diverged runs** (tracking-phase median E_i > {DIVERGED_MM:g} mm): "
+                   + "; ".join(f"{k} {c} on {t}: {s['diverged']} of {s['n']}"
+                               for (t, c, k), s in sorted(div)) + ".")
+    elif summary:
+        out.append(f"- No run diverged (tracking-phase median E_i > {DIVERGED_MM:g} mm).")
+    return out
+
+
+def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
+                 failures: dict[str, str], plot_metrics=("e_av", "track_median", "track_max")
+                 ) -> list[Path]:
+    """report.md and the plots from the rows of this sweep; returns the plot paths."""
+    from .. import plot
+
+    ids = {s.run_id for s in specs}
+    rows = [r for r in rows if r["run_id"] in ids]
+    trajs = list(dict.fromkeys(s.trajectory for s in specs))
+    conds = list(dict.fromkeys(s.condition for s in specs))
+    ctrls = list(dict.fromkeys(s.controller for s in specs))
+    summary = summarize(rows)
+    seeds = sorted({s.seed for s in specs})
+    pts = {t: sorted({int(_float(r["points"])) for r in rows if r["trajectory"] == t}) for t in trajs}
+    wall = sum(_float(r["wall_s"]) for r in rows)
+    L = ["# Noise-robustness benchmark", "",
+         f"Produced by `{command}`.", "",
+         f"{len(rows)} of {len(specs)} runs in `results.csv`"
+         + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
+         + f"; {len(seeds)} seeds per cell; simulated time in runs {wall:.0f} s.", ""]
+    if failures:
+        L += [f"**{len(failures)} runs failed** this time (rerun to retry): "
+              + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
+    L += ["## Setup", "",
+          "Controllers, on the same runs (same trajectory, condition, seed, servo limit):", ""]
+    rules = {s.controller: s.rules for s in specs}
+    L += [f"- `{k}`: {CONTROLLER_TITLES[k]} (RunConfig controller={ALL_CONTROLLERS[k][0]}, "
+          f"feedback={ALL_CONTROLLERS[k][1]}" + (f", rules {rules[k]}" if rules.get(k) else "")
+          + ")" for k in ctrls]
+    L += ["", "Trajectories: " + ", ".join(
+        f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points per lap)"
+        for t in trajs) + ".", ""]
+    L += [f"- `{t}`: {_limits_line(specs, t)}" for t in trajs]
+    L += ["", "Under vision (or truth) feedback the rules' link lengths and the Jacobian "
+          "tracker's shoulder and LED stand-off are measured from the LEDs at start-up "
+          "(`measured_links_mm` in results.csv); only the `-model` controllers and `ik` use the "
+          "nominal model. The ITG+ rules' S is the servo limit (`controller_params` in "
+          "results.csv). "
+          "The Jacobian tracker scales a step whose largest joint increment exceeds the servo "
+          "limit as a whole (keeping its direction); the loop clips every controller's joints "
+          "to the same limit.", "",
+          "Conditions: `noise-Spx` adds Gaussian noise of S px std to each centroid coordinate; "
+          "`dropout-P` drops each LED detection with probability P; `rig-calibrated` estimates "
+          "with the calibrated rig (`cameras/<rig>.calib.yaml`); `rig-perturbed` with the true "
+          "rig moved as one body by 1 degree and 5 mm (a wrong world frame, consistent stereo); "
+          "`rig-perturbed-cams` with each camera turned by 1 degree and moved by 5 mm on its own "
+          "(inconsistent stereo); random directions drawn from the seed; `links+X%` makes every "
+          "link of the simulated arm X % longer than the nominal model; `offset-1deg` puts every "
+          "simulated joint 1 degree off its command; `a+b` combines both. Images are always "
+          "rendered with the true rig.", "",
+          "Vision-only conditions (noise, dropout, rig) cannot affect the `-model` controllers and `ik` "
+          "(no rendering): they are run anyway, a few ms each, so every cell comes from real "
+          "runs (their numbers equal clean). `ik` is deterministic: its IQR is zero.", "",
+          "E_i = distance from the set point to the true gripper after the set point's "
+          "iterations (x-y for planar arms). E_av and E_max: mean and maximum over all set "
+          "points in reach (the paper's definition, start transient included). Tracking phase: "
+          "the laps after the first on closed paths, else the second half; per run its median, "
+          "mean, 95th percentile and max of E_i. Tables give the median over seeds of each "
+          f"run's statistic, mm; a run diverged when its tracking median exceeds {DIVERGED_MM:g} mm.",
+          ""]
+    L += ["## Conclusion", ""] + conclusion(summary, trajs, conds, ctrls) + [""]
+    if "itg-plus-vision" in ctrls:
+        L += ["## Conclusion for ITG+", ""] + conclusion(summary, trajs, conds, ctrls,
+                                                           subject="itg-plus-vision") + [""]
+    for t in trajs:
+        lim = _limits_line(specs, t)
+        L += [f"## {t}: E_av (mm), median [IQR] over seeds", "", lim, ""] \
+            + _table(summary, t, conds, ctrls, "e_av") + [""]
+        L += [f"## {t}: tracking phase (mm): median / mean / p95 / max of E_i (worst seed's max)",
+              "", lim, ""] + _tail_table(summary, t, conds, ctrls) + [""]
+    plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics)
+    if plots:
+        L += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in plots] + [""]
+    elif not rows:
+        L += ["## Plots", "", "None: no run of this sweep has finished.", ""]
+    outputs.write_text(out / "report.md", "\n".join(L))
+    return plots
+
+
+def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]:
+    made = []
+
+    def med(t, c, k, metric):
+        s = summary.get((t, c, k))
+        return s[metric][0] if s else float("nan")
+
+    def curve(t, k, pairs, metric):
+        xs, ys = [], []
+        for x, c in pairs:
+            y = med(t, c, k, metric)
+            if math.isfinite(y):
+                xs.append(x)
+                ys.append(max(y, 1e-3))  # exact IK: drawn at the floor
+        return xs, ys
+
+    for t in trajs:
+        for name, field_, xlabel in (("sigma", "noise_px", "centroid noise sigma (px)"),
+                                     ("dropout", "dropout", "LED dropout probability"),
+                                     ("model_error", "link_error", "link length error (%)")):
+            pairs = [(0.0, "clean")] if "clean" in conds else []
+            for c in conds:
+                cd = CONDITIONS[c]
+                others = dataclasses.replace(cd, name="", **{field_: Condition.__dataclass_fields__[field_].default})
+                if getattr(cd, field_) and others == Condition(""):  # this factor alone
+                    x = getattr(cd, field_) * (100 if field_ == "link_error" else 1)
+                    pairs.append((x, c))
+            if len(pairs) < 2:
+                continue
+            pairs.sort()
+            for metric in metrics:
+                label = PLOT_METRICS[metric]
+                series = {k: curve(t, k, pairs, metric) for k in ctrls}
+                series = {k: v for k, v in series.items() if v[0]}
+                if not series:  # no run of these conditions finished: nothing to draw
+                    continue
+                path = out / f"{metric}_vs_{name}-{t}.png"
+                plot.lines_figure(series, xlabel, f"median over seeds of {label} (mm; < 0.001 "
+                                  "drawn at 0.001)", f"{t}: {label} against {xlabel}", path,
+                                  logy=True)
+                made.append(path)
+        for metric in metrics:
+            values = {k: [med(t, c, k, metric) for c in conds] for k in ctrls}
+            if not any(math.isfinite(v) for vs in values.values() for v in vs):
+                continue  # no finished run: a log axis has nothing to scale
+            path = out / f"{metric}_by_condition-{t}.png"
+            plot.grouped_bars_figure(conds, values, f"median over seeds of {PLOT_METRICS[metric]} (mm)",
+                                     f"{t}: {PLOT_METRICS[metric]} per controller and condition",
+                                     path, logy=True)
+            made.append(path)
+    return made
+
+

@@ -1,0 +1,176 @@
+"""The noise benchmark's results store: ``results.csv`` and ``sweep.json`` in ``--out``.
+
+- ``results.csv``: one row per run, every parameter and every metric (:data:`COLUMNS`).
+  Appended one row at a time (flush + fsync), so an interruption never loses a finished row; a
+  restart with the same ``--out`` skips the ``run_id`` s already there; a torn (partial) last
+  line or a damaged row is dropped, named, and its run redone (:class:`Results`).
+- ``sweep.json``: the sweep's definition (its hash and the options that made it). A different
+  definition in the same folder is refused, no row touched (:func:`check_sweep_file`).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from pathlib import Path
+
+from .. import outputs
+from ..errors import UserError
+from .sweep import DIVERGED_MM, SCHEMA, RunSpec
+
+#: Per-run metrics from the run's summary (see itg_vision.loop.Trace.metrics).
+RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median_mm",
+               "track_mean_mm", "track_p95_mm", "track_max_mm", "n_setpoints", "n_missed",
+               "n_out_of_reach", "est_gripper_rms_mm", "est_elbow_rms_mm", "start_error_mm",
+               "first_error_mm", "wall_s"]
+COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
+            "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
+            "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
+            "measured_links_mm", "iterations", "max_step_deg", "rules", "controller_params"]
+           + RUN_METRICS
+           + ["diverged"])
+
+
+def definition_hash(specs: list[RunSpec]) -> str:
+    text = json.dumps([SCHEMA, COLUMNS, sorted(s.run_id for s in specs)])
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else f"{v:.6g}"
+    if isinstance(v, (list, tuple)):
+        return ";".join(_cell(float(x)) for x in v)
+    return str(v)
+
+
+def params_cell(params: dict) -> str:
+    """The parameters a controller ran with, as ``name=value`` pairs joined by ``;`` in the
+    order given (``gain_deg_per_mm=0.5;tolerance_mm=0.5``); empty when it takes none (IK)."""
+    return ";".join(f"{k}={_cell(v)}" for k, v in params.items())
+
+
+def make_row(spec: RunSpec, s: dict) -> dict:
+    row = {"run_id": spec.run_id, **dataclasses.asdict(spec)}
+    row["points"] = s["n_setpoints"] // max(1, spec.laps)
+    row.update({k: s.get(k) for k in ["links_mm", "true_links_mm", "joint_offset_deg"]
+                + RUN_METRICS})
+    row["controller_params"] = params_cell(s["controller_params"])
+    row["measured_links_mm"] = s["geometry"]["links_mm"]
+    row["max_step_deg"] = spec.max_step_deg
+    med = s.get("track_median_mm")
+    row["diverged"] = "" if med is None else int(med > DIVERGED_MM)
+    return {c: _cell(row.get(c)) for c in COLUMNS}
+
+
+class Results:
+    """``results.csv`` in ``--out``: read once, then append rows.
+
+    Damage is reported and repaired, never silently kept: a torn last line (an interrupted
+    write) and any damaged row (wrong number of fields, a run_id that is not 16 hex digits,
+    bytes that are not UTF-8) are dropped, each named by its line number in :attr:`problems`;
+    :meth:`repair` rewrites the file without them (atomically) before anything is appended, and
+    their runs are redone. A file whose header is not this benchmark's is refused.
+    """
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.rows: dict[str, dict] = {}
+        self.problems: list[str] = []
+        self._repaired: str | None = None
+        if path.exists():
+            self._load()
+
+    def _load(self) -> None:
+        import re
+
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise UserError(f"{self.path}: cannot read ({exc.strerror})") from None
+        if not data:
+            return
+        lines = data.split(b"\n")
+        last = lines.pop()  # b"" when the file ends with a newline
+        if not lines and ",".join(COLUMNS).encode().startswith(last):
+            self.problems.append(f"{self.path}:1: torn header (an interrupted first write): "
+                                 "dropped")
+            self._repaired = ""
+            return
+        header = lines[0] if lines else last
+        if next(csv.reader([header.decode("utf-8", errors="replace")]), None) != COLUMNS:
+            raise UserError(f"{self.path}: its columns are not this benchmark's (another tool's "
+                            "or another version's results): choose another --out")
+        keep = [header]
+        for lineno, raw in enumerate(lines[1:], 2):
+            try:
+                fields = next(csv.reader([raw.decode("utf-8")]), [])
+            except (UnicodeDecodeError, csv.Error):
+                fields = None
+            if fields is None or len(fields) != len(COLUMNS) or not re.fullmatch(r"[0-9a-f]{16}", fields[0]):
+                got = "not UTF-8" if fields is None else f"{len(fields)} fields"
+                self.problems.append(f"{self.path}:{lineno}: damaged row ({got}, expected "
+                                     f"{len(COLUMNS)}): dropped, its run will be redone")
+                continue
+            keep.append(raw)
+            row = dict(zip(COLUMNS, fields))
+            self.rows.setdefault(row["run_id"], row)
+        if last and lines:
+            self.problems.append(f"{self.path}:{len(lines) + 1}: torn last line (an interrupted "
+                                 "write): dropped, its run will be redone")
+        if self.problems:
+            self._repaired = b"".join(line + b"\n" for line in keep).decode("utf-8", errors="replace")
+
+    def repair(self) -> None:
+        """Rewrite the file without its damaged rows (atomically), before any append."""
+        if self._repaired is not None:
+            outputs.write_text(self.path, self._repaired)
+            self._repaired = None
+
+    def append(self, row: dict) -> None:
+        """Append one row and make it durable (flush + fsync) before returning."""
+        new = not self.path.exists() or self.path.stat().st_size == 0
+        with open(self.path, "a", newline="", encoding="utf-8") as f:
+            w = csv.writer(f, lineterminator="\n")
+            if new:
+                w.writerow(COLUMNS)
+            w.writerow([row[c] for c in COLUMNS])
+            f.flush()
+            os.fsync(f.fileno())
+        self.rows[row["run_id"]] = row
+
+
+def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: Results) -> None:
+    """Refuse an ``--out`` holding another sweep's results (writes nothing)."""
+    path = out / "sweep.json"
+    if path.exists():
+        try:
+            stored = json.loads(path.read_text())
+            old = stored["definition"]
+        except (OSError, ValueError, KeyError, TypeError):
+            raise UserError(f"{path}: unreadable sweep definition: choose another --out") from None
+        if old != definition:
+            was = " ".join(f"{k}={v}" for k, v in stored.get("options", {}).items() if v not in (None, False))
+            raise UserError(f"--out {out} holds results of a different sweep definition "
+                            f"({old} [{was or 'defaults'}], now {definition}): rerun with the same "
+                            "options or choose another --out")
+        return
+    ids = {s.run_id for s in specs}
+    foreign = [r for r in results.rows if r not in ids]
+    if foreign:
+        raise UserError(f"--out {out} holds {len(foreign)} results of a different sweep "
+                        "definition (no sweep.json): choose another --out")
+
+
+def record_sweep_file(out: Path, definition: str, options: dict, specs: list[RunSpec]) -> None:
+    path = out / "sweep.json"
+    if not path.exists():
+        outputs.write_json(path, {"definition": definition, "schema": SCHEMA,
+                                  "n_runs": len(specs), "options": options})
+

@@ -1,0 +1,340 @@
+"""The noise benchmark's sweep: controllers, conditions, trajectories and one run's spec.
+
+A sweep is a list of :class:`RunSpec` (:func:`build_sweep`), each a run with every parameter
+resolved and a ``run_id`` hashed from them; :func:`run_config` turns a spec into the
+:class:`itg_vision.runner.RunConfig` a worker runs. Nothing here runs, writes or prints.
+
+Choices (documented in the report too):
+- The controllers map onto :class:`itg_vision.runner.RunConfig`: ``itg-vision`` =
+  (itg, vision), ``itg-model`` = (itg, model), ``ik`` = (ik, model: IK ignores the feedback,
+  'model' wastes no rendering), ``jacobian-vision`` = (jacobian, vision); ``itg-plus-vision``
+  and ``itg-plus-model``: the arm file's ITG+ rule base (issue 13) fed by vision or by the
+  model, its S bound to the same servo limit as every other controller.
+- Conditions that only perturb vision (noise, dropout, rig) cannot change the model-fed
+  controllers; they are run anyway (no rendering, a few ms each) so every table cell is filled
+  from real runs. Likewise every controller is run for every seed.
+- Every controller of a trajectory runs under its arm's ``benchmark`` limits
+  (``data/arms/*.yaml``: the servo limit ``max_step_deg`` per iteration and ``iterations`` per
+  set point), recorded in every row.
+- ``links+X%``: every link of the simulated arm is X % longer than the nominal model;
+  ``offset-1deg``: every joint of the simulated arm sits 1 degree off its commanded angle.
+- ``rig-perturbed``: the estimator believes the true rig moved as one body by 1 degree (about a
+  random axis through the cameras' midpoint) and 5 mm (in a random direction), drawn from the
+  run's seed: consistent stereo, wrong world frame. ``rig-perturbed-cams``: each camera
+  perturbed on its own by 1 degree and 5 mm: the rays no longer meet (about 10 px apart), so
+  the feedback's residual test rejects the markers. Images are rendered with the true rig.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..arm import ArmSpec
+from ..errors import UserError
+
+#: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
+#: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
+#: ``itg_plus_rules`` (issue 13's ITG+); None for the baselines).
+CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
+    "itg-vision": ("itg", "vision", 0.0, "rules"),
+    "itg-model": ("itg", "model", 0.0, "rules"),
+    "ik": ("ik", "model", 0.0, None),
+    "jacobian-vision": ("jacobian", "vision", 0.0, None),
+    "itg-plus-vision": ("itg", "vision", 0.0, "itg_plus_rules"),
+    "itg-plus-model": ("itg", "model", 0.0, "itg_plus_rules"),
+}
+#: Controllers only the ``start-tie`` and ``itg-plus-three-link`` sweeps use: ideal LED
+#: positions plus Gaussian noise of about vision's size, many seeds cheaply.
+TRUTH_NOISE_MM = 0.25
+EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
+    "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "rules"),
+    "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM, None),
+    "itg-plus-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "itg_plus_rules"),
+}
+ALL_CONTROLLERS = {**CONTROLLERS, **EXTRA_CONTROLLERS}
+CONTROLLER_TITLES = {
+    "itg-vision": "ITG (the paper's rules) fed by vision (no model)",
+    "itg-model": "ITG (the paper's rules) fed by encoders + nominal model",
+    "ik": "closed-form IK of the nominal model, open loop",
+    "jacobian-vision": "vision-fed Jacobian tracker (DLS, no model)",
+    "itg-plus-vision": "ITG+ rules (issue 13) fed by vision (no model); S = the servo limit",
+    "itg-plus-model": "ITG+ rules fed by encoders + nominal model; S = the servo limit",
+    "itg-truth-noise": f"ITG fed by the simulator's LED positions + {TRUTH_NOISE_MM} mm noise",
+    "jacobian-truth-noise": f"Jacobian tracker fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
+    "itg-plus-truth-noise": f"ITG+ fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
+}
+#: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
+#: ``peanut`` (closed) and ``helix`` are held-out curves, files in data/trajectories.
+TRAJECTORIES: dict[str, str] = {
+    "ellipse-t1": "two-link",
+    "ellipse-t2": "two-link",
+    "abcd": "two-link",
+    "line-ab-reach": "three-link",
+    "peanut": "two-link",
+    "helix": "three-link",
+}
+TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv"}
+NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
+DROPOUTS = (0.05, 0.2)
+LINK_ERRORS = (0.02, 0.05)
+#: Conditions of the itg-plus-three-link sweep only (links 5 % short, and with a joint offset).
+EXTRA_LINK_ERRORS = (-0.05,)
+RIG_ANGLE_DEG = 1.0
+RIG_SHIFT_MM = 5.0
+#: Closed paths run this many laps; the tracking phase is the laps after the first.
+LAPS = 2
+#: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
+#: two- and three-link arms' 200 mm reach; tracking runs sit below 5 mm, diverged ones above 100.
+DIVERGED_MM = 20.0
+FULL_SEEDS = 5
+QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
+         "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
+                        "noise-1px+links+5%")}
+#: Bump when the meaning of a column or of a run's parameters changes.
+SCHEMA = 3  # 3: the gain column (always empty) became controller_params
+
+
+@dataclass(frozen=True)
+class Condition:
+    """A named perturbation; fields combine in the ``+`` conditions."""
+
+    name: str
+    noise_px: float = 0.0
+    dropout: float = 0.0
+    rig: str = "true"  # true | calibrated | perturbed | perturbed-cams
+    link_error: float = 0.0  # fraction: simulated links = (1 + link_error) * nominal
+    offset_deg: float = 0.0  # every joint of the simulated arm
+
+    @property
+    def vision_only(self) -> bool:
+        return self.link_error == 0 and self.offset_deg == 0
+
+    def combine(self, other: "Condition") -> "Condition":
+        def pick(a, b, zero):
+            return b if a == zero else a
+
+        return Condition(f"{self.name}+{other.name}", pick(self.noise_px, other.noise_px, 0.0),
+                         pick(self.dropout, other.dropout, 0.0), pick(self.rig, other.rig, "true"),
+                         pick(self.link_error, other.link_error, 0.0),
+                         pick(self.offset_deg, other.offset_deg, 0.0))
+
+
+def _all_conditions() -> dict[str, Condition]:
+    single = [Condition("clean")]
+    single += [Condition(f"noise-{s:g}px", noise_px=s) for s in NOISE_PX]
+    single += [Condition(f"dropout-{p:g}", dropout=p) for p in DROPOUTS]
+    single += [Condition("rig-calibrated", rig="calibrated"), Condition("rig-perturbed", rig="perturbed"),
+               Condition("rig-perturbed-cams", rig="perturbed-cams")]
+    single += [Condition(f"links+{100 * e:g}%", link_error=e) for e in LINK_ERRORS]
+    single += [Condition("offset-1deg", offset_deg=1.0)]
+    by = {c.name: c for c in single}
+    combined = [("noise-1px", "links+5%"), ("noise-0.3px", "dropout-0.05"),
+                ("noise-1px", "offset-1deg"), ("rig-perturbed", "links+2%")]
+    for a, b in combined:
+        c = by[a].combine(by[b])
+        by[c.name] = c
+    return by
+
+
+def _extra_conditions(by: dict[str, Condition]) -> dict[str, Condition]:
+    """Conditions only named sweeps use: links shorter than the model, and with an offset."""
+    extra = {f"links{100 * e:+g}%": Condition(f"links{100 * e:+g}%", link_error=e)
+             for e in EXTRA_LINK_ERRORS}
+    every = {**by, **extra}
+    for a in ("links-5%", "links+5%"):
+        c = every[a].combine(every["offset-1deg"])
+        extra[c.name] = c
+    return extra
+
+
+#: The robustness sweep's conditions (its default: every one of them).
+ROBUSTNESS_CONDITIONS: tuple[str, ...] = tuple(_all_conditions())
+CONDITIONS: dict[str, Condition] = {**_all_conditions(), **_extra_conditions(_all_conditions())}
+
+#: Named sweeps: ``robustness`` (the default: every robustness condition), ``start-tie`` (the
+#: three-link arm from its straight-up start, many seeds: how often does it diverge?), and
+#: ``itg-plus`` / ``itg-plus-three-link`` (issue 13's targets, see ``bench itg-plus``).
+SWEEPS = {
+    "robustness": {"controllers": tuple(CONTROLLERS),
+                   "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "line-ab-reach"),
+                   "conditions": ROBUSTNESS_CONDITIONS, "seeds": FULL_SEEDS},
+    "start-tie": {"controllers": ("itg-vision", "itg-truth-noise", "jacobian-vision",
+                                  "jacobian-truth-noise"),
+                  "trajectories": ("line-ab-reach",),
+                  "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
+    # issue 13's targets (bench itg-plus): two-link tracking under vision, clean and 1 px
+    "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision"),
+                 "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut"),
+                 "conditions": ("clean", "noise-1px"), "seeds": 3},
+    # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
+    "itg-plus-three-link": {"controllers": ("itg-plus-truth-noise", "jacobian-truth-noise"),
+                            "trajectories": ("line-ab-reach", "helix"),
+                            "conditions": ("clean", "links-5%", "links+5%", "offset-1deg",
+                                           "links-5%+offset-1deg", "links+5%+offset-1deg"),
+                            "seeds": 40},
+}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run, every parameter resolved; ``run_id`` is a hash of them all."""
+
+    controller: str
+    condition: str
+    trajectory: str
+    arm: str
+    points: int | None
+    seed: int
+    rc_controller: str
+    feedback: str
+    rules: str  # the rule base of an itg controller ("" for the baselines)
+    noise_mm: float
+    noise_px: float
+    dropout: float
+    rig: str  # true | calibrated | perturbed | perturbed-cams
+    rig_sha: str  # content hash of the calibrated rig file ("" otherwise)
+    link_error: float
+    offset_deg: float
+    iterations: int
+    max_step_deg: float | None
+    laps: int
+
+    @property
+    def run_id(self) -> str:
+        text = json.dumps([SCHEMA, dataclasses.asdict(self)], sort_keys=True)
+        return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+    @property
+    def vision(self) -> bool:
+        return self.feedback == "vision"
+
+    def cost_s(self) -> float:
+        """A rough cost for the progress bar and the estimate (vision: ~28 ms per render)."""
+        n = (self.points or _default_points(self.trajectory)) * self.iterations * self.laps
+        return 0.6 + 0.03 * n if self.vision else 0.05 + 0.0002 * n
+
+
+def _default_points(trajectory: str) -> int:
+    from ..trajectory import DEFAULT_POINTS
+
+    if trajectory in TRAJECTORY_FILES:
+        return len(load_trajectory(trajectory))
+    return DEFAULT_POINTS[trajectory]
+
+
+def trajectory_source(name: str) -> str:
+    """What :class:`~itg_vision.runner.RunConfig` takes: the name, or the path of its file."""
+    from ..trajectory import TRAJECTORIES_DIR
+
+    return str(TRAJECTORIES_DIR / TRAJECTORY_FILES[name]) if name in TRAJECTORY_FILES else name
+
+
+def load_trajectory(name: str):
+    """A benchmark trajectory (one lap), placed on its arm."""
+    from ..trajectory import load
+
+    return load(trajectory_source(name), None, arm=ArmSpec.from_args(TRAJECTORIES[name]))
+
+
+def _parse_names(text: str | None, known, what: str, noun: str) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise UserError(f"--{what}: give at least one name (choose from {', '.join(known)})")
+    for n in names:
+        if n not in known:
+            raise UserError(f"--{what}: unknown {noun} {n!r} (choose from {', '.join(known)})")
+    return tuple(dict.fromkeys(names))
+
+
+def calibrated_rig_path(arm: str) -> Path:
+    from ..camera import default_rig_path
+
+    return default_rig_path(arm, calibrated=True)
+
+
+def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
+                controllers=None, trajectories=None, points: int | None = None,
+                sweep: str = "robustness") -> list[RunSpec]:
+    """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller).
+
+    Every controller of a trajectory runs under the same limits (``LIMITS`` of its arm);
+    closed trajectories run ``LAPS`` laps.
+    """
+    base = SWEEPS[sweep]
+    conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
+    ctrls = controllers or base["controllers"]
+    trajs = trajectories or (QUICK["trajectories"] if quick else base["trajectories"])
+    n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
+    if n_seeds < 1:
+        raise UserError(f"--seeds: must be >= 1, got {n_seeds}")
+    if points is None and quick:
+        points = QUICK["points"]
+    if points is not None and points < 2:
+        raise UserError(f"--points: must be >= 2, got {points}")
+    rig_sha: dict[str, str] = {}
+    specs = []
+    for traj_name in trajs:
+        arm = TRAJECTORIES[traj_name]
+        spec_arm = ArmSpec.from_args(arm)
+        limits = spec_arm.benchmark  # the servo limit every controller runs under
+        laps = LAPS if load_trajectory(traj_name).closed else 1
+        n = None if traj_name in TRAJECTORY_FILES else points  # a file has its own points
+        if n is not None and traj_name == "abcd" and n % 2:
+            n += 1  # abcd needs an even number of points (two segments)
+        for cname in conds:
+            cond = CONDITIONS[cname]
+            sha = ""
+            if cond.rig == "calibrated":
+                if arm not in rig_sha:
+                    rig_sha[arm] = _calibrated_rig_sha(arm)
+                sha = rig_sha[arm]
+            for seed in range(n_seeds):
+                for ctrl in ctrls:
+                    rc, fb, noise_mm, rules_key = ALL_CONTROLLERS[ctrl]
+                    specs.append(RunSpec(
+                        controller=ctrl, condition=cname, trajectory=traj_name, arm=arm,
+                        points=n, seed=seed, rc_controller=rc, feedback=fb,
+                        rules=spec_arm.defaults[rules_key] if rules_key else "",
+                        noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
+                        rig=cond.rig, rig_sha=sha, link_error=cond.link_error,
+                        offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
+                        max_step_deg=float(limits["max_step_deg"]), laps=laps))
+    return specs
+
+
+def _calibrated_rig_sha(arm: str) -> str:
+    path = calibrated_rig_path(arm)
+    if not path.exists():
+        raise UserError(f"condition rig-calibrated needs {path}: make it with `python -m "
+                        f"itg_vision.calibrate --rig {ArmSpec.from_args(arm).defaults['rig']} "
+                        f"--out {path}`, or leave "
+                        "the rig-calibrated conditions out with --conditions")
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+
+
+
+def run_config(spec: RunSpec, rig_path: str | None = None):
+    """The :class:`itg_vision.runner.RunConfig` of a spec (``rig_path``: the rig believed)."""
+    from ..runner import RunConfig
+
+    nominal = ArmSpec.from_args(spec.arm).links_mm
+    true_links = (tuple(round(v * (1.0 + spec.link_error), 9) for v in nominal)
+                  if spec.link_error else None)
+    offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
+    # a condition's vision parameters reach vision-fed runs only (elsewhere they do nothing)
+    vision = spec.feedback == "vision"
+    return RunConfig(arm=spec.arm, trajectory=trajectory_source(spec.trajectory),
+                     points=spec.points, controller=spec.rc_controller,
+                     rules=spec.rules or None, feedback=spec.feedback,
+                     iterations=spec.iterations, max_step_deg=spec.max_step_deg, laps=spec.laps,
+                     rig=rig_path if vision else None, noise_px=spec.noise_px if vision else 0.0,
+                     noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
+                     dropout=spec.dropout if vision else 0.0, seed=spec.seed,
+                     true_links_mm=true_links, joint_offset_deg=offset)
+

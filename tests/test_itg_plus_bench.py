@@ -1,0 +1,161 @@
+"""ITG+ in the runner and the benchmarks (issue 13): S follows the servo limit, the ITG+
+controllers run in the noise benchmark under the same limits as every other controller, and
+the targets table's verdicts come from its thresholds."""
+
+from __future__ import annotations
+
+import pytest
+
+from itg_vision.arm import ArmSpec
+from itg_vision.bench.sweep import CONTROLLERS, build_sweep
+from itg_vision.errors import ConfigError
+from itg_vision.runner import RULE_DEFAULTS, RunConfig, prepare
+
+
+@pytest.mark.parametrize("arm", ["one-link", "two-link", "three-link"])
+def test_itg_plus_step_is_the_servo_limit_of_the_arm_file_by_default(arm):
+    spec = ArmSpec.from_args(arm)
+    prep = prepare(RunConfig(arm=arm, rules=spec.defaults["itg_plus_rules"], feedback="model"))
+    servo = float(spec.benchmark["max_step_deg"])
+    assert prep.config.max_step_deg == servo  # the loop applies it too
+    assert prep.controller.S == servo and prep.info["controller_params"]["step_deg"] == servo
+    assert "data/arms/" in prep.info["servo_limit"]
+
+
+def test_itg_plus_step_follows_a_given_servo_limit_and_refuses_another_step():
+    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="model", max_step_deg=7.0))
+    assert prep.controller.S == 7.0 and prep.config.max_step_deg == 7.0
+    assert prepare(RunConfig(rules="itg-plus-two-link", feedback="model", max_step_deg=7.0,
+                             step_deg=7.0)).controller.S == 7.0  # repeating it is fine
+    with pytest.raises(ConfigError) as exc:
+        prepare(RunConfig(rules="itg-plus-two-link", feedback="model", step_deg=5.0))
+    assert exc.value.field == "step_deg" and "servo limit" in str(exc.value)
+
+
+def test_the_paper_rules_keep_their_own_step():
+    prep = prepare(RunConfig(arm="one-link", feedback="model", max_step_deg=20.0))
+    assert prep.controller.S == RULE_DEFAULTS["step_deg"] and not prep.controller.servo_step
+
+
+def test_run_help_lists_the_itg_plus_rule_bases(cli):
+    res = cli("itg_vision.run", "--help")
+    text = "".join(res.stdout.split())  # argparse wraps at hyphens
+    for name in ("itg-plus-one-link", "itg-plus-two-link", "itg-plus-three-link"):
+        assert name in text
+
+
+def test_itg_plus_runs_in_every_table_under_the_same_limits_as_the_others():
+    specs = build_sweep(seeds=1)  # the full robustness sweep's definition (nothing runs)
+    assert {"itg-plus-vision", "itg-plus-model"} <= set(CONTROLLERS)
+    by_traj: dict = {}
+    for s in specs:
+        by_traj.setdefault(s.trajectory, set()).add((s.max_step_deg, s.iterations))
+        if s.controller.startswith("itg-plus"):
+            assert s.rules == ArmSpec.from_args(s.arm).defaults["itg_plus_rules"]
+    for traj, limits in by_traj.items():
+        arm = ArmSpec.from_args(next(s.arm for s in specs if s.trajectory == traj))
+        assert limits == {(float(arm.benchmark["max_step_deg"]), int(arm.benchmark["iterations"]))}
+    cells = {(s.trajectory, s.condition, s.controller) for s in specs}
+    for t, c, k in cells:
+        if k == "itg-vision":
+            assert (t, c, "itg-plus-vision") in cells and (t, c, "itg-plus-model") in cells
+
+
+# ---------------------------------------------------------------------------- targets
+from itg_vision.bench import itg_plus  # noqa: E402
+
+
+def _row(controller, seed, trajectory="ellipse-t1", condition="clean", **metrics):
+    row = {"controller": controller, "seed": str(seed), "trajectory": trajectory,
+           "condition": condition, "diverged": "0", "first_error_mm": "1",
+           "start_error_mm": "2", "track_max_mm": "1", "track_median_mm": "0.1",
+           "e_av_mm": "1"}
+    row.update({k: str(v) for k, v in metrics.items()})
+    return row
+
+
+@pytest.mark.parametrize("value, op, threshold, met", [
+    (2.999, "<", 3.0, True), (3.0, "<", 3.0, False), (3.0, "<=", 3.0, True),
+    (50.0, ">=", 50.0, True), (49.9, ">=", 50.0, False), (0.0, "==", 0.0, True),
+    (float("nan"), "<", 3.0, False)])
+def test_a_verdict_is_the_comparison_of_measured_and_threshold(value, op, threshold, met):
+    assert itg_plus.Target("x", "y", value, op, threshold).met is met
+
+
+def test_tracking_targets_from_rows():
+    rows = [_row(itg_plus.SUBJECT, 0, track_max_mm=2.5, track_median_mm=0.2, e_av_mm=2),
+            _row(itg_plus.SUBJECT, 1, track_max_mm=3.5, track_median_mm=0.4, e_av_mm=4),
+            _row(itg_plus.DLS, 0, track_median_mm=0.1, e_av_mm=5),
+            _row(itg_plus.DLS, 1, track_median_mm=0.2, e_av_mm=5),
+            _row(itg_plus.TABLE2, 0, e_av_mm=3), _row(itg_plus.TABLE2, 1, e_av_mm=3),
+            # 1 px: ITG+ doubles on seed 0 and triples on seed 1; DLS doubles on both
+            _row(itg_plus.SUBJECT, 0, condition="noise-1px", track_median_mm=0.4),
+            _row(itg_plus.SUBJECT, 1, condition="noise-1px", track_median_mm=1.2),
+            _row(itg_plus.DLS, 0, condition="noise-1px", track_median_mm=0.2),
+            _row(itg_plus.DLS, 1, condition="noise-1px", track_median_mm=0.4)]
+    got = {t.what.split(" (")[0]: t for t in itg_plus.tracking_targets(rows, ["ellipse-t1", "abcd"])}
+    assert len(got) == 5  # abcd has no rows: no target invented for it
+    assert got["tracking-phase max E_i"].measured == 3.5 and not got["tracking-phase max E_i"].met
+    med = got["tracking median E_i"]
+    assert med.measured == pytest.approx(0.3) and med.threshold == pytest.approx(0.3) and med.met
+    assert got["E_av below Table 2's"].measured == 3 and not got["E_av below Table 2's"].met
+    assert got["E_av below DLS's"].met
+    noise = got["1 px noise: tracking median / clean"]
+    assert noise.measured == pytest.approx(2.5) and noise.threshold == pytest.approx(2.0)
+    assert not noise.met
+
+
+def test_first_step_and_three_link_targets_count_runs():
+    rows = [_row(itg_plus.SUBJECT_3, s, "helix", first_error_mm=1, start_error_mm=2)
+            for s in range(3)]
+    rows += [_row(itg_plus.DLS_3, s, "helix", diverged=int(s == 0)) for s in range(3)]
+    assert itg_plus.first_step_target(rows, itg_plus.SUBJECT_3, "c").met
+    rows[1]["first_error_mm"] = "2.5"
+    t = itg_plus.first_step_target(rows, itg_plus.SUBJECT_3, "c")
+    assert t.measured == 1 and not t.met
+    div, med = itg_plus.three_link_targets(rows, ["helix", "line-ab-reach"])
+    assert div.measured == 0 and div.met and "DLS 1" in div.note
+    rows[2]["diverged"] = "1"
+    assert not itg_plus.three_link_targets(rows, ["helix"])[0].met
+
+
+def test_speed_target_is_the_ratio_of_the_times():
+    t = itg_plus.speed_target({"itg_plus_compiled_us": 0.5, "ik_pybullet_us": 30.0,
+                               "rules_compiled_us": 0.4})
+    assert t.measured == pytest.approx(60.0) and t.met
+
+
+@pytest.mark.slow
+def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys):
+    """A small run (1 seed, 20 points): every printed verdict agrees with its own numbers."""
+    import re
+
+    out = tmp_path / "ip"
+    assert itg_plus.main(["--out", str(out), "--seeds", "1", "--seeds-three-link", "1",
+                          "--points", "20", "--quiet"]) in (0, 1)
+    text = (out / "targets.md").read_text()
+    rows = [line for line in text.splitlines() if line.startswith("| ") and " | case |" not in line]
+    assert len(rows) >= 20
+    ops = itg_plus.Target.OPS
+    for line in rows:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        measured = float(cells[2].split()[0])
+        op, threshold = cells[3].split()[:2]
+        # the table prints 3 significant digits: the verdict is checked where they decide it
+        if abs(measured - float(threshold)) > 0.01 * max(abs(measured), abs(float(threshold))):
+            assert (cells[4] == "met") == ops[op](measured, float(threshold)), line
+    assert (out / "tracking" / "report.md").exists() and (out / "three-link" / "report.md").exists()
+
+
+@pytest.mark.parametrize("make", ["file", "foreign"])
+def test_bench_itg_plus_refuses_an_out_it_did_not_make(tmp_path, capsys, make):
+    out = tmp_path / "o"
+    if make == "file":
+        out.write_text("mine")
+    else:
+        out.mkdir()
+        (out / "notes.txt").write_text("mine")
+    assert itg_plus.main(["--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --out")
+    assert (out.read_text() if make == "file" else (out / "notes.txt").read_text()) == "mine"
