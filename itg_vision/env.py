@@ -9,8 +9,11 @@ what the feedback measures. The episode ends with the trajectory.
 
 Observation (a dict of float64 arrays, mm): ``desired_mm`` (the current set point),
 ``gripper_mm`` and, for arms that carry one, ``elbow_mm`` (the feedback's estimates; a marker
-that was not measured keeps its last estimate, as in the loop). The encoders' joint angles are
-in ``info["q_deg"]``: a model-free controller does not read them.
+that was not measured keeps its last estimate, as in the loop). With ``images=True`` (vision
+feedback only) it also holds ``camera_images``: both cameras' whole frames (uint8 RGB, as the
+estimator saw them: distorted, noisy); the eye then renders whole frames instead of windows
+around the LEDs (the same pixels there, ~50x slower). The encoders' joint angles are in
+``info["q_deg"]``: a model-free controller does not read them.
 
 ``reset(seed=...)`` rebuilds the world at the start pose and reseeds the feedback: the same
 seed and the same actions give the same observations and rewards, bit for bit. The lengths the
@@ -56,24 +59,35 @@ class TrackingEnv(gym.Env):
         (``arm``, ``trajectory``, ``feedback``, ``rig``, ``iterations``, ``max_step_deg``, ``laps``,
         ``noise_px``, ``true_links_mm``, ...). Its ``controller`` and rule settings are not used:
         you are the controller.
+    images : add both camera images to the observation (``feedback="vision"`` only).
     """
 
     metadata = {"render_modes": []}
 
-    def __init__(self, config: RunConfig | None = None, **fields):
+    def __init__(self, config: RunConfig | None = None, *, images: bool = False, **fields):
         super().__init__()
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
         if cfg.max_step_deg is None:
             cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
+        if images:
+            if cfg.feedback != "vision":
+                raise ValueError(f"images: only vision feedback has camera images, "
+                                 f"not {cfg.feedback!r}")
+            cfg = dataclasses.replace(cfg, full_frame=True)
         self.config = cfg
+        self.images = bool(images)
         self._prep = prepare(cfg)
         model = self._prep.model
         self.marker_names = model.marker_names
         box = gym.spaces.Box(-POSITION_BOUND_MM, POSITION_BOUND_MM, (3,), np.float64)
-        self.observation_space = gym.spaces.Dict(
-            {"desired_mm": box, **{f"{m}_mm": box for m in self.marker_names}})
+        spaces = {"desired_mm": box, **{f"{m}_mm": box for m in self.marker_names}}
+        if self.images:
+            cams = self._prep.feedback_factory().render_rig.cameras
+            spaces["camera_images"] = gym.spaces.Tuple(
+                gym.spaces.Box(0, 255, (c.size[1], c.size[0], 3), np.uint8) for c in cams)
+        self.observation_space = gym.spaces.Dict(spaces)
         self.action_space = gym.spaces.Box(-cfg.max_step_deg, cfg.max_step_deg, (model.n_joints,),
                                            np.float64)
         self._world: World | None = None
@@ -128,4 +142,7 @@ class TrackingEnv(gym.Env):
         for m in self.marker_names:
             obs[f"{m}_mm"] = np.clip(np.asarray(markers.get(m), np.float64),
                                      -POSITION_BOUND_MM, POSITION_BOUND_MM)
+        if self.images:
+            obs["camera_images"] = tuple(np.ascontiguousarray(f, np.uint8)
+                                         for f in self._feedback.last_observation.frames())
         return obs

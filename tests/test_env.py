@@ -65,3 +65,24 @@ def test_env_and_command_line_loop_run_the_same_steps(arm):
     assert np.array_equal(env.trace.error_mm(), trace.error_mm())
     assert info["metrics"]["e_av_mm"] == summary["e_av_mm"]
     env.close()
+
+
+@pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
+def test_images_on_request_are_the_frames_the_estimate_came_from():
+    """With images=True the observation holds both cameras' whole frames; each shows the
+    gripper LED (red) where its estimate projects (within the LED's ~5 px image radius)."""
+    from itg_vision.urdf import LED_RGB
+
+    env = TrackingEnv(feedback="vision", points=3, supersample=1, images=True)
+    check_env(env, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    cams = env._feedback.estimate_rig.cameras
+    assert len(obs["camera_images"]) == 2
+    red = np.array(LED_RGB["gripper"]) * 255
+    for img, cam in zip(obs["camera_images"], cams):
+        assert img.shape == (cam.size[1], cam.size[0], 3) and img.dtype == np.uint8
+        u, v = np.round(cam.project(obs["gripper_mm"])).astype(int).ravel()
+        assert np.abs(img[v, u].astype(float) - red).max() < 60
+    with pytest.raises(ValueError, match="images: only vision feedback"):
+        TrackingEnv(feedback="truth", images=True)
+    env.close()
