@@ -148,26 +148,11 @@ def speed_target(costs: dict) -> Target:
 
 
 def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
-    """Microseconds per decision: the compiled ITG+ two-link step and PyBullet's IK, on the
-    same set points and arm states as ``bench speed`` (its Table 2 figure beside them)."""
-    from ..arm import ArmSpec, forward_kinematics
-    from ..feedback import Markers
-    from ..rules import load_rules
-    from ..trajectory import named
-    from .speed import _per_call_us, decision_costs as table2_costs
+    """Microseconds per decision (``bench speed``'s figures): the compiled ITG+ two-link step,
+    Table 2's and PyBullet's IK, on the same set points and arm states."""
+    from .speed import decision_costs as costs
 
-    arm = ArmSpec.from_args("two-link")
-    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
-                    S=float(arm.benchmark["max_step_deg"]), w=0.5)
-    pts = named("ellipse-t1", n_points).points_mm
-    qs = np.random.default_rng(0).uniform(-170, 170, (n_points, 2))
-    args = []
-    for p, q in zip(pts, qs):
-        m = forward_kinematics(arm, q)
-        args.append(rb.arguments(p, Markers(m["gripper"], m["elbow"]), q))
-    costs = table2_costs(n_points, repeat)
-    costs["itg_plus_compiled_us"] = _per_call_us(rb.compiled, args, repeat)
-    return costs
+    return costs(n_points, repeat)
 
 
 def table(targets: list[Target]) -> list[str]:

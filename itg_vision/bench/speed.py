@@ -51,9 +51,13 @@ def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
     # the compiled function alone (what a microcontroller port would run) and RuleBase.step
     raw_args = [rb.arguments(*a) for a in rule_args]
     ik_args = [(float(p[0]), float(p[1]), 100.0, 100.0) for p in pts]
+    plus = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
+                      S=float(arm.benchmark["max_step_deg"]), w=0.5)
+    plus_args = [plus.arguments(*a) for a in rule_args]
     out = {
         "rules_compiled_us": _per_call_us(rb.compiled, raw_args, repeat),
         "rules_step_us": _per_call_us(rb.step, rule_args, repeat),
+        "itg_plus_compiled_us": _per_call_us(plus.compiled, plus_args, repeat),
         "ik_closed_form_us": _per_call_us(two_link_ik, ik_args, repeat),
     }
     with World(arm) as world:
@@ -197,9 +201,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'method':<44}{'us/step':>10}{'x rules':>10}")
         for key, label in (("rules_compiled_us", "Table 2 rules, compiled function"),
                            ("rules_step_us", "Table 2 rules, RuleBase.step (with wrapping)"),
+                           ("itg_plus_compiled_us", "ITG+ rules, compiled function"),
                            ("ik_closed_form_us", "closed-form inverse kinematics (math)"),
                            ("ik_pybullet_us", "pybullet.calculateInverseKinematics")):
             print(f"{label:<44}{c[key]:>10.3f}{c[key] / base:>10.2f}")
+        print(f"PyBullet IK / compiled ITG+ step: {c['ik_pybullet_us'] / c['itg_plus_compiled_us']:.1f}x "
+              f"(target >= 50x); / compiled Table 2 step: {c['ik_pybullet_us'] / base:.1f}x")
         if not args.no_vision:
             rows = vision_costs(frames=args.frames, passes=args.passes)
             print(f"\nstereo loop per iteration at 640x480 (two LEDs, two cameras, distortion and "
