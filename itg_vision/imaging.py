@@ -12,9 +12,9 @@ averages after it (:func:`lens_maps`), which keeps the anti-aliased edges sharp.
 renderer draws only the s-fold pinhole pixels the window's lens map reads, with
 K' = [[s fx, 0, s (cx - x0) + (s - 1) / 2], [0, s fy, s (cy - y0) + (s - 1) / 2], [0, 0, 1]]
 for a pinhole region whose top-left (1x) coordinate is (x0, y0) (through the usual
-K-to-projection conversion, with TinyRenderer's +1 on cy); then the frame's s-fold lens map
-(sliced, its integer part shifted by the region's origin), the s x s average and noise on the
-window only. Its pixels are the frame's (``capture(..., lens_first=True)``), tested at s = 1..3.
+K-to-projection conversion, with TinyRenderer's +1 on cy); then the window's own s-fold lens
+map (:func:`window_lens_maps`, its integer part shifted by the region's origin), the s x s
+average and noise on the window only. Its pixels are the frame's (``capture(..., lens_first=True)``), tested at s = 1..3.
 TinyRenderer's cost is ~75 us per call plus ~0.1 us per pixel drawn, so four ~15 px windows at
 s = 3 cost a twentieth of one 640x480 frame.
 """

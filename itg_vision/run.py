@@ -19,7 +19,9 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from . import outputs, plot
+from .camera import MAX_SUPERSAMPLE
 from .errors import ArgumentParser, ConfigError, UserError, run_main
+from .feedback import DEFAULT_SUPERSAMPLE
 from .progress import progress
 from .rules import shipped_rules
 from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
@@ -122,7 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "them apart by colour; doubles the rendering")
     ap.add_argument("--supersample", type=int, metavar="S",
                     help="vision: render at S times the resolution and area-average down "
-                         "(anti-aliased LEDs; 1..8; default: the rig file's, else 2)")
+                         f"(anti-aliased LEDs; 1..{MAX_SUPERSAMPLE}; default: the rig file's, "
+                         f"else {DEFAULT_SUPERSAMPLE})")
     ap.add_argument("--full-frame", action="store_true",
                     help="vision: render whole frames instead of windows around the LEDs "
                          "(~10-50x slower; --video implies it)")

@@ -189,15 +189,14 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
                                 **{RULE_NAMES[k]: v for k, v in params.items()})
         if controller.servo_step:  # the rules' S is the loop's servo limit (#! in the file)
             cfg, servo_note = servo_limit_for_rules(cfg, model, controller.source)
-            params["step_deg"] = cfg.max_step_deg
             controller = dataclasses.replace(controller, S=cfg.max_step_deg)
             info["servo_limit"] = servo_note
-        used = {k for k, name in RULE_NAMES.items() if controller.uses(name)}
+        used = controller.params()  # the parameters its rules read, by field name
         for k in given:
             if k not in used:
                 raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
         info["rules"] = str(controller.source)
-        info["controller_params"] = controller.params()
+        info["controller_params"] = used
     else:
         from .controllers import make_controller
 

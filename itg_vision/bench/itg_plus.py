@@ -23,12 +23,11 @@ import math
 import operator
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .. import outputs
-from ..errors import UserError, run_main
+from ..errors import run_main
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -147,14 +146,6 @@ def speed_target(costs: dict) -> Target:
                                      f"{costs['rules_compiled_us']:.2f} us")
 
 
-def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
-    """Microseconds per decision (``bench speed``'s figures): the compiled ITG+ two-link step,
-    Table 2's and PyBullet's IK, on the same set points and arm states."""
-    from .speed import decision_costs as costs
-
-    return costs(n_points, repeat)
-
-
 def table(targets: list[Target]) -> list[str]:
     lines = ["| target | case | measured | threshold | verdict | note |", "|---|---|---|---|---|---|"]
     for t in targets:
@@ -194,14 +185,10 @@ def main(argv: list[str] | None = None) -> int:
         from .sweep import SWEEPS
 
         args = build_parser().parse_args(argv)
-        out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            raise UserError(f"--out {out}: exists and is not a folder")
-        if out.exists() and any(out.iterdir()):
-            made = outputs.read_manifest(out)
-            if made is None or made.get("command") != COMMAND:
-                raise UserError(f"--out {out}: is a folder this benchmark did not make; choose "
-                                "another --out")
+        out = outputs.check_out_dir(args.out, COMMAND)
+        out.mkdir(parents=True, exist_ok=True)
+        if not (out / outputs.MANIFEST).exists():
+            outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         common = (["--workers", str(args.workers)] if args.workers else []) \
             + (["--quiet"] if args.quiet else [])
         status = 0
@@ -210,9 +197,6 @@ def main(argv: list[str] | None = None) -> int:
                                   ("itg-plus-three-link", "three-link", args.seeds_three_link)):
             extra = (["--seeds", str(seeds)] if seeds is not None else []) \
                 + (["--points", str(args.points)] if args.points is not None else [])
-            out.mkdir(parents=True, exist_ok=True)
-            if not (out / outputs.MANIFEST).exists():
-                outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
             status = max(status, noise.main(["--sweep", sweep, "--out", str(out / sub)] + extra + common))
             if status == 2:
                 return 2
@@ -223,6 +207,8 @@ def main(argv: list[str] | None = None) -> int:
                                       SWEEPS["itg-plus-three-link"]["trajectories"])
         targets.append(first_step_target(rows["itg-plus-three-link"], SUBJECT_3,
                                          "three-link, truth + 0.25 mm, every run"))
+        from .speed import decision_costs
+
         costs = decision_costs()
         targets.append(speed_target(costs))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
