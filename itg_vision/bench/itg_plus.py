@@ -8,8 +8,7 @@ own folder under ``--out``, resumable):
   against the DLS Jacobian tracker and the paper's Table 2, same seeds, same servo limit;
 - ``three-link/``: sweep ``itg-plus-three-link``: the three-link arm from its straight-up start
   on ``line-ab-reach`` and the held-out ``helix``, links -5/0/+5 % x joint offset 0/1 deg,
-  40 seeds, fed the simulator's LED positions plus 0.25 mm Gaussian noise (about vision's
-  error, 480 runs per controller at a fraction of the rendering cost);
+  40 seeds, under vision feedback (the rendered stereo eye, as the two-link sweep);
 
 then times one compiled ITG+ step against PyBullet's numerical IK on the same set points
 (as ``bench speed`` does for Table 2), and writes ``targets.md``: each target with its
@@ -34,7 +33,7 @@ TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
 MEDIAN_FACTOR = 2.0  # tracking median within this factor of the DLS tracker's
 SPEED_FACTOR = 50.0  # compiled ITG+ step at least this many times cheaper than PyBullet IK
 SUBJECT, DLS, TABLE2 = "itg-plus-vision", "jacobian-vision", "itg-vision"
-SUBJECT_3, DLS_3 = "itg-plus-truth-noise", "jacobian-truth-noise"
+SUBJECT_3, DLS_3 = SUBJECT, DLS
 COMMAND = "bench itg-plus"
 
 
@@ -206,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         targets += three_link_targets(rows["itg-plus-three-link"],
                                       SWEEPS["itg-plus-three-link"]["trajectories"])
         targets.append(first_step_target(rows["itg-plus-three-link"], SUBJECT_3,
-                                         "three-link, truth + 0.25 mm, every run"))
+                                         "three-link, vision, every run"))
         from .speed import decision_costs
 
         costs = decision_costs()
@@ -215,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         text = ["# ITG+ against issue 13's targets", "", f"Produced by `{command.strip()}`.", "",
                 "Two-link: vision feedback, 2 laps, servo limit and iterations from "
                 "data/arms/two-link.yaml for every controller (tracking/report.md); three-link: "
-                "LED positions + 0.25 mm noise, from the straight-up start (three-link/report.md). "
+                "vision feedback, from the straight-up start (three-link/report.md). "
                 "Verdicts are computed from the measured value and the threshold.", ""]
         text += table(targets) + [""]
         text += [f"{sum(t.met for t in targets)} of {len(targets)} targets met.", ""]

@@ -47,8 +47,8 @@ CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "itg-plus-vision": ("itg", "vision", 0.0, "itg_plus_rules"),
     "itg-plus-model": ("itg", "model", 0.0, "itg_plus_rules"),
 }
-#: Controllers only the ``start-tie`` and ``itg-plus-three-link`` sweeps use: ideal LED
-#: positions plus Gaussian noise of about vision's size, many seeds cheaply.
+#: Controllers only named sweeps use (``start-tie``; any sweep given ``--controllers``): ideal
+#: LED positions plus Gaussian noise of about vision's size, many seeds cheaply.
 TRUTH_NOISE_MM = 0.25
 EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "rules"),
@@ -171,7 +171,7 @@ SWEEPS = {
                  "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut"),
                  "conditions": ("clean", "noise-1px"), "seeds": 3},
     # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
-    "itg-plus-three-link": {"controllers": ("itg-plus-truth-noise", "jacobian-truth-noise"),
+    "itg-plus-three-link": {"controllers": ("itg-plus-vision", "jacobian-vision"),
                             "trajectories": ("line-ab-reach", "helix"),
                             "conditions": ("clean", "links-5%", "links+5%", "offset-1deg",
                                            "links-5%+offset-1deg", "links+5%+offset-1deg"),
