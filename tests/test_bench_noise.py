@@ -94,6 +94,24 @@ def test_run_ids_are_stable_and_distinct():
 
 # ---------------------------------------------------------------------------- Dask
 @pytest.mark.slow
+def test_an_edited_rule_file_gives_its_runs_new_ids_and_leaves_the_others(tmp_path, monkeypatch):
+    """A resumed sweep never reuses a result computed with an older rule base."""
+    from itg_vision.bench import sweep
+    from itg_vision.rules import resolve_rules_path
+
+    copy = tmp_path / "itg-plus-two-link.rules"
+    copy.write_text(resolve_rules_path("itg-plus-two-link").read_text())
+    monkeypatch.setattr(sweep, "resolve_rules_path",
+                        lambda name: copy if name == "itg-plus-two-link" else resolve_rules_path(name))
+    kw = dict(sweep="itg-plus", seeds=1, trajectories=("ellipse-t1",), conditions=("clean",))
+    before = {s.controller: s.run_id for s in build_sweep(**kw)}
+    copy.write_text(copy.read_text() + "\n# an edit\n")
+    after = {s.controller: s.run_id for s in build_sweep(**kw)}
+    assert before["itg-plus-vision"] != after["itg-plus-vision"]
+    assert before["itg-vision"] == after["itg-vision"]
+    assert before["jacobian-vision"] == after["jacobian-vision"]
+
+
 def test_dask_path_on_a_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     # processes=True: one PyBullet client per worker process, as on a real cluster

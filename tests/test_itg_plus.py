@@ -122,7 +122,8 @@ def test_one_step_removes_a_small_error_like_newton(name, factor):
     poses (J from finite differences well conditioned): one step shrinks the error by at least
     ``factor``, as Newton's step does (it leaves terms of order |err|^2 / lever). Three-link: the
     pitch axis's length comes from two Heron steps (0.2 % at most), and the forearm is kept 10
-    degrees off vertical, where the markers cannot tell the arm's plane (see the rule file)."""
+    degrees off vertical, where the markers cannot tell the arm's plane (see the rule file).
+    Two-link: not within a quarter forearm of the base, where q1's step is damped (tested below)."""
     arm = ArmSpec.from_args(name)
     rb = itg_plus(arm)
     rng = np.random.default_rng(2)
@@ -137,10 +138,41 @@ def test_one_step_removes_a_small_error_like_newton(name, factor):
         forearm_off_vertical = abs((q[1] + q[2]) % 180 - 90) if name == "three-link" else 90
         if np.abs(dq).max() > 0.75 * SERVO[name] or forearm_off_vertical < 10:
             continue
+        if name == "two-link" and np.hypot(*forward_kinematics(arm, q)["gripper"][:2]) < 25.0:
+            continue
         p = forward_kinematics(arm, q + dq)["gripper"]
         before = distance(arm, p, q)
         after = distance(arm, p, q + rb.step(p, observe(arm, q), q).dq_deg)
         assert after <= before / factor, (q, dq, before, after)
+        n += 1
+
+
+def test_near_the_base_the_two_link_step_is_the_jacobian_step_with_q1_damped():
+    """Gripper within a quarter forearm (25 mm) of the base: q2's step is the Jacobian's, q1's is
+    the Jacobian's times l^2 / (l^2 + lambda^2), lambda = 5 mm, l = q1's lever along the forearm
+    (mm/rad), all from the finite-difference Jacobian of the forward kinematics."""
+    arm = ArmSpec.from_args("two-link")
+    rb = itg_plus(arm)
+    rng = np.random.default_rng(7)
+    n = 0
+    while n < 100:
+        q = np.array([rng.uniform(-180, 180), rng.choice([-1, 1]) * rng.uniform(152, 179.5)])
+        m = forward_kinematics(arm, q)
+        if np.hypot(*m["gripper"][:2]) >= 25.0:
+            continue
+        J = _fd_jacobian(arm, q)  # mm/deg
+        err = rng.normal(0, 1.0, 2)
+        err *= rng.uniform(1.0, 3.0) / np.linalg.norm(err)  # above the hold band w = 0.5 mm
+        p = m["gripper"] + np.array([*err, 0.0])
+        u = (m["gripper"] - m["elbow"])[:2]
+        lever = float(J[:, 0] @ u / np.linalg.norm(u)) * np.degrees(1.0)  # mm/rad
+        newton = np.linalg.solve(J, err)
+        expected = newton * [lever**2 / (lever**2 + 25.0), 1.0]
+        if np.abs(expected).max() > 0.9 * SERVO["two-link"]:
+            continue
+        got = rb.step(p, observe(arm, q), q)
+        assert got.fired == (2,), (q, got.fired)
+        np.testing.assert_allclose(got.dq_deg, expected, rtol=1e-4, atol=1e-6)
         n += 1
 
 

@@ -30,7 +30,7 @@ RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
             "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
-            "measured_links_mm", "iterations", "max_step_deg", "rules", "controller_params"]
+            "measured_links_mm", "iterations", "max_step_deg", "rules", "rules_sha", "controller_params"]
            + RUN_METRICS
            + ["diverged"])
 
@@ -158,8 +158,9 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
         if old != definition:
             was = " ".join(f"{k}={v}" for k, v in stored.get("options", {}).items() if v not in (None, False))
             raise UserError(f"--out {out} holds results of a different sweep definition "
-                            f"({old} [{was or 'defaults'}], now {definition}): rerun with the same "
-                            "options or choose another --out")
+                            f"({old} [{was or 'defaults'}], now {definition}; other options, an edited "
+                            "rule file or a new calibrated rig): rerun with the same options or "
+                            "choose another --out")
         return
     ids = {s.run_id for s in specs}
     foreign = [r for r in results.rows if r not in ids]

@@ -35,6 +35,7 @@ from pathlib import Path
 
 from ..arm import ArmSpec
 from ..errors import UserError
+from ..rules import resolve_rules_path
 
 #: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
 #: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
@@ -95,7 +96,7 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 3  # 3: the gain column (always empty) became controller_params
+SCHEMA = 4  # 3: the gain column (always empty) became controller_params; 4: rules_sha
 
 
 @dataclass(frozen=True)
@@ -192,6 +193,7 @@ class RunSpec:
     rc_controller: str
     feedback: str
     rules: str  # the rule base of an itg controller ("" for the baselines)
+    rules_sha: str  # content hash of its rule file: an edited rule base is a new run
     noise_mm: float
     noise_px: float
     dropout: float
@@ -280,6 +282,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     if points is not None and points < 2:
         raise UserError(f"--points: must be >= 2, got {points}")
     rig_sha: dict[str, str] = {}
+    rules_sha: dict[str, str] = {"": ""}
     specs = []
     for traj_name in trajs:
         arm = TRAJECTORIES[traj_name]
@@ -299,10 +302,13 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
             for seed in range(n_seeds):
                 for ctrl in ctrls:
                     rc, fb, noise_mm, rules_key = ALL_CONTROLLERS[ctrl]
+                    rules = spec_arm.defaults[rules_key] if rules_key else ""
+                    if rules not in rules_sha:
+                        rules_sha[rules] = _file_sha(resolve_rules_path(rules))
                     specs.append(RunSpec(
                         controller=ctrl, condition=cname, trajectory=traj_name, arm=arm,
                         points=n, seed=seed, rc_controller=rc, feedback=fb,
-                        rules=spec_arm.defaults[rules_key] if rules_key else "",
+                        rules=rules, rules_sha=rules_sha[rules],
                         noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
                         rig=cond.rig, rig_sha=sha, link_error=cond.link_error,
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
@@ -317,8 +323,11 @@ def _calibrated_rig_sha(arm: str) -> str:
                         f"itg_vision.calibrate --rig {ArmSpec.from_args(arm).defaults['rig']} "
                         f"--out {path}`, or leave "
                         "the rig-calibrated conditions out with --conditions")
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    return _file_sha(path)
 
+
+def _file_sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
 
 
 def run_config(spec: RunSpec, rig_path: str | None = None):
