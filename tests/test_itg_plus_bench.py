@@ -69,7 +69,7 @@ def _row(controller, seed, trajectory="ellipse-t1", condition="clean", **metrics
     row = {"controller": controller, "seed": str(seed), "trajectory": trajectory,
            "condition": condition, "diverged": "0", "first_error_mm": "1",
            "start_error_mm": "2", "track_max_mm": "1", "track_median_mm": "0.1",
-           "e_av_mm": "1"}
+           "track_mean_mm": "0.2", "track_p95_mm": "0.5", "e_av_mm": "1"}
     row.update({k: str(v) for k, v in metrics.items()})
     return row
 
@@ -93,9 +93,12 @@ def test_tracking_targets_from_rows():
             _row(itg_plus.SUBJECT, 1, condition="noise-1px", track_median_mm=1.2),
             _row(itg_plus.DLS, 0, condition="noise-1px", track_median_mm=0.2),
             _row(itg_plus.DLS, 1, condition="noise-1px", track_median_mm=0.4)]
-    got = {t.what.split(" (")[0]: t for t in itg_plus.tracking_targets(rows, ["ellipse-t1", "abcd"])}
+    got = {t.what.split(" (")[0]: t for t in itg_plus.tracking_targets(
+        rows, ["ellipse-t1", "abcd"], {"ellipse-t1": 0.25})}
     assert len(got) == 5  # abcd has no rows: no target invented for it
     assert got["tracking-phase max E_i"].measured == 3.5 and not got["tracking-phase max E_i"].met
+    assert "better than 0.25 (servo bound)" in got["tracking-phase max E_i"].note
+    assert "ITG+ mean 0.2 / p95 0.5 / max 3.5" in got["tracking median E_i"].note
     med = got["tracking median E_i"]
     assert med.measured == pytest.approx(0.3) and med.threshold == pytest.approx(0.3) and med.met
     assert got["E_av below Table 2's"].measured == 3 and not got["E_av below Table 2's"].met
@@ -117,6 +120,34 @@ def test_first_step_and_three_link_targets_count_runs():
     assert div.measured == 0 and div.met and "DLS 1" in div.note
     rows[2]["diverged"] = "1"
     assert not itg_plus.three_link_targets(rows, ["helix"])[0].met
+
+
+def test_servo_bound_is_a_lower_bound_and_tight():
+    """servo_bound_mm against random sampling of the servo box from the same on-path poses:
+    never above what any sampled step reaches (a lower bound), within the grid's slack plus
+    1 mm of the best sample (tight); zero when one step reaches the next point exactly."""
+    import math
+
+    import numpy as np
+
+    from itg_vision.controllers import two_link_ik
+
+    links, servo = (100.0, 100.0), 20.0
+    assert itg_plus.servo_bound_mm([(150.0, 0, 0), (150.0, 20.0, 0)], links, servo, False) == 0.0
+    rng = np.random.default_rng(4)
+    slack = 300.0 * math.radians(itg_plus.BOUND_GRID_DEG) / 2
+    for _ in range(5):
+        a, b = (rng.uniform(40, 180) * np.array([math.cos(t), math.sin(t)])
+                for t in rng.uniform(-math.pi, math.pi, 2))
+        bound = itg_plus.servo_bound_mm([(*a, 0), (*b, 0)], links, servo, False)
+        dq = np.radians(rng.uniform(-servo, servo, (200_000, 2)))
+        sampled = min(float(np.min(np.hypot(
+            100 * np.cos(q1) + 100 * np.cos(q1 + q2) - b[0],
+            100 * np.sin(q1) + 100 * np.sin(q1 + q2) - b[1])))
+            for q in two_link_ik(a[0], a[1], *links)
+            for q1, q2 in [(math.radians(q[0]) + dq[:, 0], math.radians(q[1]) + dq[:, 1])])
+        assert bound <= sampled + 1e-9
+        assert bound >= sampled - 2 * slack - 1.0
 
 
 def test_speed_target_is_the_ratio_of_the_times():
