@@ -90,6 +90,7 @@ def summary_table(r: dict) -> str:
     names = list(e["cameras"])
     rows = [("", *names)]
     rows.append(("reprojection RMS (px)", *(f"{r['reprojection_rms_px'][n]:.3f}" for n in names)))
+    rows.append(("worst view's RMS (px)", *(f"{max(r['per_view_rms_px'][n]):.3f}" for n in names)))
     rows.append(("focal length fx, fy (%)", *(
         "{:+.3f}, {:+.3f}".format(*e["cameras"][n]["focal_length_pct"]) for n in names)))
     rows.append(("principal point u, v (px)", *(
@@ -115,7 +116,10 @@ def summary_table(r: dict) -> str:
              + ", ".join(f"{v:.2f}" for v in r["base_frame"]["measured_links_mm"]) + " mm)"),
             ("LED triangulation RMS (mm)", f"true rig {led['true_rig_rms_mm']:.3f}, calibrated "
                                            f"{led['calibrated_rig_rms_mm']:.3f}, ratio "
-                                           f"{led['ratio']:.2f} ({led['points']} points)")]
+                                           f"{led['ratio']:.2f} ({led['points']} points)"),
+            ("LED triangulation p95 / max (mm)",
+             f"true rig {led['true_rig_p95_mm']:.3f} / {led['true_rig_max_mm']:.3f}, calibrated "
+             f"{led['calibrated_rig_p95_mm']:.3f} / {led['calibrated_rig_max_mm']:.3f}")]
     w0 = max(len(x[0]) for x in rows + pair)
     w = [max(len(row[i]) for row in rows) for i in range(1, len(rows[0]))]
     lines = ["  ".join([f"{row[0]:<{w0}}"] + [f"{v:>{w[i]}}" for i, v in enumerate(row[1:])])

@@ -189,7 +189,7 @@ def test_written_rig_round_trips_and_tracks(planar_result, tmp_path, cli):
 def test_summary_table_lists_the_figures(planar_result):
     text = summary_table(planar_result[1].record)
     for word in ("reprojection RMS", "focal length", "principal point", "baseline",
-                 "rotation", "world position", "LED triangulation"):
+                 "rotation", "world position", "LED triangulation", "worst view", "p95 / max"):
         assert word in text
 
 

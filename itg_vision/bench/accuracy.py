@@ -78,6 +78,12 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
            "sigma_render_px": sigma_render, "n_missed": missed,
            "marker_rms_mm": {n: float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
                              for n, v in by_marker.items()},
+           # the tail beside the RMS: 95th percentile and max of the error's length
+           "centroid_p95_px": float(np.percentile(np.hypot(c[:, 0], c[:, 1]), 95)),
+           "centroid_max_px": float(np.max(np.hypot(c[:, 0], c[:, 1]))),
+           "marker_p95_mm": {n: float(np.percentile(v, 95)) if v else float("nan")
+                             for n, v in by_marker.items()},
+           "marker_max_mm": {n: float(np.max(v)) if v else float("nan") for n, v in by_marker.items()},
            "rows": []}
     pts = np.array(pts)
     for s in sigmas:
@@ -108,8 +114,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
               "zero added noise")
         names = arm.marker_names
-        print(f"{'setting':<17}{'centroid RMS px':>16}{'mean u, v px':>18}"
-              + "".join(f"{n + ' RMS mm':>16}" for n in names) + f"{'missed':>8}")
+        print(f"{'setting':<17}{'centroid px RMS/p95/max':>24}{'mean u, v px':>18}"
+              + "".join(f"{n + ' mm RMS/p95/max':>26}" for n in names) + f"{'missed':>8}")
         with opencv_threads(1):
             # the default setting once, with every added noise (its zero-noise row is the same)
             default = measure(arm, rig, (0.0, 0.1, 0.3, 1.0), args.poses, args.seed)
@@ -117,8 +123,10 @@ def main(argv: list[str] | None = None) -> int:
                 r = default if (s, full) == (DEFAULT_SUPERSAMPLE, False) else measure(
                     arm, rig, (0.0,), args.poses, args.seed, supersample=s, full_frame=full)
                 mu = r["centroid_mean_px"]
-                print(f"{label:<17}{r['centroid_rms_px']:>16.4f}{mu[0]:>+9.3f},{mu[1]:>+8.3f}"
-                      + "".join(f"{r['marker_rms_mm'][n]:>16.4f}" for n in names)
+                tail_px = f"{r['centroid_rms_px']:.4f}/{r['centroid_p95_px']:.3f}/{r['centroid_max_px']:.3f}"
+                print(f"{label:<17}{tail_px:>24}{mu[0]:>+9.3f},{mu[1]:>+8.3f}"
+                      + "".join(f"{r['marker_rms_mm'][n]:.4f}/{r['marker_p95_mm'][n]:.3f}/"
+                                f"{r['marker_max_mm'][n]:.3f}".rjust(26) for n in names)
                       + f"{r['n_missed']:>8}")
             r = default
         print(f"\nwindows s={DEFAULT_SUPERSAMPLE} (the default) with added centroid noise "
