@@ -183,8 +183,11 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
                           f"of {len(mine)}: {seeds} seeds x {len(conds)} conditions; DLS "
                           f"{sum(r['diverged'] == '1' for r in dls)}"))
         med, med_dls = _median(mine, "track_median_mm"), _median(dls, "track_median_mm")
+        missed = {k: sum(int(_f(r.get("n_missed", 0)) > 0) for r in rs) for k, rs in (("ITG+", mine), ("DLS", dls))}
         out.append(Target("three-link tracking median E_i (median over runs)", t, med, "<=",
-                          MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}"))
+                          MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}; "
+                          + _tails(mine, "ITG+") + "; " + _tails(dls, "DLS")
+                          + f"; runs with an LED unseen: ITG+ {missed['ITG+']}, DLS {missed['DLS']}"))
     return out
 
 
