@@ -461,6 +461,24 @@ def _names_in(node: Node | None) -> list[tuple[str, Token]]:
     return [n for child in children(node) for n in _names_in(child)]
 
 
+def _subtrees(node: Node):
+    """The node and every node below it."""
+    yield node
+    for child in children(node):
+        yield from _subtrees(child)
+
+
+def _by_number(node: Node) -> bool:
+    """A division by a nonzero number (Python's division, which cannot raise)."""
+    return isinstance(node, Binary) and node.op == "/" and isinstance(node.right, Num) \
+        and node.right.value != 0
+
+
+def _by_variable(node: Node) -> bool:
+    """A division by anything else: 0 possible, so the compiled code needs ``_div``."""
+    return isinstance(node, Binary) and node.op == "/" and not _by_number(node)
+
+
 def _py(node: Node, temps) -> str:
     """Python source of a checked tree (never of the file's text); ``temps`` numbers the
     temporaries (an ``itertools.count`` per compiled rule base)."""
@@ -472,6 +490,15 @@ def _py(node: Node, temps) -> str:
         arg = _py(node.arg, temps)
         return {"-": f"(-{arg})", "abs": f"abs({arg})", "not": f"(not {arg})"}[node.op]
     op, a, b = node.op, _py(node.left, temps), _py(node.right, temps)
+    if op == "/" and _by_number(node):
+        return f"({a} / {b})"  # cannot raise
+    if op == "/" and not any(_by_variable(n) for n in _subtrees(node.left)):
+        # Python's division, _div when the divisor is 0 (then a, written twice, is evaluated
+        # there instead; a holds no such division, so the source stays linear in the tree)
+        if b.isidentifier():
+            return f"({a} / {b} if {b} else _div({a}, {b}))"
+        t = f"_t{next(temps)}"
+        return f"({a} / {t} if ({t} := {b}) else _div({a}, {t}))"
     if op == "/":
         return f"_div({a}, {b})"
     if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
