@@ -24,10 +24,12 @@ Semantics (the paper leaves these open; we choose):
   the set point is out of reach and no joint moves.
 - The others are scanned in file order. A rule fires when its condition holds and none of its
   joints has been set by an earlier rule in this scan: each joint changes at most once per
-  iteration ("only one rule will be matched at each time", per joint).
-- Comparisons with NaN (a marker the arm lacks) are false.
-- Definitions are computed once per iteration, in file order, before any rule is tested; a
-  name is known from its ``LET`` on and cannot be defined twice or shadow a built-in name.
+  iteration ("only one rule will be matched at each time", per joint), and a rule that sets
+  every joint ends the scan.
+- Comparisons with NaN (a marker the arm lacks) are false (``!=`` is true, as in IEEE 754).
+- A definition is a pure quantity, computed when first needed: before the first condition or
+  step that reads it (the same values as computing them all first, in file order). A name is
+  known from its ``LET`` on and cannot be defined twice or shadow a built-in name.
 
 Arithmetic is total and checked (the paper says nothing; we choose IEEE 754 doubles):
 
@@ -201,7 +203,7 @@ class Rule:
 
 @dataclass(frozen=True)
 class Definition:
-    """``LET name = expr``: a named quantity, computed before the rules at each iteration."""
+    """``LET name = expr``: a named quantity, computed where a rule first needs it."""
 
     name: str
     expr: Node
@@ -511,6 +513,89 @@ def _py(node: Node, temps) -> str:
     return f"({a} {op} {b})"
 
 
+def _steps(rule: Rule) -> dict[int, tuple[str, Node]]:
+    """Joint -> (sign, step) of each joint the rule moves: its last ``+=`` or ``-=`` on that
+    joint (a joint it only holds keeps 0.0)."""
+    return {a.joint: ("" if a.kind == "inc" else "-", a.step)
+            for a in rule.actions if a.kind in ("inc", "dec")}
+
+
+@dataclass(frozen=True)
+class _Test:
+    """How the compiled function tests one rule that moves joints."""
+
+    rule: Rule
+    keyword: str  # "if", or "elif" after rules that each share a joint with this one
+    guard: tuple[int, ...]  # joints an earlier rule may have set (flags freeN), checked first
+    returns: bool  # it sets every joint: when it fires, the scan is over
+
+
+def _plan(rules: list[Rule], n_joints: int) -> list[_Test]:
+    """The tests of the rules that move joints, in file order. A rule fires when its condition
+    holds and none of its joints is set. One that sets every joint returns when it fires (then
+    nothing else had fired), so the rules after it know it set nothing. One that shares a
+    joint with each rule of the chain just before it is an ``elif`` of that chain: if one of
+    those fired, it could not. Its guard is what is left: the joints a rule before the chain
+    may have set (with first-match rule bases such as ITG+, none)."""
+    tests, maybe, chain, before_chain = [], set(), [], set()
+    for r in rules:
+        joints = {a.joint for a in r.actions}
+        returns = len(joints) == n_joints
+        if not returns and chain and all(joints & c for c in chain):
+            tests.append(_Test(r, "elif", tuple(sorted(joints & before_chain)), False))
+            chain.append(joints)
+        else:
+            tests.append(_Test(r, "if", tuple(sorted(joints & maybe)), returns))
+            chain, before_chain = ([] if returns else [joints]), set(maybe)
+        if not returns:
+            maybe |= joints
+    return tests
+
+
+@dataclass
+class _Scope:
+    """What a point of the compiled function has computed: the definitions."""
+
+    defined: set = field(default_factory=set)
+
+    def inner(self) -> "_Scope":
+        """The scope of a block inside (what it computes is not known after it)."""
+        return _Scope(set(self.defined))
+
+
+class _Writer:
+    """The compiled function's lines, and the definitions computed where first needed."""
+
+    def __init__(self, definitions):
+        self.lines: list[str] = []
+        self.temps = itertools.count()
+        self.lets = {d.name: d for d in definitions}  # in file order
+
+    def line(self, depth: int, text: str) -> None:
+        self.lines.append("    " * depth + text)
+
+    def py(self, node: Node, scope: _Scope) -> str:
+        return _py(node, self.temps)
+
+    def reads(self, nodes) -> set[str]:
+        """The definitions ``nodes`` read, directly or through other definitions."""
+        found, names = set(), [name for node in nodes for name, _ in _names_in(node)]
+        while names:
+            name = names.pop()
+            if name in self.lets and name not in found:
+                found.add(name)
+                names += [n for n, _ in _names_in(self.lets[name].expr)]
+        return found
+
+    def define(self, names: set[str], scope: _Scope, depth: int) -> None:
+        """Compute the definitions ``names`` that ``scope`` lacks, in file order (a definition
+        reads only those above it)."""
+        for d in self.lets.values():
+            if d.name in names and d.name not in scope.defined:
+                self.line(depth, f"v_{d.name} = {self.py(d.expr, scope)}")
+                scope.defined.add(d.name)
+
+
 @dataclass
 class RuleBase:
     """A compiled rule base for one arm.
@@ -630,34 +715,58 @@ class RuleBase:
     # -------------------------------------------------------------- compile
     def _source(self) -> str:
         """The Python function the rules compile to (kept as :attr:`python_source`: what runs,
-        generated from the checked syntax tree, never from the file's text)."""
-        temps = itertools.count()
+        generated from the checked syntax tree, never from the file's text). Definitions are
+        computed just before the first test or step that reads them; see :func:`_plan` for
+        how the rules are tested."""
         n = self.n_joints
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
-        lines = [f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):"]
-        for d in self.definitions:
-            lines.append(f"    v_{d.name} = {_py(d.expr, temps)}")
+        out, top = _Writer(self.definitions), _Scope()
+        out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):")
         for r in (r for r in self.rules if r.out_of_reach):
-            lines.append(f"    if {_py(r.condition, temps)}:")
-            lines.append(f"        return None, ({r.number},)")
-        lines.append(f"    dq = [0.0] * {n}")
-        lines.append(f"    free = [True] * {n}")
-        lines.append("    fired = []")
-        for r in (r for r in self.rules if not r.out_of_reach):
-            joints = sorted({a.joint - 1 for a in r.actions})
-            guard = " and ".join(f"free[{j}]" for j in joints)
-            lines.append(f"    if {guard} and {_py(r.condition, temps)}:")
-            for a in r.actions:
-                j = a.joint - 1
-                if a.kind != "hold":
-                    sign = "" if a.kind == "inc" else "-"
-                    lines.append(f"        dq[{j}] = {sign}({_py(a.step, temps)})")
-                lines.append(f"        free[{j}] = False")
-            lines.append(f"        fired.append({r.number})")
-        lines.append("    return dq, fired")
-        return "\n".join(lines) + "\n"
+            out.define(out.reads([r.condition]), top, 1)
+            out.line(1, f"if {out.py(r.condition, top)}:")
+            out.line(2, f"return None, ({r.number},)")
+        tests = _plan([r for r in self.rules if not r.out_of_reach], n)
+        scanning = [t for t in tests if not t.returns]  # rules whose firing does not end the scan
+        stepped = sorted({j for t in scanning for j in _steps(t.rule)})
+        flagged = sorted({j for t in tests for j in t.guard})
+        for j in stepped:
+            out.line(1, f"dq{j} = 0.0")
+        for j in flagged:
+            out.line(1, f"free{j} = True")
+        if scanning:
+            out.line(1, "fired = []")
+        # definitions: before the first test that reads them; one that only a rule's steps
+        # read, before its test too if a later rule reads it, else in that rule's body
+        tested = [out.reads([t.rule.condition]) for t in tests]
+        stepping = [out.reads([step for _, step in _steps(t.rule).values()]) for t in tests]
+        later = [set().union(*tested[i + 1:], *stepping[i + 1:]) for i in range(len(tests))]
+        before = [tested[i] | stepping[i] & later[i] for i in range(len(tests))]
+        for i in reversed(range(len(tests) - 1)):  # an elif's before its chain's if
+            if tests[i + 1].keyword == "elif":
+                before[i] |= before[i + 1]
+        for i, t in enumerate(tests):
+            if t.keyword == "if":
+                out.define(before[i], top, 1)
+            guard = "".join(f"free{j} and " for j in t.guard)
+            out.line(1, f"{t.keyword} {guard}{out.py(t.rule.condition, top)}:")
+            body, steps = top.inner(), _steps(t.rule)
+            out.define(stepping[i], body, 2)
+            dq = {j: f"{sign}{out.py(step, body)}" for j, (sign, step) in steps.items()}
+            if t.returns:
+                values = ", ".join(dq.get(j, "0.0") for j in range(1, n + 1))
+                out.line(2, f"return [{values}], [{t.rule.number}]")
+                continue
+            for j, value in dq.items():
+                out.line(2, f"dq{j} = {value}")
+            for j in sorted({a.joint for a in t.rule.actions} & set(flagged)):
+                out.line(2, f"free{j} = False")
+            out.line(2, f"fired.append({t.rule.number})")
+        values = ", ".join(f"dq{j}" if j in stepped else "0.0" for j in range(1, n + 1))
+        out.line(1, f"return [{values}], {'fired' if scanning else '[]'}")
+        return "\n".join(out.lines) + "\n"
 
     def _compile(self, source: str):
         namespace: dict = dict(_HELPERS)
