@@ -89,6 +89,8 @@ KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "L
 MAX_DEPTH = 50
 #: Longest rule accepted (tokens: numbers, names, operators, keywords).
 MAX_RULE_TOKENS = 1000
+#: Longest if/elif chain in the compiled function (then a new ``if`` and flags).
+MAX_ELIF = 100
 
 _TOKEN = re.compile(r"""
     (?P<ws>[ \t\r]+) | (?P<nl>\n) | (?P<comment>\#[^\n]*)
@@ -536,12 +538,13 @@ def _plan(rules: list[Rule], n_joints: int) -> list[_Test]:
     nothing else had fired), so the rules after it know it set nothing. One that shares a
     joint with each rule of the chain just before it is an ``elif`` of that chain: if one of
     those fired, it could not. Its guard is what is left: the joints a rule before the chain
-    may have set (with first-match rule bases such as ITG+, none)."""
+    may have set (with first-match rule bases such as ITG+, none). A chain has at most
+    :data:`MAX_ELIF` rules (Python's compiler recurses on each ``elif``)."""
     tests, maybe, chain, before_chain = [], set(), [], set()
     for r in rules:
         joints = {a.joint for a in r.actions}
         returns = len(joints) == n_joints
-        if not returns and chain and all(joints & c for c in chain):
+        if not returns and 0 < len(chain) < MAX_ELIF and all(joints & c for c in chain):
             tests.append(_Test(r, "elif", tuple(sorted(joints & before_chain)), False))
             chain.append(joints)
         else:
@@ -742,7 +745,9 @@ class RuleBase:
         # read, before its test too if a later rule reads it, else in that rule's body
         tested = [out.reads([t.rule.condition]) for t in tests]
         stepping = [out.reads([step for _, step in _steps(t.rule).values()]) for t in tests]
-        later = [set().union(*tested[i + 1:], *stepping[i + 1:]) for i in range(len(tests))]
+        later = [set() for _ in tests]  # what the rules after each read
+        for i in reversed(range(len(tests) - 1)):
+            later[i] = later[i + 1] | tested[i + 1] | stepping[i + 1]
         before = [tested[i] | stepping[i] & later[i] for i in range(len(tests))]
         for i in reversed(range(len(tests) - 1)):  # an elif's before its chain's if
             if tests[i + 1].keyword == "elif":

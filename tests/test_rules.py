@@ -493,3 +493,16 @@ def test_compiled_random_rule_bases_equal_the_tree_walking_reference(data):
         args = data.draw(st.lists(_VALUES, min_size=len(rb.argument_names),
                                   max_size=len(rb.argument_names)))
         _assert_compiled_is_reference(rb, tuple(args))
+
+
+def test_a_long_chain_of_rules_on_one_joint_compiles_and_equals_the_reference():
+    """250 rules on q1 (an if/elif chain is cut every MAX_ELIF rules: Python's compiler recurses
+    on each elif); the first whose condition holds fires, however far down the file."""
+    text = "\n".join(f"RULE {k}: IF xd > {250 - k} THEN q1 += {k}" for k in range(1, 251))
+    rb = RuleBase.from_text(text + "\nRULE 999: IF 1 > 0 THEN q2 -= 1", 2, TWO)
+    for xd in (300.0, 3.0, 0.5, -1.0, math.nan):
+        args = rb.arguments(np.array([xd, 0.0, 0.0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+        _assert_compiled_is_reference(rb, args)
+    assert rb.compiled(*args)[1] == [999]
+    args = rb.arguments(np.array([3.0, 0.0, 0.0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+    assert rb.compiled(*args) == ([248.0, -1.0], [248, 999])
