@@ -66,9 +66,11 @@ one Python function from the tree itself.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 import re
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -455,6 +457,7 @@ def _pow(a: float, b: float) -> float:
 
 
 _HELPERS = {"_div": _div, "_pow": _pow, "abs": abs, "__builtins__": {}}
+_ARITHMETIC = {"+", "-", "*", "/", "^", "abs"}
 
 
 def _names_in(node: Node | None) -> list[tuple[str, Token]]:
@@ -483,17 +486,42 @@ def _by_variable(node: Node) -> bool:
     return isinstance(node, Binary) and node.op == "/" and not _by_number(node)
 
 
-def _py(node: Node, temps) -> str:
+def _surely_evaluated_children(node: Node) -> tuple:
+    """The children Python evaluates whenever it evaluates the node (of ``a AND b`` and
+    ``a OR b`` only ``a``)."""
+    if isinstance(node, Binary) and node.op in ("and", "or"):
+        return (node.left,)
+    return children(node)
+
+
+def _evaluated(node: Node):
+    """The node and the nodes below it that Python evaluates whenever it evaluates the node."""
+    yield node
+    for child in _surely_evaluated_children(node):
+        yield from _evaluated(child)
+
+
+def _worth_sharing(node: Node) -> bool:
+    """An arithmetic operation, or a comparison of results of some: a value worth keeping."""
+    if not isinstance(node, (Unary, Binary)) or node.op in ("and", "or", "not"):
+        return False
+    return any(isinstance(n, (Unary, Binary)) and n.op in _ARITHMETIC for n in _subtrees(node))
+
+
+def _py(node: Node, temps, local=lambda node: None) -> str:
     """Python source of a checked tree (never of the file's text); ``temps`` numbers the
-    temporaries (an ``itertools.count`` per compiled rule base)."""
+    temporaries (an ``itertools.count`` per compiled rule base); ``local(node)`` names the
+    local that holds the value of a subtree computed already (or is None)."""
+    if (name := local(node)) is not None:
+        return name
     if isinstance(node, Num):
         return repr(node.value)  # finite: checked by the tokenizer
     if isinstance(node, Name):
         return f"v_{node.name}"
     if isinstance(node, Unary):
-        arg = _py(node.arg, temps)
+        arg = _py(node.arg, temps, local)
         return {"-": f"(-{arg})", "abs": f"abs({arg})", "not": f"(not {arg})"}[node.op]
-    op, a, b = node.op, _py(node.left, temps), _py(node.right, temps)
+    op, a, b = node.op, _py(node.left, temps, local), _py(node.right, temps, local)
     if op == "/" and _by_number(node):
         return f"({a} / {b})"  # cannot raise
     if op == "/" and not any(_by_variable(n) for n in _subtrees(node.left)):
@@ -506,7 +534,7 @@ def _py(node: Node, temps) -> str:
     if op == "/":
         return f"_div({a}, {b})"
     if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
-        if isinstance(node.left, (Name, Num)):
+        if a.isidentifier() or isinstance(node.left, Num):
             return f"({a} * {a})"
         t = f"_t{next(temps)}"
         return f"(({t} := {a}) * {t})"
@@ -515,11 +543,10 @@ def _py(node: Node, temps) -> str:
     return f"({a} {op} {b})"
 
 
-def _steps(rule: Rule) -> dict[int, tuple[str, Node]]:
-    """Joint -> (sign, step) of each joint the rule moves: its last ``+=`` or ``-=`` on that
-    joint (a joint it only holds keeps 0.0)."""
-    return {a.joint: ("" if a.kind == "inc" else "-", a.step)
-            for a in rule.actions if a.kind in ("inc", "dec")}
+def _moves(rule: Rule) -> dict[int, Action]:
+    """Joint -> the action that sets its step: the rule's last ``+=`` or ``-=`` on it (a joint
+    it only holds keeps 0.0)."""
+    return {a.joint: a for a in rule.actions if a.kind in ("inc", "dec")}
 
 
 @dataclass(frozen=True)
@@ -555,30 +582,106 @@ def _plan(rules: list[Rule], n_joints: int) -> list[_Test]:
     return tests
 
 
+def _definitions_placed(tests: list[_Test], reads) -> tuple[list[set], list[set]]:
+    """(before, inside): for each test, the definitions computed before it (with an ``if``, for
+    its whole chain: nothing can stand before an ``elif``) and those its body reads. A
+    definition is computed before the first test that reads it; one that only a rule's steps
+    read, before that rule's test too if a later rule reads it, else in its body."""
+    tested = [reads([t.rule.condition]) for t in tests]
+    inside = [reads([a.step for a in _moves(t.rule).values()]) for t in tests]
+    later = [set() for _ in tests]  # what the rules after each read
+    for i in reversed(range(len(tests) - 1)):
+        later[i] = later[i + 1] | tested[i + 1] | inside[i + 1]
+    before = [tested[i] | inside[i] & later[i] for i in range(len(tests))]
+    for i in reversed(range(len(tests) - 1)):
+        if tests[i + 1].keyword == "elif":
+            before[i] |= before[i + 1]
+    return before, inside
+
+
 @dataclass
 class _Scope:
-    """What a point of the compiled function has computed: the definitions."""
+    """What a point of the compiled function has computed: definitions, and subexpressions
+    (by :meth:`_Writer.key`) kept in locals."""
 
     defined: set = field(default_factory=set)
+    known: dict = field(default_factory=dict)
 
     def inner(self) -> "_Scope":
         """The scope of a block inside (what it computes is not known after it)."""
-        return _Scope(set(self.defined))
+        return _Scope(set(self.defined), dict(self.known))
 
 
 class _Writer:
-    """The compiled function's lines, and the definitions computed where first needed."""
+    """The compiled function's lines: definitions computed where first needed, subexpressions
+    evaluated more than once computed once."""
 
-    def __init__(self, definitions):
+    def __init__(self, definitions, tested):
+        """``tested``: for each rule in the order tested, its condition and its steps."""
         self.lines: list[str] = []
-        self.temps = itertools.count()
+        self.temps, self.shared = itertools.count(), itertools.count()
         self.lets = {d.name: d for d in definitions}  # in file order
+        self._keys: dict[int, int] = {}  # id(node) -> key
+        self._shapes: dict = {}  # shape -> key
+        self.tested = tested
+        self._at: dict[int, list[int]] = {}  # key -> the rules that surely evaluate it if tested
+        for i, nodes in enumerate(tested):  # (the condition; the steps if the rule fires)
+            for node in (n for node in nodes for n in _evaluated(node)):
+                self._at.setdefault(self.key(node), []).append(i)
 
     def line(self, depth: int, text: str) -> None:
         self.lines.append("    " * depth + text)
 
     def py(self, node: Node, scope: _Scope) -> str:
-        return _py(node, self.temps)
+        return _py(node, self.temps, lambda n: scope.known.get(self.key(n)))
+
+    def key(self, node: Node) -> int:
+        """A number per shape (the tree without its tokens): equal keys, equal values, since
+        every operation is a pure function of its operands."""
+        key = self._keys.get(id(node))
+        if key is None:
+            shape = (repr(node.value) if isinstance(node, Num) else node.name
+                     if isinstance(node, Name) else (node.op, *map(self.key, children(node))))
+            key = self._keys[id(node)] = self._shapes.setdefault(shape, len(self._shapes))
+        return key
+
+    def share(self, nodes, uses, scope: _Scope, depth: int) -> None:
+        """Before code that evaluates ``nodes``: compute into locals the largest of their
+        subexpressions evaluated with them (:func:`_evaluated`) and evaluated at least twice
+        in all, as ``uses(key)`` counts (here and in the code that can follow)."""
+        chosen: dict[int, Node] = {}
+
+        def visit(node):
+            key = self.key(node)
+            if key in scope.known or key in chosen:
+                return
+            if uses(key) >= 2 and _worth_sharing(node):
+                chosen[key] = node
+                return
+            for child in _surely_evaluated_children(node):
+                visit(child)
+
+        for node in nodes:
+            visit(node)
+        # the smaller first: one may be part of a larger one (used elsewhere too)
+        for key, node in sorted(chosen.items(), key=lambda kv: sum(1 for _ in _subtrees(kv[1]))):
+            local = f"_c{next(self.shared)}"
+            self.line(depth, f"{local} = {self.py(node, scope)}")
+            scope.known[key] = local
+
+    def share_before_test(self, i: int, scope: _Scope) -> None:
+        """Before the test of the i-th rule tested (which evaluates its condition whenever
+        reached: no elif, no guard), what its condition shares with itself and what follows."""
+        def uses(key):
+            at = self._at.get(key, ())
+            return len(at) - bisect.bisect_left(at, i)
+
+        self.share(self.tested[i][:1], uses, scope, 1)
+
+    def share_in_body(self, steps, scope: _Scope) -> None:
+        """At the start of a rule's body, what its steps share."""
+        counts = Counter(self.key(n) for node in steps for n in _subtrees(node))
+        self.share(steps, counts.__getitem__, scope, 2)
 
     def reads(self, nodes) -> set[str]:
         """The definitions ``nodes`` read, directly or through other definitions."""
@@ -718,22 +821,27 @@ class RuleBase:
     # -------------------------------------------------------------- compile
     def _source(self) -> str:
         """The Python function the rules compile to (kept as :attr:`python_source`: what runs,
-        generated from the checked syntax tree, never from the file's text). Definitions are
-        computed just before the first test or step that reads them; see :func:`_plan` for
-        how the rules are tested."""
+        generated from the checked syntax tree, never from the file's text): out-of-reach rules
+        first, then the others as :func:`_plan` tests them, definitions where
+        :func:`_definitions_placed` puts them, and subexpressions evaluated more than once
+        computed once (:meth:`_Writer.share`)."""
         n = self.n_joints
+        out_of_reach = [r for r in self.rules if r.out_of_reach]
+        tests = _plan([r for r in self.rules if not r.out_of_reach], n)
+        out = _Writer(self.definitions, [[r.condition] for r in out_of_reach] + [
+            [t.rule.condition, *(a.step for a in _moves(t.rule).values())] for t in tests])
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
-        out, top = _Writer(self.definitions), _Scope()
         out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):")
-        for r in (r for r in self.rules if r.out_of_reach):
+        top = _Scope()
+        for i, r in enumerate(out_of_reach):
             out.define(out.reads([r.condition]), top, 1)
+            out.share_before_test(i, top)
             out.line(1, f"if {out.py(r.condition, top)}:")
             out.line(2, f"return None, ({r.number},)")
-        tests = _plan([r for r in self.rules if not r.out_of_reach], n)
         scanning = [t for t in tests if not t.returns]  # rules whose firing does not end the scan
-        stepped = sorted({j for t in scanning for j in _steps(t.rule)})
+        stepped = sorted({j for t in scanning for j in _moves(t.rule)})
         flagged = sorted({j for t in tests for j in t.guard})
         for j in stepped:
             out.line(1, f"dq{j} = 0.0")
@@ -741,25 +849,19 @@ class RuleBase:
             out.line(1, f"free{j} = True")
         if scanning:
             out.line(1, "fired = []")
-        # definitions: before the first test that reads them; one that only a rule's steps
-        # read, before its test too if a later rule reads it, else in that rule's body
-        tested = [out.reads([t.rule.condition]) for t in tests]
-        stepping = [out.reads([step for _, step in _steps(t.rule).values()]) for t in tests]
-        later = [set() for _ in tests]  # what the rules after each read
-        for i in reversed(range(len(tests) - 1)):
-            later[i] = later[i + 1] | tested[i + 1] | stepping[i + 1]
-        before = [tested[i] | stepping[i] & later[i] for i in range(len(tests))]
-        for i in reversed(range(len(tests) - 1)):  # an elif's before its chain's if
-            if tests[i + 1].keyword == "elif":
-                before[i] |= before[i + 1]
+        before, inside = _definitions_placed(tests, out.reads)
         for i, t in enumerate(tests):
             if t.keyword == "if":
                 out.define(before[i], top, 1)
+            if t.keyword == "if" and not t.guard:
+                out.share_before_test(len(out_of_reach) + i, top)
             guard = "".join(f"free{j} and " for j in t.guard)
             out.line(1, f"{t.keyword} {guard}{out.py(t.rule.condition, top)}:")
-            body, steps = top.inner(), _steps(t.rule)
-            out.define(stepping[i], body, 2)
-            dq = {j: f"{sign}{out.py(step, body)}" for j, (sign, step) in steps.items()}
+            body, moves = top.inner(), _moves(t.rule)
+            out.define(inside[i], body, 2)
+            out.share_in_body([a.step for a in moves.values()], body)
+            dq = {j: ("-" if a.kind == "dec" else "") + out.py(a.step, body)
+                  for j, a in moves.items()}
             if t.returns:
                 values = ", ".join(dq.get(j, "0.0") for j in range(1, n + 1))
                 out.line(2, f"return [{values}], [{t.rule.number}]")

@@ -473,10 +473,11 @@ def test_compiled_random_rule_bases_equal_the_tree_walking_reference(data):
     n = data.draw(st.integers(1, 3))
     names = ["xd", "yd", "xg", "yg", "xe", "ye", "rd2", "f", "S", "w", "L1"]
     lines, numbers = [], iter(range(1, 100))
+    pool = ["xd", "0", *(_draw_expr(data, names, 2) for _ in range(2))]  # used again and again
     for _ in range(data.draw(st.integers(1, 7))):
         statement = data.draw(st.sampled_from(["LET", "RULE", "RULE", "RULE", "OUT"]))
-        pool = [_draw_expr(data, names, 2) for _ in range(3)]  # repeated within a rule and beyond
-        pool += data.draw(st.lists(st.sampled_from(pool), max_size=2)) + ["xd", "0"]
+        a, b = data.draw(st.sampled_from(pool)), data.draw(st.sampled_from(pool))
+        pool += [_draw_expr(data, names, 2), f"({a} {data.draw(st.sampled_from('+-*/'))} {b})"]
         if statement == "LET":
             names.append(f"D{len(lines)}")
             lines.append(f"LET {names[-1]} = {data.draw(st.sampled_from(pool))}")
