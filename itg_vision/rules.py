@@ -508,39 +508,58 @@ def _worth_sharing(node: Node) -> bool:
     return any(isinstance(n, (Unary, Binary)) and n.op in _ARITHMETIC for n in _subtrees(node))
 
 
-def _py(node: Node, temps, local=lambda node: None) -> str:
-    """Python source of a checked tree (never of the file's text); ``temps`` numbers the
-    temporaries (an ``itertools.count`` per compiled rule base); ``local(node)`` names the
-    local that holds the value of a subtree computed already (or is None)."""
+# Python's precedence levels, lowest first: parentheses go where the tree needs them
+_IF_ELSE, _OR, _AND, _NOT, _COMPARE, _SUM, _PRODUCT, _NEGATIVE, _ATOM = range(9)
+_LEVEL = {"or": _OR, "and": _AND, "+": _SUM, "-": _SUM, "*": _PRODUCT, "/": _PRODUCT}
+
+
+def _py(node: Node, temps, local=lambda node: None, level: int = _IF_ELSE) -> str:
+    """Python source of a checked tree (never of the file's text), parenthesised if its
+    operator binds less than ``level``; ``temps`` numbers the temporaries (an
+    ``itertools.count`` per compiled rule base); ``local(node)`` names the local that holds
+    the value of a subtree computed already (or is None)."""
+    return _parenthesised(_py_level(node, temps, local), level)
+
+
+def _parenthesised(source: tuple[str, int], level: int) -> str:
+    text, own = source
+    return text if own >= level else f"({text})"
+
+
+def _py_level(node: Node, temps, local) -> tuple[str, int]:
+    """(Python source, precedence level of its outermost operator)."""
     if (name := local(node)) is not None:
-        return name
+        return name, _ATOM
     if isinstance(node, Num):
-        return repr(node.value)  # finite: checked by the tokenizer
+        return repr(node.value), _ATOM  # finite and not negative: checked by the tokenizer
     if isinstance(node, Name):
-        return f"v_{node.name}"
+        return f"v_{node.name}", _ATOM
+    if isinstance(node, Unary) and node.op == "abs":
+        return f"abs({_py(node.arg, temps, local)})", _ATOM
     if isinstance(node, Unary):
-        arg = _py(node.arg, temps, local)
-        return {"-": f"(-{arg})", "abs": f"abs({arg})", "not": f"(not {arg})"}[node.op]
-    op, a, b = node.op, _py(node.left, temps, local), _py(node.right, temps, local)
-    if op == "/" and _by_number(node):
-        return f"({a} / {b})"  # cannot raise
-    if op == "/" and not any(_by_variable(n) for n in _subtrees(node.left)):
-        # Python's division, _div when the divisor is 0 (then a, written twice, is evaluated
-        # there instead; a holds no such division, so the source stays linear in the tree)
-        if b.isidentifier():
-            return f"({a} / {b} if {b} else _div({a}, {b}))"
-        t = f"_t{next(temps)}"
-        return f"({a} / {t} if ({t} := {b}) else _div({a}, {t}))"
-    if op == "/":
-        return f"_div({a}, {b})"
+        level = _NEGATIVE if node.op == "-" else _NOT
+        return ("-" if node.op == "-" else "not ") + _py(node.arg, temps, local, level), level
+    op, left, right = node.op, _py_level(node.left, temps, local), _py_level(node.right, temps, local)
     if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
-        if a.isidentifier() or isinstance(node.left, Num):
-            return f"({a} * {a})"
+        if left[0].isidentifier() or isinstance(node.left, Num):
+            return f"{left[0]} * {left[0]}", _PRODUCT
         t = f"_t{next(temps)}"
-        return f"(({t} := {a}) * {t})"
+        return f"({t} := {left[0]}) * {t}", _PRODUCT
     if op == "^":
-        return f"_pow({a}, {b})"
-    return f"({a} {op} {b})"
+        return f"_pow({left[0]}, {right[0]})", _ATOM
+    if op == "/" and _by_variable(node) and any(map(_by_variable, _subtrees(node.left))):
+        return f"_div({left[0]}, {right[0]})", _ATOM  # the source stays linear in the tree
+    level = _LEVEL.get(op, _COMPARE)  # left-associative; comparisons never chain
+    a = _parenthesised(left, level + (level == _COMPARE))
+    b = _parenthesised(right, level + 1)
+    if op == "/" and _by_variable(node):
+        # Python's division, _div when the divisor is 0 (then a, written twice, is evaluated
+        # there instead)
+        if b.isidentifier():
+            return f"{a} / {b} if {b} else _div({left[0]}, {b})", _IF_ELSE
+        t = f"_t{next(temps)}"
+        return f"{a} / {t} if ({t} := {right[0]}) else _div({left[0]}, {t})", _IF_ELSE
+    return f"{a} {op} {b}", level  # a division by a nonzero number cannot raise
 
 
 def _moves(rule: Rule) -> dict[int, Action]:
@@ -632,8 +651,8 @@ class _Writer:
     def line(self, depth: int, text: str) -> None:
         self.lines.append("    " * depth + text)
 
-    def py(self, node: Node, scope: _Scope) -> str:
-        return _py(node, self.temps, lambda n: scope.known.get(self.key(n)))
+    def py(self, node: Node, scope: _Scope, level: int = _IF_ELSE) -> str:
+        return _py(node, self.temps, lambda n: scope.known.get(self.key(n)), level)
 
     def key(self, node: Node) -> int:
         """A number per shape (the tree without its tokens): equal keys, equal values, since
@@ -856,12 +875,12 @@ class RuleBase:
             if t.keyword == "if" and not t.guard:
                 out.share_before_test(len(out_of_reach) + i, top)
             guard = "".join(f"free{j} and " for j in t.guard)
-            out.line(1, f"{t.keyword} {guard}{out.py(t.rule.condition, top)}:")
+            out.line(1, f"{t.keyword} {guard}{out.py(t.rule.condition, top, _AND)}:")
             body, moves = top.inner(), _moves(t.rule)
             out.define(inside[i], body, 2)
             out.share_in_body([a.step for a in moves.values()], body)
-            dq = {j: ("-" if a.kind == "dec" else "") + out.py(a.step, body)
-                  for j, a in moves.items()}
+            dq = {j: "-" + out.py(a.step, body, _NEGATIVE) if a.kind == "dec" else
+                  out.py(a.step, body) for j, a in moves.items()}
             if t.returns:
                 values = ", ".join(dq.get(j, "0.0") for j in range(1, n + 1))
                 out.line(2, f"return [{values}], [{t.rule.number}]")
