@@ -539,7 +539,8 @@ def _py_level(node: Node, temps, local) -> tuple[str, int]:
     if isinstance(node, Unary):
         level = _NEGATIVE if node.op == "-" else _NOT
         return ("-" if node.op == "-" else "not ") + _py(node.arg, temps, local, level), level
-    op, left, right = node.op, _py_level(node.left, temps, local), _py_level(node.right, temps, local)
+    op = node.op
+    left, right = _py_level(node.left, temps, local), _py_level(node.right, temps, local)
     if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
         if left[0].isidentifier() or isinstance(node.left, Num):
             return f"{left[0]} * {left[0]}", _PRODUCT
@@ -875,7 +876,8 @@ class RuleBase:
             if t.keyword == "if" and not t.guard:
                 out.share_before_test(len(out_of_reach) + i, top)
             guard = "".join(f"free{j} and " for j in t.guard)
-            out.line(1, f"{t.keyword} {guard}{out.py(t.rule.condition, top, _AND)}:")
+            condition = out.py(t.rule.condition, top, _AND if t.guard else _IF_ELSE)
+            out.line(1, f"{t.keyword} {guard}{condition}:")
             body, moves = top.inner(), _moves(t.rule)
             out.define(inside[i], body, 2)
             out.share_in_body([a.step for a in moves.values()], body)
