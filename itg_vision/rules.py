@@ -24,10 +24,12 @@ Semantics (the paper leaves these open; we choose):
   the set point is out of reach and no joint moves.
 - The others are scanned in file order. A rule fires when its condition holds and none of its
   joints has been set by an earlier rule in this scan: each joint changes at most once per
-  iteration ("only one rule will be matched at each time", per joint).
-- Comparisons with NaN (a marker the arm lacks) are false.
-- Definitions are computed once per iteration, in file order, before any rule is tested; a
-  name is known from its ``LET`` on and cannot be defined twice or shadow a built-in name.
+  iteration ("only one rule will be matched at each time", per joint), and a rule that sets
+  every joint ends the scan.
+- Comparisons with NaN (a marker the arm lacks) are false (``!=`` is true, as in IEEE 754).
+- A definition is a pure quantity, computed when first needed: before the first condition or
+  step that reads it (the same values as computing them all first, in file order). A name is
+  known from its ``LET`` on and cannot be defined twice or shadow a built-in name.
 
 Arithmetic is total and checked (the paper says nothing; we choose IEEE 754 doubles):
 
@@ -64,9 +66,11 @@ one Python function from the tree itself.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 import re
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -87,6 +91,8 @@ KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "L
 MAX_DEPTH = 50
 #: Longest rule accepted (tokens: numbers, names, operators, keywords).
 MAX_RULE_TOKENS = 1000
+#: Longest if/elif chain in the compiled function (then a new ``if`` and flags).
+MAX_ELIF = 100
 
 _TOKEN = re.compile(r"""
     (?P<ws>[ \t\r]+) | (?P<nl>\n) | (?P<comment>\#[^\n]*)
@@ -201,7 +207,7 @@ class Rule:
 
 @dataclass(frozen=True)
 class Definition:
-    """``LET name = expr``: a named quantity, computed before the rules at each iteration."""
+    """``LET name = expr``: a named quantity, computed where a rule first needs it."""
 
     name: str
     expr: Node
@@ -451,6 +457,7 @@ def _pow(a: float, b: float) -> float:
 
 
 _HELPERS = {"_div": _div, "_pow": _pow, "abs": abs, "__builtins__": {}}
+_ARITHMETIC = {"+", "-", "*", "/", "^", "abs"}
 
 
 def _names_in(node: Node | None) -> list[tuple[str, Token]]:
@@ -461,27 +468,258 @@ def _names_in(node: Node | None) -> list[tuple[str, Token]]:
     return [n for child in children(node) for n in _names_in(child)]
 
 
-def _py(node: Node, temps) -> str:
-    """Python source of a checked tree (never of the file's text); ``temps`` numbers the
-    temporaries (an ``itertools.count`` per compiled rule base)."""
+def _subtrees(node: Node):
+    """The node and every node below it."""
+    yield node
+    for child in children(node):
+        yield from _subtrees(child)
+
+
+def _by_number(node: Node) -> bool:
+    """A division by a nonzero number (Python's division, which cannot raise)."""
+    return isinstance(node, Binary) and node.op == "/" and isinstance(node.right, Num) \
+        and node.right.value != 0
+
+
+def _by_variable(node: Node) -> bool:
+    """A division by anything else: 0 possible, so the compiled code needs ``_div``."""
+    return isinstance(node, Binary) and node.op == "/" and not _by_number(node)
+
+
+def _surely_evaluated_children(node: Node) -> tuple:
+    """The children Python evaluates whenever it evaluates the node (of ``a AND b`` and
+    ``a OR b`` only ``a``)."""
+    if isinstance(node, Binary) and node.op in ("and", "or"):
+        return (node.left,)
+    return children(node)
+
+
+def _evaluated(node: Node):
+    """The node and the nodes below it that Python evaluates whenever it evaluates the node."""
+    yield node
+    for child in _surely_evaluated_children(node):
+        yield from _evaluated(child)
+
+
+def _worth_sharing(node: Node) -> bool:
+    """An arithmetic operation, or a comparison of results of some: a value worth keeping."""
+    if not isinstance(node, (Unary, Binary)) or node.op in ("and", "or", "not"):
+        return False
+    return any(isinstance(n, (Unary, Binary)) and n.op in _ARITHMETIC for n in _subtrees(node))
+
+
+# Python's precedence levels, lowest first: parentheses go where the tree needs them
+_IF_ELSE, _OR, _AND, _NOT, _COMPARE, _SUM, _PRODUCT, _NEGATIVE, _ATOM = range(9)
+_LEVEL = {"or": _OR, "and": _AND, "+": _SUM, "-": _SUM, "*": _PRODUCT, "/": _PRODUCT}
+
+
+def _py(node: Node, temps, local=lambda node: None, level: int = _IF_ELSE) -> str:
+    """Python source of a checked tree (never of the file's text), parenthesised if its
+    operator binds less than ``level``; ``temps`` numbers the temporaries (an
+    ``itertools.count`` per compiled rule base); ``local(node)`` names the local that holds
+    the value of a subtree computed already (or is None)."""
+    return _parenthesised(_py_level(node, temps, local), level)
+
+
+def _parenthesised(source: tuple[str, int], level: int) -> str:
+    text, own = source
+    return text if own >= level else f"({text})"
+
+
+def _py_level(node: Node, temps, local) -> tuple[str, int]:
+    """(Python source, precedence level of its outermost operator)."""
+    if (name := local(node)) is not None:
+        return name, _ATOM
     if isinstance(node, Num):
-        return repr(node.value)  # finite: checked by the tokenizer
+        return repr(node.value), _ATOM  # finite and not negative: checked by the tokenizer
     if isinstance(node, Name):
-        return f"v_{node.name}"
+        return f"v_{node.name}", _ATOM
+    if isinstance(node, Unary) and node.op == "abs":
+        return f"abs({_py(node.arg, temps, local)})", _ATOM
     if isinstance(node, Unary):
-        arg = _py(node.arg, temps)
-        return {"-": f"(-{arg})", "abs": f"abs({arg})", "not": f"(not {arg})"}[node.op]
-    op, a, b = node.op, _py(node.left, temps), _py(node.right, temps)
-    if op == "/":
-        return f"_div({a}, {b})"
+        level = _NEGATIVE if node.op == "-" else _NOT
+        return ("-" if node.op == "-" else "not ") + _py(node.arg, temps, local, level), level
+    op = node.op
+    left, right = _py_level(node.left, temps, local), _py_level(node.right, temps, local)
     if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
-        if isinstance(node.left, (Name, Num)):
-            return f"({a} * {a})"
+        if left[0].isidentifier() or isinstance(node.left, Num):
+            return f"{left[0]} * {left[0]}", _PRODUCT
         t = f"_t{next(temps)}"
-        return f"(({t} := {a}) * {t})"
+        return f"({t} := {left[0]}) * {t}", _PRODUCT
     if op == "^":
-        return f"_pow({a}, {b})"
-    return f"({a} {op} {b})"
+        return f"_pow({left[0]}, {right[0]})", _ATOM
+    if op == "/" and _by_variable(node) and any(map(_by_variable, _subtrees(node.left))):
+        return f"_div({left[0]}, {right[0]})", _ATOM  # the source stays linear in the tree
+    level = _LEVEL.get(op, _COMPARE)  # left-associative; comparisons never chain
+    a = _parenthesised(left, level + (level == _COMPARE))
+    b = _parenthesised(right, level + 1)
+    if op == "/" and _by_variable(node):
+        # Python's division, _div when the divisor is 0 (then a, written twice, is evaluated
+        # there instead)
+        if b.isidentifier():
+            return f"{a} / {b} if {b} else _div({left[0]}, {b})", _IF_ELSE
+        t = f"_t{next(temps)}"
+        return f"{a} / {t} if ({t} := {right[0]}) else _div({left[0]}, {t})", _IF_ELSE
+    return f"{a} {op} {b}", level  # a division by a nonzero number cannot raise
+
+
+def _moves(rule: Rule) -> dict[int, Action]:
+    """Joint -> the action that sets its step: the rule's last ``+=`` or ``-=`` on it (a joint
+    it only holds keeps 0.0)."""
+    return {a.joint: a for a in rule.actions if a.kind in ("inc", "dec")}
+
+
+@dataclass(frozen=True)
+class _Test:
+    """How the compiled function tests one rule that moves joints."""
+
+    rule: Rule
+    keyword: str  # "if", or "elif" after rules that each share a joint with this one
+    guard: tuple[int, ...]  # joints an earlier rule may have set (flags freeN), checked first
+    returns: bool  # it sets every joint: when it fires, the scan is over
+
+
+def _plan(rules: list[Rule], n_joints: int) -> list[_Test]:
+    """The tests of the rules that move joints, in file order. A rule fires when its condition
+    holds and none of its joints is set. One that sets every joint returns when it fires (then
+    nothing else had fired), so the rules after it know it set nothing. One that shares a
+    joint with each rule of the chain just before it is an ``elif`` of that chain: if one of
+    those fired, it could not. Its guard is what is left: the joints a rule before the chain
+    may have set (with first-match rule bases such as ITG+, none). A chain has at most
+    :data:`MAX_ELIF` rules (Python's compiler recurses on each ``elif``)."""
+    tests, maybe, chain, before_chain = [], set(), [], set()
+    for r in rules:
+        joints = {a.joint for a in r.actions}
+        returns = len(joints) == n_joints
+        if not returns and 0 < len(chain) < MAX_ELIF and all(joints & c for c in chain):
+            tests.append(_Test(r, "elif", tuple(sorted(joints & before_chain)), False))
+            chain.append(joints)
+        else:
+            tests.append(_Test(r, "if", tuple(sorted(joints & maybe)), returns))
+            chain, before_chain = ([] if returns else [joints]), set(maybe)
+        if not returns:
+            maybe |= joints
+    return tests
+
+
+def _definitions_placed(tests: list[_Test], reads) -> tuple[list[set], list[set]]:
+    """(before, inside): for each test, the definitions computed before it (with an ``if``, for
+    its whole chain: nothing can stand before an ``elif``) and those its body reads. A
+    definition is computed before the first test that reads it; one that only a rule's steps
+    read, before that rule's test too if a later rule reads it, else in its body."""
+    tested = [reads([t.rule.condition]) for t in tests]
+    inside = [reads([a.step for a in _moves(t.rule).values()]) for t in tests]
+    later = [set() for _ in tests]  # what the rules after each read
+    for i in reversed(range(len(tests) - 1)):
+        later[i] = later[i + 1] | tested[i + 1] | inside[i + 1]
+    before = [tested[i] | inside[i] & later[i] for i in range(len(tests))]
+    for i in reversed(range(len(tests) - 1)):
+        if tests[i + 1].keyword == "elif":
+            before[i] |= before[i + 1]
+    return before, inside
+
+
+@dataclass
+class _Scope:
+    """What a point of the compiled function has computed: definitions, and subexpressions
+    (by :meth:`_Writer.key`) kept in locals."""
+
+    defined: set = field(default_factory=set)
+    known: dict = field(default_factory=dict)
+
+    def inner(self) -> "_Scope":
+        """The scope of a block inside (what it computes is not known after it)."""
+        return _Scope(set(self.defined), dict(self.known))
+
+
+class _Writer:
+    """The compiled function's lines: definitions computed where first needed, subexpressions
+    evaluated more than once computed once."""
+
+    def __init__(self, definitions, tested):
+        """``tested``: for each rule in the order tested, its condition and its steps."""
+        self.lines: list[str] = []
+        self.temps, self.shared = itertools.count(), itertools.count()
+        self.lets = {d.name: d for d in definitions}  # in file order
+        self._keys: dict[int, int] = {}  # id(node) -> key
+        self._shapes: dict = {}  # shape -> key
+        self.tested = tested
+        self._at: dict[int, list[int]] = {}  # key -> the rules that surely evaluate it if tested
+        for i, nodes in enumerate(tested):  # (the condition; the steps if the rule fires)
+            for node in (n for node in nodes for n in _evaluated(node)):
+                self._at.setdefault(self.key(node), []).append(i)
+
+    def line(self, depth: int, text: str) -> None:
+        self.lines.append("    " * depth + text)
+
+    def py(self, node: Node, scope: _Scope, level: int = _IF_ELSE) -> str:
+        return _py(node, self.temps, lambda n: scope.known.get(self.key(n)), level)
+
+    def key(self, node: Node) -> int:
+        """A number per shape (the tree without its tokens): equal keys, equal values, since
+        every operation is a pure function of its operands."""
+        key = self._keys.get(id(node))
+        if key is None:
+            shape = (repr(node.value) if isinstance(node, Num) else node.name
+                     if isinstance(node, Name) else (node.op, *map(self.key, children(node))))
+            key = self._keys[id(node)] = self._shapes.setdefault(shape, len(self._shapes))
+        return key
+
+    def share(self, nodes, uses, scope: _Scope, depth: int) -> None:
+        """Before code that evaluates ``nodes``: compute into locals the largest of their
+        subexpressions evaluated with them (:func:`_evaluated`) and evaluated at least twice
+        in all, as ``uses(key)`` counts (here and in the code that can follow)."""
+        chosen: dict[int, Node] = {}
+
+        def visit(node):
+            key = self.key(node)
+            if key in scope.known or key in chosen:
+                return
+            if uses(key) >= 2 and _worth_sharing(node):
+                chosen[key] = node
+                return
+            for child in _surely_evaluated_children(node):
+                visit(child)
+
+        for node in nodes:
+            visit(node)
+        # the smaller first: one may be part of a larger one (used elsewhere too)
+        for key, node in sorted(chosen.items(), key=lambda kv: sum(1 for _ in _subtrees(kv[1]))):
+            local = f"_c{next(self.shared)}"
+            self.line(depth, f"{local} = {self.py(node, scope)}")
+            scope.known[key] = local
+
+    def share_before_test(self, i: int, scope: _Scope) -> None:
+        """Before the test of the i-th rule tested (which evaluates its condition whenever
+        reached: no elif, no guard), what its condition shares with itself and what follows."""
+        def uses(key):
+            at = self._at.get(key, ())
+            return len(at) - bisect.bisect_left(at, i)
+
+        self.share(self.tested[i][:1], uses, scope, 1)
+
+    def share_in_body(self, steps, scope: _Scope) -> None:
+        """At the start of a rule's body, what its steps share."""
+        counts = Counter(self.key(n) for node in steps for n in _subtrees(node))
+        self.share(steps, counts.__getitem__, scope, 2)
+
+    def reads(self, nodes) -> set[str]:
+        """The definitions ``nodes`` read, directly or through other definitions."""
+        found, names = set(), [name for node in nodes for name, _ in _names_in(node)]
+        while names:
+            name = names.pop()
+            if name in self.lets and name not in found:
+                found.add(name)
+                names += [n for n, _ in _names_in(self.lets[name].expr)]
+        return found
+
+    def define(self, names: set[str], scope: _Scope, depth: int) -> None:
+        """Compute the definitions ``names`` that ``scope`` lacks, in file order (a definition
+        reads only those above it)."""
+        for d in self.lets.values():
+            if d.name in names and d.name not in scope.defined:
+                self.line(depth, f"v_{d.name} = {self.py(d.expr, scope)}")
+                scope.defined.add(d.name)
 
 
 @dataclass
@@ -603,34 +841,60 @@ class RuleBase:
     # -------------------------------------------------------------- compile
     def _source(self) -> str:
         """The Python function the rules compile to (kept as :attr:`python_source`: what runs,
-        generated from the checked syntax tree, never from the file's text)."""
-        temps = itertools.count()
+        generated from the checked syntax tree, never from the file's text): out-of-reach rules
+        first, then the others as :func:`_plan` tests them, definitions where
+        :func:`_definitions_placed` puts them, and subexpressions evaluated more than once
+        computed once (:meth:`_Writer.share`)."""
         n = self.n_joints
+        out_of_reach = [r for r in self.rules if r.out_of_reach]
+        tests = _plan([r for r in self.rules if not r.out_of_reach], n)
+        out = _Writer(self.definitions, [[r.condition] for r in out_of_reach] + [
+            [t.rule.condition, *(a.step for a in _moves(t.rule).values())] for t in tests])
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
-        lines = [f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):"]
-        for d in self.definitions:
-            lines.append(f"    v_{d.name} = {_py(d.expr, temps)}")
-        for r in (r for r in self.rules if r.out_of_reach):
-            lines.append(f"    if {_py(r.condition, temps)}:")
-            lines.append(f"        return None, ({r.number},)")
-        lines.append(f"    dq = [0.0] * {n}")
-        lines.append(f"    free = [True] * {n}")
-        lines.append("    fired = []")
-        for r in (r for r in self.rules if not r.out_of_reach):
-            joints = sorted({a.joint - 1 for a in r.actions})
-            guard = " and ".join(f"free[{j}]" for j in joints)
-            lines.append(f"    if {guard} and {_py(r.condition, temps)}:")
-            for a in r.actions:
-                j = a.joint - 1
-                if a.kind != "hold":
-                    sign = "" if a.kind == "inc" else "-"
-                    lines.append(f"        dq[{j}] = {sign}({_py(a.step, temps)})")
-                lines.append(f"        free[{j}] = False")
-            lines.append(f"        fired.append({r.number})")
-        lines.append("    return dq, fired")
-        return "\n".join(lines) + "\n"
+        out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):")
+        top = _Scope()
+        for i, r in enumerate(out_of_reach):
+            out.define(out.reads([r.condition]), top, 1)
+            out.share_before_test(i, top)
+            out.line(1, f"if {out.py(r.condition, top)}:")
+            out.line(2, f"return None, ({r.number},)")
+        scanning = [t for t in tests if not t.returns]  # rules whose firing does not end the scan
+        stepped = sorted({j for t in scanning for j in _moves(t.rule)})
+        flagged = sorted({j for t in tests for j in t.guard})
+        for j in stepped:
+            out.line(1, f"dq{j} = 0.0")
+        for j in flagged:
+            out.line(1, f"free{j} = True")
+        if scanning:
+            out.line(1, "fired = []")
+        before, inside = _definitions_placed(tests, out.reads)
+        for i, t in enumerate(tests):
+            if t.keyword == "if":
+                out.define(before[i], top, 1)
+            if t.keyword == "if" and not t.guard:
+                out.share_before_test(len(out_of_reach) + i, top)
+            guard = "".join(f"free{j} and " for j in t.guard)
+            condition = out.py(t.rule.condition, top, _AND if t.guard else _IF_ELSE)
+            out.line(1, f"{t.keyword} {guard}{condition}:")
+            body, moves = top.inner(), _moves(t.rule)
+            out.define(inside[i], body, 2)
+            out.share_in_body([a.step for a in moves.values()], body)
+            dq = {j: "-" + out.py(a.step, body, _NEGATIVE) if a.kind == "dec" else
+                  out.py(a.step, body) for j, a in moves.items()}
+            if t.returns:
+                values = ", ".join(dq.get(j, "0.0") for j in range(1, n + 1))
+                out.line(2, f"return [{values}], [{t.rule.number}]")
+                continue
+            for j, value in dq.items():
+                out.line(2, f"dq{j} = {value}")
+            for j in sorted({a.joint for a in t.rule.actions} & set(flagged)):
+                out.line(2, f"free{j} = False")
+            out.line(2, f"fired.append({t.rule.number})")
+        values = ", ".join(f"dq{j}" if j in stepped else "0.0" for j in range(1, n + 1))
+        out.line(1, f"return [{values}], {'fired' if scanning else '[]'}")
+        return "\n".join(out.lines) + "\n"
 
     def _compile(self, source: str):
         namespace: dict = dict(_HELPERS)

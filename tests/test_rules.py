@@ -9,7 +9,7 @@ from hypothesis import example, given, settings, strategies as st
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.errors import UserError
 from itg_vision.feedback import Markers
-from itg_vision.rules import RuleBase, load_rules
+from itg_vision.rules import RuleBase, load_rules, shipped_rules
 
 
 def markers(g, e=(np.nan, np.nan, np.nan)):
@@ -299,3 +299,215 @@ def test_squares_and_powers_equal_python_floats(x, y):
         return
     got = rb.step(d, markers([0, 0, 0], [0, 0, 0]), [0, 0]).dq_deg
     assert list(got) == expected
+
+
+# ----------------------------------------------------------------------------- the compiled function
+# An independent evaluator: it walks the parsed tree with the module docstring's semantics
+# (definitions first, in file order; OUT_OF_REACH rules first; then each rule in file order
+# fires when its condition holds and none of its joints is set yet). The compiled function must
+# return exactly what it returns: the same fired rules and bit for bit the same steps (a NaN
+# as any NaN).
+def _reference_div(a, b):
+    if b == 0:  # IEEE 754: x / 0 is +-inf with the signs' product, 0 / 0 and NaN / 0 NaN
+        if a == 0 or a != a:
+            return math.nan
+        return math.inf if (a > 0) == (math.copysign(1.0, b) > 0) else -math.inf
+    return a / b
+
+
+def _reference_pow(a, b):
+    try:
+        r = a ** b
+    except ZeroDivisionError:  # 0 ^ -1
+        return math.inf
+    except OverflowError:
+        return -math.inf if a < 0 and b == int(b) and int(b) % 2 == 1 else math.inf
+    return math.nan if isinstance(r, complex) else r
+
+
+_REFERENCE_OPS = {"+": lambda a, b: a + b, "-": lambda a, b: a - b, "*": lambda a, b: a * b,
+                  "/": _reference_div, "^": _reference_pow,
+                  "<": lambda a, b: a < b, "<=": lambda a, b: a <= b, ">": lambda a, b: a > b,
+                  ">=": lambda a, b: a >= b, "==": lambda a, b: a == b, "!=": lambda a, b: a != b}
+
+
+def _reference_value(node, env):
+    from itg_vision.rules import Binary, Name, Num, Unary
+
+    if isinstance(node, Num):
+        return node.value
+    if isinstance(node, Name):
+        return env[node.name]
+    if isinstance(node, Unary):
+        x = _reference_value(node.arg, env)
+        return {"-": lambda: -x, "abs": lambda: abs(x), "not": lambda: not x}[node.op]()
+    if node.op == "and":
+        return _reference_value(node.left, env) and _reference_value(node.right, env)
+    if node.op == "or":
+        return _reference_value(node.left, env) or _reference_value(node.right, env)
+    a = _reference_value(node.left, env)
+    if node.op == "^" and node.right == Num(2.0):  # a square is the (correctly rounded) product
+        return a * a
+    return _REFERENCE_OPS[node.op](a, _reference_value(node.right, env))
+
+
+def _reference_step(rb, args):
+    env = dict(zip(rb.argument_names, args))
+    for d in rb.definitions:
+        env[d.name] = _reference_value(d.expr, env)
+    for r in (r for r in rb.rules if r.out_of_reach):
+        if _reference_value(r.condition, env):
+            return None, (r.number,)
+    dq, done, fired = [0.0] * rb.n_joints, set(), []
+    for r in (r for r in rb.rules if not r.out_of_reach):
+        joints = {a.joint for a in r.actions}
+        if joints & done or not _reference_value(r.condition, env):
+            continue
+        for a in r.actions:
+            if a.kind in ("inc", "dec"):
+                v = _reference_value(a.step, env)
+                dq[a.joint - 1] = v if a.kind == "inc" else -v
+        done |= joints
+        fired.append(r.number)
+    return dq, fired
+
+
+def _exactly(result):
+    """(dq, fired) with every step as its type and its 8 bytes: equal means bit for bit equal,
+    but for a NaN's sign and payload, which CPython itself does not keep: once specialised,
+    ``a * b`` of two NaNs may return the other operand's NaN (and RuleBase.step treats every
+    NaN alike)."""
+    import struct
+
+    dq, fired = result
+    steps = None if dq is None else [(type(v), "nan" if v != v else struct.pack("<d", v)) for v in dq]
+    return type(dq), steps, type(fired), list(fired)
+
+
+def _assert_compiled_is_reference(rb, args):
+    got, want = _exactly(rb.compiled(*args)), _exactly(_reference_step(rb, args))
+    assert got == want, (args, rb.compiled(*args), _reference_step(rb, args))
+
+
+_ARM_OF = {"table1": "one-link", "itg-plus-one-link": "one-link", "three-link": "three-link",
+           "itg-plus-three-link": "three-link"}  # the others: two-link
+
+
+def _situations(arm, rng, n):
+    """(desired, markers, q): poses of the arm with set points within reach, anywhere (often
+    out of reach), exactly at the gripper, within a few w of it, a small step away; markers
+    missing (NaN); degenerate poses (markers at the base or on top of each other)."""
+    k, reach = arm.n_joints, sum(arm.links_mm)
+    for i in range(n):
+        q = rng.uniform(-180.0, 180.0, k)
+        m = forward_kinematics(arm, q)
+        g, e = m["gripper"].copy(), m["elbow"].copy()
+        kind = i % 8
+        if kind == 0:
+            d = forward_kinematics(arm, rng.uniform(-180.0, 180.0, k))["gripper"]
+        elif kind == 1:
+            d = rng.uniform(-1.3 * reach, 1.3 * reach, 3)
+        elif kind == 2:
+            d = g.copy()
+        elif kind == 3:
+            d = g + rng.normal(0.0, 1.0, 3)
+        elif kind == 4:
+            d = forward_kinematics(arm, q + rng.normal(0.0, 2.0, k))["gripper"]
+        elif kind == 5:  # a marker not measured
+            d = forward_kinematics(arm, rng.uniform(-180.0, 180.0, k))["gripper"]
+            if rng.random() < 0.5:
+                e[:] = np.nan
+            else:
+                g[rng.integers(3)] = np.nan
+        elif kind == 6:  # gripper on the elbow, or at the base
+            d = rng.uniform(-reach, reach, 3)
+            g = e.copy() if rng.random() < 0.5 or np.isnan(e[0]) else np.zeros(3)
+        else:  # whole numbers: exact ties and zeros
+            d, g, e = (np.round(rng.uniform(-2, 2, 3)) * 50.0 for _ in range(3))
+        yield d, markers(g, e), (None if i % 5 == 4 else q)
+
+
+@pytest.mark.parametrize("name", shipped_rules())
+def test_compiled_shipped_rule_bases_equal_the_tree_walking_reference(name):
+    arm = ArmSpec.from_args(_ARM_OF.get(name, "two-link"))
+    rng = np.random.default_rng(7)
+    for f, S, w in ((0.06, 0.5, 0.5), (0.5, 20.0, 0.5), (0.05, 2.0, 3.0), (0.1, 20, 0.5)):
+        rb = load_rules(name, arm.n_joints, arm.links_mm, f=f, S=S, w=w)
+        for d, m, q in _situations(arm, rng, 400):
+            _assert_compiled_is_reference(rb, rb.arguments(d, m, q))
+
+
+_VALUES = st.sampled_from([0.0, -0.0, 1.0, -1.0, 2.0, 0.5, -3.0, 100.0, 1e200, math.nan, math.inf])
+_NUMBERS = ["0", "2", "0.5", "3", "16"]
+
+
+def _draw_expr(data, names, depth):
+    if depth == 0 or data.draw(st.integers(0, 2)) == 0:
+        return data.draw(st.sampled_from(names + _NUMBERS))
+    kind = data.draw(st.sampled_from(["+", "-", "*", "/", "/", "^", "abs", "neg"]))
+    a = _draw_expr(data, names, depth - 1)
+    if kind == "abs":
+        return f"|{a}|"
+    if kind == "neg":
+        return f"-{a}"
+    if kind == "^":
+        return f"{a}^{data.draw(st.sampled_from(['2', '2', '0.5', '3', '(-1)']))}"
+    return f"({a} {kind} {_draw_expr(data, names, depth - 1)})"
+
+
+def _draw_condition(data, pool, depth):
+    kind = data.draw(st.sampled_from(["cmp", "cmp", "AND", "OR", "NOT"]) if depth else st.just("cmp"))
+    if kind == "cmp":
+        op = data.draw(st.sampled_from(["<", "<=", ">", ">=", "==", "!="]))
+        return f"{data.draw(st.sampled_from(pool))} {op} {data.draw(st.sampled_from(pool))}"
+    if kind == "NOT":
+        return f"NOT ({_draw_condition(data, pool, depth - 1)})"
+    return f"({_draw_condition(data, pool, depth - 1)}) {kind} ({_draw_condition(data, pool, depth - 1)})"
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data())
+def test_compiled_random_rule_bases_equal_the_tree_walking_reference(data):
+    """Random rule bases (definitions between rules, shared subexpressions, rules moving one or
+    several joints, a joint named twice, HOLD, OUT_OF_REACH) on random inputs (zeros, NaN, inf)."""
+    n = data.draw(st.integers(1, 3))
+    names = ["xd", "yd", "xg", "yg", "xe", "ye", "rd2", "f", "S", "w", "L1"]
+    lines, numbers = [], iter(range(1, 100))
+    pool = ["xd", "0", *(_draw_expr(data, names, 2) for _ in range(2))]  # used again and again
+    for _ in range(data.draw(st.integers(1, 7))):
+        statement = data.draw(st.sampled_from(["LET", "RULE", "RULE", "RULE", "OUT"]))
+        a, b = data.draw(st.sampled_from(pool)), data.draw(st.sampled_from(pool))
+        pool += [_draw_expr(data, names, 2), f"({a} {data.draw(st.sampled_from('+-*/'))} {b})"]
+        if statement == "LET":
+            names.append(f"D{len(lines)}")
+            lines.append(f"LET {names[-1]} = {data.draw(st.sampled_from(pool))}")
+            continue
+        cond = _draw_condition(data, pool, 2)
+        if statement == "OUT":
+            lines.append(f"RULE {next(numbers)}: IF {cond} THEN OUT_OF_REACH")
+            continue
+        actions = []
+        for _ in range(data.draw(st.integers(1, 3))):
+            j = data.draw(st.integers(1, n))
+            kind = data.draw(st.sampled_from(["+=", "-=", "HOLD"]))
+            actions.append(f"q{j} HOLD" if kind == "HOLD" else f"q{j} {kind} {data.draw(st.sampled_from(pool))}")
+        lines.append(f"RULE {next(numbers)}: IF {cond} THEN {', '.join(actions)}")
+    lines.append(f"RULE {next(numbers)}: IF xd > 0 THEN q1 += xd")  # at least one rule moves a joint
+    rb = RuleBase.from_text("\n".join(lines), n, (100.0,) * n)
+    for _ in range(4):
+        args = data.draw(st.lists(_VALUES, min_size=len(rb.argument_names),
+                                  max_size=len(rb.argument_names)))
+        _assert_compiled_is_reference(rb, tuple(args))
+
+
+def test_a_long_chain_of_rules_on_one_joint_compiles_and_equals_the_reference():
+    """250 rules on q1 (an if/elif chain is cut every MAX_ELIF rules: Python's compiler recurses
+    on each elif); the first whose condition holds fires, however far down the file."""
+    text = "\n".join(f"RULE {k}: IF xd > {250 - k} THEN q1 += {k}" for k in range(1, 251))
+    rb = RuleBase.from_text(text + "\nRULE 999: IF 1 > 0 THEN q2 -= 1", 2, TWO)
+    for xd in (300.0, 3.0, 0.5, -1.0, math.nan):
+        args = rb.arguments(np.array([xd, 0.0, 0.0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+        _assert_compiled_is_reference(rb, args)
+    assert rb.compiled(*args)[1] == [999]
+    args = rb.arguments(np.array([3.0, 0.0, 0.0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+    assert rb.compiled(*args) == ([248.0, -1.0], [248, 999])
