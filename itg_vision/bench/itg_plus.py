@@ -12,7 +12,9 @@ own folder under ``--out``, resumable):
 
 then times one compiled ITG+ step against PyBullet's numerical IK on the same set points
 (as ``bench speed`` does for Table 2), and writes ``targets.md``: each target with its
-measured value, its threshold and a verdict computed from the two (printed too).
+measured value, its threshold and a verdict computed from the two (printed too), with the
+tail beside each median and the servo bound (:func:`servo_bound_mm`) beside each tracking max.
+The sweeps run through :func:`itg_vision.bench.noise.run_sweep`, the noise command's own.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
-from ..errors import run_main
+from ..errors import UserError, run_main
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -235,24 +237,24 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from . import noise
         from .store import Results
-        from .sweep import SWEEPS
+        from .sweep import SWEEPS, build_sweep
 
         args = build_parser().parse_args(argv)
         out = outputs.check_out_dir(args.out, COMMAND)
         out.mkdir(parents=True, exist_ok=True)
         if not (out / outputs.MANIFEST).exists():
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
-        common = (["--workers", str(args.workers)] if args.workers else []) \
-            + (["--quiet"] if args.quiet else [])
+        if args.workers is not None and args.workers < 1:
+            raise UserError(f"--workers: must be >= 1, got {args.workers}")
+        command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         status = 0
         rows = {}
         for sweep, sub, seeds in (("itg-plus", "tracking", args.seeds),
                                   ("itg-plus-three-link", "three-link", args.seeds_three_link)):
-            extra = (["--seeds", str(seeds)] if seeds is not None else []) \
-                + (["--points", str(args.points)] if args.points is not None else [])
-            status = max(status, noise.main(["--sweep", sweep, "--out", str(out / sub)] + extra + common))
-            if status == 2:
-                return 2
+            specs = build_sweep(sweep=sweep, seeds=seeds, points=args.points)
+            options = {"sweep": sweep, "seeds": seeds, "points": args.points}
+            status = max(status, noise.run_sweep(specs, out / sub, options, command.strip(),
+                                                 workers=args.workers, quiet=args.quiet))
             rows[sweep] = list(Results(out / sub / "results.csv").rows.values())
         from ..arm import ArmSpec
         from .sweep import load_trajectory
@@ -271,7 +273,6 @@ def main(argv: list[str] | None = None) -> int:
 
         costs = decision_costs()
         targets.append(speed_target(costs))
-        command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         text = ["# ITG+ against issue 13's targets", "", f"Produced by `{command.strip()}`.", "",
                 "Two-link: vision feedback, 2 laps, servo limit and iterations from "
                 "data/arms/two-link.yaml for every controller (tracking/report.md); three-link: "

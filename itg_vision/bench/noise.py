@@ -24,6 +24,9 @@ from .store import Results, check_sweep_file, definition_hash, record_sweep_file
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
                     _parse_names, build_sweep)
 
+#: What the plots show unless told otherwise.
+DEFAULT_PLOT_METRICS = ("e_av", "track_median", "track_max")
+
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
 
@@ -71,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "straight-up start, links +0/2/5 %%, 40 seeds: how often it diverges), "
                          "itg-plus or itg-plus-three-link (issue 13's targets; see "
                          "`bench itg-plus`)")
-    ap.add_argument("--plot-metrics", metavar="A,B,...", default="e_av,track_median,track_max",
+    ap.add_argument("--plot-metrics", metavar="A,B,...", default=",".join(DEFAULT_PLOT_METRICS),
                     help="what the plots show, any of " + ", ".join(PLOT_METRICS)
                          + " (default %(default)s)")
     ap.add_argument("--quick", action="store_true",
@@ -132,58 +135,72 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
-        check_out(out)
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
                    "points": args.points}
-        definition = definition_hash(specs)
-        store = Results(out / "results.csv")
-        # every refusal comes before any write: a foreign --out keeps every row
-        check_sweep_file(out, definition, specs, store)
-        client = None
-        if args.scheduler:
-            executor, n_workers, client = dask_executor(args.scheduler)
-        else:
-            n_workers = args.workers or os.cpu_count() or 1
-            executor = local_executor(n_workers)
-        outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
-        record_sweep_file(out, definition, options, specs)
-        store.repair()
-        for msg in store.problems:
-            print(f"warning: {msg}", file=sys.stderr)
-        todo = [s for s in specs if s.run_id not in store.rows]
-        if args.limit is not None:
-            todo = todo[: args.limit]
-        todo_cost = sum(s.cost_s() for s in todo)
-        where = f"Dask at {args.scheduler}" if args.scheduler else f"{n_workers} local worker(s)"
-        print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
-              f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
-              f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
-        failures: dict[str, str] = {}
         command = "python -m itg_vision.bench noise " + " ".join(
             a for a in argv if a not in ("--quiet",))
-        try:
-            _run_all(executor, 2 * n_workers, todo, store, failures, args.quiet)
-        except BaseException:
-            shutdown(executor, cancel=True, client=client)
-            raise
-        shutdown(executor, client=client)
-        rows = list(store.rows.values())
-        plots = write_report(out, rows, specs, command.strip(), failures, plot_metrics)
-        if failures:
-            outputs.write_text(out / "failures.log",
-                               "".join(f"{k}\t{v}\n" for k, v in failures.items()))
-        done = sum(1 for s in specs if s.run_id in store.rows)
-        print(f"{done} of {len(specs)} runs in {out / 'results.csv'}; report {out / 'report.md'}; "
-              f"{len(plots)} plots", file=sys.stderr)
-        if failures:
-            print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
-                  "same command to retry them", file=sys.stderr)
-            return 1
-        return 0
+        return run_sweep(specs, out, options, command.strip(), workers=args.workers,
+                         scheduler=args.scheduler, limit=args.limit, quiet=args.quiet,
+                         plot_metrics=plot_metrics)
 
     return run_main(body)
+
+
+def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
+              workers: int | None = None, scheduler: str | None = None, limit: int | None = None,
+              quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> int:
+    """Run the sweep ``specs`` into ``out`` (resuming what it holds), write its report, and
+    return the exit status: 0, or 1 when runs failed (each in ``failures.log``). ``options``
+    are recorded in ``sweep.json``; ``command`` (what reproduces it) heads the report.
+    Raises :class:`UserError` (before writing anything) for an ``--out`` that is not this
+    sweep's."""
+    check_out(out)
+    n_vision = sum(s.vision for s in specs)
+    definition = definition_hash(specs)
+    store = Results(out / "results.csv")
+    # every refusal comes before any write: a foreign --out keeps every row
+    check_sweep_file(out, definition, specs, store)
+    client = None
+    if scheduler:
+        executor, n_workers, client = dask_executor(scheduler)
+    else:
+        n_workers = workers or os.cpu_count() or 1
+        executor = local_executor(n_workers)
+    outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
+    record_sweep_file(out, definition, options, specs)
+    store.repair()
+    for msg in store.problems:
+        print(f"warning: {msg}", file=sys.stderr)
+    todo = [s for s in specs if s.run_id not in store.rows]
+    if limit is not None:
+        todo = todo[:limit]
+    todo_cost = sum(s.cost_s() for s in todo)
+    where = f"Dask at {scheduler}" if scheduler else f"{n_workers} local worker(s)"
+    print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
+          f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
+          f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
+    failures: dict[str, str] = {}
+    try:
+        _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
+    except BaseException:
+        shutdown(executor, cancel=True, client=client)
+        raise
+    shutdown(executor, client=client)
+    rows = list(store.rows.values())
+    plots = write_report(out, rows, specs, command, failures, plot_metrics)
+    if failures:
+        outputs.write_text(out / "failures.log",
+                           "".join(f"{k}\t{v}\n" for k, v in failures.items()))
+    done = sum(1 for s in specs if s.run_id in store.rows)
+    print(f"{done} of {len(specs)} runs in {out / 'results.csv'}; report {out / 'report.md'}; "
+          f"{len(plots)} plots", file=sys.stderr)
+    if failures:
+        print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
+              "same command to retry them", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, failures: dict,
