@@ -78,8 +78,10 @@ TRAJECTORIES: dict[str, str] = {
     "peanut": "two-link",
     "helix": "three-link",
     "limacon": "two-link",
+    "rose": "two-link",
 }
-TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv", "limacon": "limacon.csv"}
+TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv", "limacon": "limacon.csv",
+                    "rose": "rose.csv"}
 NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
 DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
@@ -170,7 +172,8 @@ SWEEPS = {
                   "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
     # issue 13's targets (bench itg-plus): two-link tracking under vision, clean and 1 px
     "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision"),
-                 "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut", "limacon"),
+                 "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut", "limacon",
+                                  "rose"),
                  "conditions": ("clean", "noise-1px"), "seeds": 3},
     # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
     "itg-plus-three-link": {"controllers": ("itg-plus-vision", "jacobian-vision"),
