@@ -25,15 +25,18 @@ from .. import trajectory as traj
 from ..world import World
 
 
-def _per_call_us(fn, args_list, repeat: int) -> float:
-    """Median over ``repeat`` passes of the mean time per call (microseconds)."""
-    times = []
+def _per_call_us(methods: dict, repeat: int) -> dict:
+    """Median over ``repeat`` passes of the mean time per call (microseconds) of each method
+    (name -> (function, argument tuples)). The passes interleave the methods, so a slow patch
+    of the machine falls on all of them alike and their ratios hold."""
+    times: dict = {name: [] for name in methods}
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        for a in args_list:
-            fn(*a)
-        times.append((time.perf_counter() - t0) / len(args_list))
-    return float(np.median(times) * 1e6)
+        for name, (fn, args_list) in methods.items():
+            t0 = time.perf_counter()
+            for a in args_list:
+                fn(*a)
+            times[name].append((time.perf_counter() - t0) / len(args_list))
+    return {name: float(np.median(t) * 1e6) for name, t in times.items()}
 
 
 def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
@@ -54,15 +57,15 @@ def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
     plus = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
                       S=float(arm.benchmark["max_step_deg"]), w=0.5)
     plus_args = [plus.arguments(*a) for a in rule_args]
-    out = {
-        "rules_compiled_us": _per_call_us(rb.compiled, raw_args, repeat),
-        "rules_step_us": _per_call_us(rb.step, rule_args, repeat),
-        "itg_plus_compiled_us": _per_call_us(plus.compiled, plus_args, repeat),
-        "ik_closed_form_us": _per_call_us(two_link_ik, ik_args, repeat),
-    }
     with World(arm) as world:
         targets = [((p[0], p[1], arm.led_standoff_mm),) for p in pts]
-        out["ik_pybullet_us"] = _per_call_us(world.inverse_kinematics, targets, repeat)
+        out = _per_call_us({
+            "rules_compiled_us": (rb.compiled, raw_args),
+            "rules_step_us": (rb.step, rule_args),
+            "itg_plus_compiled_us": (plus.compiled, plus_args),
+            "ik_closed_form_us": (two_link_ik, ik_args),
+            "ik_pybullet_us": (world.inverse_kinematics, targets),
+        }, repeat)
     return out
 
 
@@ -201,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         c = decision_costs()
         base = c["rules_compiled_us"]
-        print("one decision, two-link arm, same 720 set points (median of 7 passes, one core)")
+        print("one decision, two-link arm, same 720 set points (median of 7 interleaved passes, one core)")
         print(f"{'method':<44}{'us/step':>10}{'x rules':>10}")
         for key, label in (("rules_compiled_us", "Table 2 rules, compiled function"),
                            ("rules_step_us", "Table 2 rules, RuleBase.step (with wrapping)"),
