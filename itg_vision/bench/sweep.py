@@ -69,7 +69,8 @@ CONTROLLER_TITLES = {
     "itg-plus-truth-noise": f"ITG+ fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
-#: ``peanut`` (closed) and ``helix`` are held-out curves, files in data/trajectories.
+#: ``peanut``, ``limacon``, ``rose`` (closed, two-link) and ``helix`` (three-link) are files in
+#: data/trajectories; of the two-link ones only ``rose`` is still held out (see the README).
 TRAJECTORIES: dict[str, str] = {
     "ellipse-t1": "two-link",
     "ellipse-t2": "two-link",
