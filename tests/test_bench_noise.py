@@ -85,6 +85,26 @@ def test_resume_after_interruption_and_a_torn_last_line(tmp_path):
     assert set(ids) == {s.run_id for s in specs}
 
 
+def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
+    """Run ids cover parameters, rule files and calibrated rigs, not the code: a folder whose
+    rows other code made says so on resume (and is silent when the code is the same)."""
+    import json
+
+    args = ["--quick", "--controllers", "itg-model,ik", "--out", str(tmp_path), "--quiet",
+            "--workers", "1"]
+    assert main(args + ["--limit", "3"]) == 0
+    assert main(args + ["--limit", "1"]) == 0
+    assert "other code" not in capsys.readouterr().err
+    sweep = json.loads((tmp_path / "sweep.json").read_text())
+    sweep["code"] = "000000000000"
+    (tmp_path / "sweep.json").write_text(json.dumps(sweep))
+    before = len(_rows(tmp_path))
+    assert main(args + ["--limit", "1"]) == 0
+    err = capsys.readouterr().err
+    assert f"its {before} earlier rows were computed by other code (000000000000" in err
+    assert len(_rows(tmp_path)) == before + 1
+
+
 def test_run_ids_are_stable_and_distinct():
     a, b = build_sweep(quick=True), build_sweep(quick=True)
     assert [s.run_id for s in a] == [s.run_id for s in b]

@@ -20,7 +20,7 @@ from .. import outputs
 from ..errors import UserError, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import PLOT_METRICS, write_report
-from .store import Results, check_sweep_file, definition_hash, record_sweep_file
+from .store import Results, check_sweep_file, code_warning, definition_hash, record_sweep_file
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
                     _parse_names, build_sweep)
 
@@ -171,7 +171,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
     record_sweep_file(out, definition, options, specs)
     store.repair()
-    for msg in store.problems:
+    for msg in store.problems + [m for m in [code_warning(out, store)] if m]:
         print(f"warning: {msg}", file=sys.stderr)
     todo = [s for s in specs if s.run_id not in store.rows]
     if limit is not None:

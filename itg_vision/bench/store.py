@@ -4,8 +4,11 @@
   Appended one row at a time (flush + fsync), so an interruption never loses a finished row; a
   restart with the same ``--out`` skips the ``run_id`` s already there; a torn (partial) last
   line or a damaged row is dropped, named, and its run redone (:class:`Results`).
-- ``sweep.json``: the sweep's definition (its hash and the options that made it). A different
-  definition in the same folder is refused, no row touched (:func:`check_sweep_file`).
+- ``sweep.json``: the sweep's definition (its hash and the options that made it) and the code
+  that made its first rows (:func:`code_hash`). A different definition in the same folder is
+  refused, no row touched (:func:`check_sweep_file`); a resume by other code is allowed with a
+  warning (:func:`code_warning`): run ids cover the parameters, rule files and calibrated rigs,
+  not the code.
 """
 
 from __future__ import annotations
@@ -169,9 +172,36 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
                         "definition (no sweep.json): choose another --out")
 
 
+def code_hash() -> str:
+    """A hash of what decides a run's numbers besides its parameters: the package's Python
+    sources and the arm and rig files beside it (those that exist)."""
+    package = Path(__file__).resolve().parents[1]
+    root = package.parent
+    files = sorted(package.rglob("*.py")) + sorted((root / "data" / "arms").glob("*.yaml")) \
+        + sorted((root / "cameras").glob("*.yaml"))
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
+
+
+def code_warning(out: Path, results: Results) -> str | None:
+    """A one-line warning when ``out`` holds rows made by other code than this (else None)."""
+    try:
+        stored = json.loads((out / "sweep.json").read_text()).get("code")
+    except (OSError, ValueError, AttributeError):
+        return None
+    now = code_hash()
+    if stored is None or stored == now or not results.rows:
+        return None
+    return (f"--out {out}: its {len(results.rows)} earlier rows were computed by other code "
+            f"({stored}, now {now}); they are kept and reported beside the new ones: rerun into "
+            "a new --out for rows of this code alone")
+
+
 def record_sweep_file(out: Path, definition: str, options: dict, specs: list[RunSpec]) -> None:
     path = out / "sweep.json"
     if not path.exists():
-        outputs.write_json(path, {"definition": definition, "schema": SCHEMA,
+        outputs.write_json(path, {"definition": definition, "schema": SCHEMA, "code": code_hash(),
                                   "n_runs": len(specs), "options": options})
 
