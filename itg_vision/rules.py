@@ -746,6 +746,8 @@ class RuleBase:
     definitions: tuple[Definition, ...] = ()
     python_source: str = field(default="", repr=False)
     _fn: object = field(default=None, repr=False)
+    #: every name a rule or a definition reads (set once, when compiled)
+    names_read: frozenset = field(default=frozenset(), repr=False)
 
     @classmethod
     def from_text(cls, text: str, n_joints: int, links_mm, source: str = "<rules>", **params):
@@ -758,6 +760,9 @@ class RuleBase:
                  servo_step=bool(SERVO_STEP.search(text)),
                  definitions=tuple(parser.definitions), **params)
         rb._check()
+        nodes = [d.expr for d in rb.definitions]
+        nodes += [n for r in rb.rules for n in [r.condition] + [a.step for a in r.actions]]
+        rb.names_read = frozenset(n for node in nodes for n, _ in _names_in(node))
         rb.python_source = rb._source()
         rb._fn = rb._compile(rb.python_source)
         return rb
@@ -770,9 +775,7 @@ class RuleBase:
 
     def uses(self, name: str) -> bool:
         """Whether a rule or a definition reads ``name`` (a parameter such as ``f``)."""
-        nodes = [d.expr for d in self.definitions]
-        nodes += [n for r in self.rules for n in [r.condition] + [a.step for a in r.actions]]
-        return any(n == name for node in nodes for n, _ in _names_in(node))
+        return name in self.names_read
 
     def params(self) -> dict:
         """The parameters its rules read, by field name with units (``gain_deg_per_mm`` for f,
