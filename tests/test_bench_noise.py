@@ -105,6 +105,18 @@ def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
     assert len(_rows(tmp_path)) == before + 1
 
 
+def test_an_inline_executor_hands_each_row_over_as_it_is_made_in_order(monkeypatch):
+    """With one worker a run's row is stored before the next run starts (an interruption
+    loses no finished row) and rows come in the sweep's order."""
+    calls = []
+    monkeypatch.setattr(execute, "run_one", lambda spec: calls.append(("run", spec.run_id))
+                        or {"run_id": spec.run_id})
+    specs = build_sweep(quick=True)[:6]
+    for spec, _ in execute.results(execute.InlineExecutor(), specs, in_flight=2):
+        calls.append(("yield", spec.run_id))
+    assert calls == [(kind, s.run_id) for s in specs for kind in ("run", "yield")]
+
+
 def test_run_ids_are_stable_and_distinct():
     a, b = build_sweep(quick=True), build_sweep(quick=True)
     assert [s.run_id for s in a] == [s.run_id for s in b]
@@ -112,8 +124,6 @@ def test_run_ids_are_stable_and_distinct():
     assert definition_hash(a) != definition_hash(build_sweep(quick=True, seeds=3))
 
 
-# ---------------------------------------------------------------------------- Dask
-@pytest.mark.slow
 def test_an_edited_rule_file_gives_its_runs_new_ids_and_leaves_the_others(tmp_path, monkeypatch):
     """A resumed sweep never reuses a result computed with an older rule base."""
     from itg_vision.bench import sweep
@@ -132,6 +142,8 @@ def test_an_edited_rule_file_gives_its_runs_new_ids_and_leaves_the_others(tmp_pa
     assert before["jacobian-vision"] == after["jacobian-vision"]
 
 
+# ---------------------------------------------------------------------------- Dask
+@pytest.mark.slow
 def test_dask_path_on_a_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     # processes=True: one PyBullet client per worker process, as on a real cluster

@@ -58,12 +58,15 @@ def results(executor: Executor, specs, in_flight: int):
             spec = next(todo, None)
             if spec is None:
                 return
-            pending[executor.submit(run_one, spec)] = spec
+            fut = executor.submit(run_one, spec)
+            pending[fut] = spec
+            if fut.done():  # an inline executor ran it already: hand its row over first
+                return
 
     fill()
     while pending:
         done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-        for fut in done:
+        for fut in [f for f in pending if f in done]:  # in the order submitted
             spec = pending.pop(fut)
             yield spec, _outcome(spec, fut)
         fill()
@@ -84,9 +87,7 @@ class InlineExecutor(Executor):
         fut: Future = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # noqa: BLE001 - handed to the future like a pool does
-            if not isinstance(exc, Exception):
-                raise
+        except Exception as exc:  # noqa: BLE001 - handed to the future like a pool does
             fut.set_exception(exc)
         return fut
 
