@@ -30,11 +30,11 @@ import numpy as np
 
 from .. import outputs
 from ..errors import UserError, run_main
+from .report import _float as _f
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
 MEDIAN_FACTOR = 2.0  # tracking median within this factor of the DLS tracker's
-SPEED_FACTOR = 50.0  # compiled ITG+ step at least this many times cheaper than PyBullet IK
 SUBJECT, DLS, TABLE2 = "itg-plus-vision", "jacobian-vision", "itg-vision"
 SUBJECT_3, DLS_3 = SUBJECT, DLS
 COMMAND = "bench itg-plus"
@@ -58,13 +58,6 @@ class Target:
     def met(self) -> bool:
         return (math.isfinite(self.measured) and math.isfinite(self.threshold)
                 and bool(self.OPS[self.op](self.measured, self.threshold)))
-
-
-def _f(v) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return float("nan")
 
 
 def _median(rows, col) -> float:
@@ -195,6 +188,8 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
 
 
 def speed_target(costs: dict) -> Target:
+    from .speed import SPEED_FACTOR  # (speed imports the renderer: only when timed)
+
     ratio = costs["ik_pybullet_us"] / costs["itg_plus_compiled_us"]
     return Target("PyBullet IK / compiled ITG+ step (time per decision)", "two-link", ratio, ">=",
                   SPEED_FACTOR, "x", f"{costs['itg_plus_compiled_us']:.2f} us vs "
@@ -236,34 +231,33 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
 
     def body() -> int:
+        from ..arm import ArmSpec
         from . import noise
-        from .store import Results
-        from .sweep import SWEEPS, build_sweep
+        from .sweep import SWEEPS, build_sweep, load_trajectory
 
         args = build_parser().parse_args(argv)
-        out = outputs.check_out_dir(args.out, COMMAND)
-        out.mkdir(parents=True, exist_ok=True)
-        if not (out / outputs.MANIFEST).exists():
-            outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         if args.workers is not None and args.workers < 1:
             raise UserError(f"--workers: must be >= 1, got {args.workers}")
+        out = outputs.check_out_dir(args.out, COMMAND)
+        if not (out / outputs.MANIFEST).exists():
+            outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         status = 0
-        rows = {}
+        rows, points = {}, {}
         for sweep, sub, seeds in (("itg-plus", "tracking", args.seeds),
                                   ("itg-plus-three-link", "three-link", args.seeds_three_link)):
             specs = build_sweep(sweep=sweep, seeds=seeds, points=args.points)
+            points.update({s.trajectory: s.points for s in specs})
             options = {"sweep": sweep, "seeds": seeds, "points": args.points}
-            status = max(status, noise.run_sweep(specs, out / sub, options, command.strip(),
-                                                 workers=args.workers, quiet=args.quiet))
-            rows[sweep] = list(Results(out / sub / "results.csv").rows.values())
-        from ..arm import ArmSpec
-        from .sweep import load_trajectory
-
+            done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command.strip(),
+                                                workers=args.workers, quiet=args.quiet)
+            status = max(status, done)
         arm = ArmSpec.from_args("two-link")
-        bounds = {t: servo_bound_mm(load_trajectory(t).points_mm, arm.links_mm,
-                                    float(arm.benchmark["max_step_deg"]), load_trajectory(t).closed)
-                  for t in SWEEPS["itg-plus"]["trajectories"]}
+        bounds = {}
+        for t in SWEEPS["itg-plus"]["trajectories"]:  # the paths the runs followed
+            path = load_trajectory(t, points[t])
+            bounds[t] = servo_bound_mm(path.points_mm, arm.links_mm,
+                                       float(arm.benchmark["max_step_deg"]), path.closed)
         targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], bounds)
         targets.append(first_step_target(rows["itg-plus"], SUBJECT, "two-link, vision, every run"))
         targets += three_link_targets(rows["itg-plus-three-link"],

@@ -19,13 +19,10 @@ from pathlib import Path
 from .. import outputs
 from ..errors import UserError, run_main
 from .execute import dask_executor, local_executor, results, shutdown
-from .report import PLOT_METRICS, write_report
+from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import Results, check_sweep_file, code_warning, definition_hash, record_sweep_file
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
                     _parse_names, build_sweep)
-
-#: What the plots show unless told otherwise.
-DEFAULT_PLOT_METRICS = ("e_av", "track_median", "track_max")
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -125,11 +122,10 @@ def main(argv: list[str] | None = None) -> int:
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
                             sweep=args.sweep)
-        n_vision = sum(s.vision for s in specs)
-        cost = sum(s.cost_s() for s in specs)
         if args.list:
-            print(f"sweep: {len(specs)} runs ({n_vision} with rendering), ~{cost / 60:.1f} "
-                  "min of work")
+            cost = sum(s.cost_s() for s in specs)
+            print(f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
+                  f"~{cost / 60:.1f} min of work")
             return 0
         out = Path(args.out)
         if args.out == build_parser().get_default("out"):
@@ -141,18 +137,20 @@ def main(argv: list[str] | None = None) -> int:
                    "points": args.points}
         command = "python -m itg_vision.bench noise " + " ".join(
             a for a in argv if a not in ("--quiet",))
-        return run_sweep(specs, out, options, command.strip(), workers=args.workers,
-                         scheduler=args.scheduler, limit=args.limit, quiet=args.quiet,
-                         plot_metrics=plot_metrics)
+        status, _ = run_sweep(specs, out, options, command.strip(), workers=args.workers,
+                              scheduler=args.scheduler, limit=args.limit, quiet=args.quiet,
+                              plot_metrics=plot_metrics)
+        return status
 
     return run_main(body)
 
 
 def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
               workers: int | None = None, scheduler: str | None = None, limit: int | None = None,
-              quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> int:
+              quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> tuple[int, list[dict]]:
     """Run the sweep ``specs`` into ``out`` (resuming what it holds), write its report, and
-    return the exit status: 0, or 1 when runs failed (each in ``failures.log``). ``options``
+    return the exit status (0, or 1 when runs failed, each in ``failures.log``) and the rows
+    ``results.csv`` holds. ``options``
     are recorded in ``sweep.json``; ``command`` (what reproduces it) heads the report.
     Raises :class:`UserError` (before writing anything) for an ``--out`` that is not this
     sweep's."""
@@ -199,8 +197,8 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     if failures:
         print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
               "same command to retry them", file=sys.stderr)
-        return 1
-    return 0
+        return 1, rows
+    return 0, rows
 
 
 def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, failures: dict,

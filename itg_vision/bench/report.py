@@ -53,6 +53,8 @@ STATS = (("e_av_mm", "E_av"), ("e_max_mm", "E_max"), ("track_median_mm", "median
 PLOT_METRICS = {"e_av": "E_av", "track_median": "tracking median E_i",
                 "track_mean": "tracking mean E_i", "track_p95": "tracking p95 E_i",
                 "track_max": "tracking max E_i"}
+#: What the plots show unless told otherwise.
+DEFAULT_PLOT_METRICS = ("e_av", "track_median", "track_max")
 
 
 def summarize(rows: list[dict]) -> dict:
@@ -185,7 +187,7 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
 
 
 def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
-                 failures: dict[str, str], plot_metrics=("e_av", "track_median", "track_max")
+                 failures: dict[str, str], plot_metrics=DEFAULT_PLOT_METRICS
                  ) -> list[Path]:
     """report.md and the plots from the rows of this sweep; returns the plot paths."""
     from .. import plot

@@ -28,6 +28,7 @@ Choices (documented in the report too):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -227,7 +228,9 @@ class RunSpec:
         return 0.35 + 0.0022 * n if self.vision else 0.05 + 0.0002 * n
 
 
+@functools.lru_cache(maxsize=None)
 def _default_points(trajectory: str) -> int:
+    """Set points of one lap (a file's own count: read once per process)."""
     from ..trajectory import DEFAULT_POINTS
 
     if trajectory in TRAJECTORY_FILES:
@@ -242,11 +245,11 @@ def trajectory_source(name: str) -> str:
     return str(TRAJECTORIES_DIR / TRAJECTORY_FILES[name]) if name in TRAJECTORY_FILES else name
 
 
-def load_trajectory(name: str):
-    """A benchmark trajectory (one lap), placed on its arm."""
+def load_trajectory(name: str, points: int | None = None):
+    """A benchmark trajectory (one lap, ``points`` set points of a named one), placed on its arm."""
     from ..trajectory import load
 
-    return load(trajectory_source(name), None, arm=ArmSpec.from_args(TRAJECTORIES[name]))
+    return load(trajectory_source(name), points, arm=ArmSpec.from_args(TRAJECTORIES[name]))
 
 
 def _parse_names(text: str | None, known, what: str, noun: str) -> tuple[str, ...] | None:
