@@ -945,6 +945,22 @@ class RuleBase:
                 dq[j] = self._non_finite_step(j, v, fired, args)
         return Step(np.array(dq), tuple(fired), False)
 
+    def _inputs_of(self, node: Node) -> list[str]:
+        """The function's inputs ``node`` reads, directly or through definitions, in order (a
+        definition reads only those above it: no cycle)."""
+        lets = {d.name: d.expr for d in self.definitions}
+        inputs: list[str] = []
+
+        def visit(n: Node) -> None:
+            for name, _ in _names_in(n):
+                if name in lets:
+                    visit(lets[name])
+                elif name not in inputs:
+                    inputs.append(name)
+
+        visit(node)
+        return inputs
+
     def _non_finite_step(self, j: int, value: float, fired, args) -> float:
         """A step of joint j that is not a finite number: 0 if it came from a NaN input (a
         marker not measured never moves a joint), else a `UserError` naming the rule."""
@@ -953,7 +969,7 @@ class RuleBase:
             for a in rule.actions:
                 if a.joint != j + 1 or a.kind not in ("inc", "dec"):
                     continue
-                names = list(dict.fromkeys(n for n, _ in _names_in(a.step)))
+                names = self._inputs_of(a.step)
                 if any(env[n] != env[n] for n in names):
                     return 0.0
                 values = ", ".join(f"{n} = {env[n]:.6g}" for n in names) or "constants only"

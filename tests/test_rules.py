@@ -241,6 +241,17 @@ def test_a_step_computed_from_a_missing_marker_moves_nothing():
     assert step.fired == (1,) and np.all(step.dq_deg == 0)
 
 
+def test_a_step_through_a_definition_follows_it_to_the_inputs():
+    """A step that reads a LET: NaN from a missing marker moves nothing; a division by zero
+    from finite inputs stops the run naming the inputs (it raised KeyError on the LET name)."""
+    rb = RuleBase.from_text("LET u = xe - xg\nLET z = xd - xd\n"
+                            "RULE 1: IF xd > 0 THEN q1 += u / z", 2, TWO)
+    step = rb.step(np.array([5.0, 0, 0]), markers([0, 0, 0]), [0, 0])  # no elbow: NaN
+    assert step.fired == (1,) and np.all(step.dq_deg == 0)
+    with pytest.raises(UserError, match=r"RULE 1 gives q1 a step of .*xe = 3, xg = 0, xd = 5"):
+        rb.step(np.array([5.0, 0, 0]), markers([0, 0, 0], [3, 0, 0]), [0, 0])
+
+
 @pytest.mark.parametrize("text, where, what", [
     ("RULE 1: IF xd > xg THEN q1 += 1e999", ":1:31", "number 1e999 is out of range"),
     ("RULE 1: IF xd > xg THEN q1 += " + "9" * 400, ":1:31", "...(400 chars) is out of range"),
