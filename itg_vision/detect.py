@@ -128,7 +128,7 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
         wgt = np.where(s >= WEIGHT_FLOOR, s, np.float32(0))
     else:
         wgt = np.minimum(s, COVERAGE_CLIP * peak)
-    m = cv2.moments(wgt)
+    m = _moments(wgt)
     uv = np.array([m["m10"] / m["m00"] + x0, m["m01"] / m["m00"] + y0])
     mc = cv2.moments(core, binaryImage=True)
     area = float(mc["m00"])
@@ -136,6 +136,15 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     if x == 0 or y == 0 or x + w >= score.shape[1] or y + h >= score.shape[0]:
         return uv, area, rnd, "touches the border"
     return uv, area, rnd, ""
+
+
+def _moments(weights: np.ndarray) -> dict:
+    """``cv2.moments`` of a float image. OpenCV takes a float array two columns wide for a list
+    of points (a contour), not an image: such a crop (a one-pixel-wide sliver cut by the frame
+    or the window) gets a zero column on its right, which adds no mass and moves no moment."""
+    if weights.shape[1] == 2:
+        weights = np.pad(weights, ((0, 0), (0, 1)))
+    return cv2.moments(weights)
 
 
 def _roundness(m: dict) -> float:

@@ -141,3 +141,17 @@ def test_rendered_led_matches_projection(rig, supersample, max_mean, max_rms):
     e = np.array(errs)
     assert np.all(np.abs(e.mean(axis=0)) < max_mean), e.mean(axis=0)
     assert np.sqrt((e**2).sum(axis=1).mean()) < max_rms
+
+
+@pytest.mark.parametrize("width", [1, 2, 3])
+def test_weight_moments_of_narrow_crops_are_the_image_moments(width):
+    """A crop one, two or three pixels wide: the mass and centroid numpy computes (OpenCV reads a
+    float array two columns wide as a list of points)."""
+    from itg_vision.detect import _moments
+
+    w = np.random.default_rng(width).uniform(0.1, 1.0, (7, width)).astype(np.float32)
+    m = _moments(w)
+    ys, xs = np.mgrid[:7, :width]
+    assert m["m00"] == pytest.approx(w.sum(), rel=1e-6)
+    assert m["m10"] / m["m00"] == pytest.approx((xs * w).sum() / w.sum(), rel=1e-6)
+    assert m["m01"] / m["m00"] == pytest.approx((ys * w).sum() / w.sum(), rel=1e-6)
