@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import importlib
 import sys
 
-NAMES = ("speed", "accuracy", "noise", "itg-plus")
-USAGE = ("usage: python -m itg_vision.bench {speed,accuracy,noise,itg-plus} [options]  "
+#: benchmark name -> its module in this package
+MODULES = {"speed": "speed", "accuracy": "accuracy", "noise": "noise", "itg-plus": "itg_plus"}
+NAMES = tuple(MODULES)
+USAGE = (f"usage: python -m itg_vision.bench {{{','.join(NAMES)}}} [options]  "
          "(--help after the name for its options)")
 
 
@@ -19,18 +22,10 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     name, rest = argv[0], argv[1:]
-    if name == "speed":
-        from .speed import main as run
-    elif name == "accuracy":
-        from .accuracy import main as run
-    elif name == "noise":
-        from .noise import main as run
-    elif name == "itg-plus":
-        from .itg_plus import main as run
-    else:
+    if name not in MODULES:
         print(f"error: unknown benchmark {name!r} (choose {', '.join(NAMES)})", file=sys.stderr)
         return 2
-    return run(rest)
+    return importlib.import_module(f".{MODULES[name]}", __package__).main(rest)
 
 
 if __name__ == "__main__":

@@ -66,7 +66,6 @@ def make_row(spec: RunSpec, s: dict) -> dict:
                 + RUN_METRICS})
     row["controller_params"] = params_cell(s["controller_params"])
     row["measured_links_mm"] = s["geometry"]["links_mm"]
-    row["max_step_deg"] = spec.max_step_deg
     med = s.get("track_median_mm")
     row["diverged"] = "" if med is None else int(med > DIVERGED_MM)
     return {c: _cell(row.get(c)) for c in COLUMNS}
@@ -174,11 +173,12 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
 
 def code_hash() -> str:
     """A hash of what decides a run's numbers besides its parameters: the package's Python
-    sources and the arm and rig files beside it (those that exist)."""
+    sources and the arm, rig and trajectory files beside it (those that exist)."""
     package = Path(__file__).resolve().parents[1]
     root = package.parent
     files = sorted(package.rglob("*.py")) + sorted((root / "data" / "arms").glob("*.yaml")) \
-        + sorted((root / "cameras").glob("*.yaml"))
+        + sorted((root / "cameras").glob("*.yaml")) \
+        + sorted((root / "data" / "trajectories").glob("*.csv"))
     h = hashlib.sha256()
     for f in files:
         h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
