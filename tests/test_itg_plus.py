@@ -11,14 +11,28 @@ from itg_vision.errors import UserError
 from itg_vision.feedback import Markers
 from itg_vision.rules import RuleBase, load_rules
 
-ARMS = {"one-link": "itg-plus-one-link", "two-link": "itg-plus-two-link",
-        "three-link": "itg-plus-three-link"}
-#: The servo limit the comparisons use (deg per iteration), also the rules' S.
-SERVO = {"one-link": 20.0, "two-link": 20.0, "three-link": 2.0}
+_SPECS = {n: ArmSpec.from_args(n) for n in ("one-link", "two-link", "three-link")}
+#: arm -> its ITG+ rule base (the arm file's itg_plus_rules)
+ARMS = {n: a.defaults["itg_plus_rules"] for n, a in _SPECS.items()}
+#: The servo limit the comparisons use (deg per iteration, the arm file's), also the rules' S.
+SERVO = {n: float(a.benchmark["max_step_deg"]) for n, a in _SPECS.items()}
+#: Within this distance of the base (a quarter forearm) the two-link ITG+ takes the DLS step.
+NEAR_BASE_MM = 25.0
 
 
 def itg_plus(arm: ArmSpec, links=None) -> RuleBase:
     return load_rules(ARMS[arm.name], arm.n_joints, links or arm.links_mm, S=SERVO[arm.name], w=0.5)
+
+
+def dls(arm: ArmSpec):
+    """The DLS Jacobian tracker on the nominal geometry, under the same servo limit."""
+    from itg_vision.controllers import make_controller
+
+    return make_controller("jacobian", arm, max_step_deg=SERVO[arm.name])
+
+
+def near_base(arm: ArmSpec, q) -> bool:
+    return bool(np.hypot(*forward_kinematics(arm, q)["gripper"][:2]) < NEAR_BASE_MM)
 
 
 def observe(arm, q, rng=None, sigma=0.0):
@@ -138,7 +152,7 @@ def test_one_step_removes_a_small_error_like_newton(name, factor):
         forearm_off_vertical = abs((q[1] + q[2]) % 180 - 90) if name == "three-link" else 90
         if np.abs(dq).max() > 0.75 * SERVO[name] or forearm_off_vertical < 10:
             continue
-        if name == "two-link" and np.hypot(*forward_kinematics(arm, q)["gripper"][:2]) < 25.0:
+        if name == "two-link" and near_base(arm, q):
             continue
         p = forward_kinematics(arm, q + dq)["gripper"]
         before = distance(arm, p, q)
@@ -152,20 +166,17 @@ def test_near_the_base_the_two_link_step_is_the_dls_trackers_step():
     rule on the levers' dot and cross products, scaled down as a whole beyond S) equals the DLS
     Jacobian tracker's (numpy's solve on the marker-built Jacobian, lambda = 5 mm, the same
     direction-preserving servo limit), small errors and steps beyond the servo limit alike."""
-    from itg_vision.controllers import JacobianTracker
-    from itg_vision.identify import nominal_geometry
-
     arm = ArmSpec.from_args("two-link")
-    rb = itg_plus(arm)
-    dls = JacobianTracker(nominal_geometry(arm), True, 2, damping_mm=5.0, max_step_deg=SERVO["two-link"])
+    rb, tracker = itg_plus(arm), dls(arm)
+    assert tracker.damping == 5.0
     rng = np.random.default_rng(7)
     scaled = []
     n = 0
     while n < 300:
         q = np.array([rng.uniform(-180, 180), rng.choice([-1, 1]) * rng.uniform(152, 180)])
-        m = forward_kinematics(arm, q)
-        if np.hypot(*m["gripper"][:2]) >= 25.0:
+        if not near_base(arm, q):
             continue
+        m = forward_kinematics(arm, q)
         err = rng.normal(0, 1.0, 2)
         err *= rng.uniform(1.0, 40.0) / np.linalg.norm(err)  # above the hold band w = 0.5 mm
         p = m["gripper"] + np.array([*err, 0.0])
@@ -173,7 +184,7 @@ def test_near_the_base_the_two_link_step_is_the_dls_trackers_step():
         assert got.fired == (2,), (q, got.fired)
         scaled.append(np.isclose(np.abs(got.dq_deg).max(), SERVO["two-link"]))
         # rtol: the rules convert with 57.29578 deg/rad, 8.5e-9 above 180 / pi
-        np.testing.assert_allclose(got.dq_deg, dls.step(p, observe(arm, q), q).dq_deg,
+        np.testing.assert_allclose(got.dq_deg, tracker.step(p, observe(arm, q), q).dq_deg,
                                    rtol=2e-8, atol=1e-9)
         n += 1
     assert 30 < sum(scaled) < 270  # steps within the servo limit and steps scaled down to it
@@ -189,19 +200,12 @@ def test_under_estimate_noise_one_step_lands_the_estimate_error_away(controller)
     (|err|^2 / lever and the lever's own error sigma / |u| times |err|, each below 0.1 mm; DLS
     also keeps lambda^2 / s_min^2 < 1 % of the step)."""
     arm = ArmSpec.from_args("two-link")
-    if controller == "itg-plus":
-        ctrl = itg_plus(arm)
-    else:
-        from itg_vision.controllers import JacobianTracker
-        from itg_vision.identify import nominal_geometry
-
-        ctrl = JacobianTracker(nominal_geometry(arm), True, 2, max_step_deg=SERVO["two-link"])
+    ctrl = itg_plus(arm) if controller == "itg-plus" else dls(arm)
     rng = np.random.default_rng(11)
     gaps, noise = [], []
     while len(gaps) < 200:
         q = rng.uniform(-180, 180, 2)
-        if np.linalg.svd(_fd_jacobian(arm, q), compute_uv=False).min() < 0.3 \
-                or np.hypot(*forward_kinematics(arm, q)["gripper"][:2]) < 25.0:
+        if np.linalg.svd(_fd_jacobian(arm, q), compute_uv=False).min() < 0.3 or near_base(arm, q):
             continue
         m = forward_kinematics(arm, q)
         err = rng.normal(0, 1.0, 2)
