@@ -12,8 +12,8 @@ The board, its poses, views and corners: :mod:`itg_vision.board`. From the corne
    cameras found the full board: camera 2 relative to camera 1 (R, T).
 3. **Base frame.** Stereo calibration leaves the rig floating in camera 1's frame. It is tied to
    the robot's base by what the LEDs trace when one joint moves at a time
-   (:func:`base_frame_from_axes`): the LEDs are detected (:func:`itg_vision.detect.find_led`
-   with the *calibrated* cameras) and triangulated in camera-1 coordinates along each sweep,
+   (:func:`base_frame_from_axes`): the LEDs are detected by the tracker's own eye
+   (:class:`itg_vision.feedback.VisionFeedback`, with the *calibrated* cameras) and triangulated in camera-1 coordinates along each sweep,
    and circle fits give each joint's axis and centre. The base joint's axis is world z, its
    zero (commanded q1 = 0) world x; the three-link shoulder axis fixes the height of the
    shoulder. No link length is used (the LED stand-off is a mounting dimension; the three-link

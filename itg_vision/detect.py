@@ -9,7 +9,7 @@ shading, edge pixels by the fraction of the LED they hold, which anti-aliasing e
 Measured on rendered LEDs at 640x480 (60 detections, sensor noise 2 grey levels), RMS error
 against the projection: coverage 0.155 px (supersample 1) / 0.128 px (supersample 2); clip
 at 0.5 peak 0.18 / 0.13; binary mask 0.22 / 0.17; raw intensity weights 0.23 / 0.21 (biased
-~0.1 px by the shading). Hence coverage with clip 0.7 for lit LEDs (calibration's images).
+~0.1 px by the shading). Hence coverage with clip 0.7 for lit LEDs (find_led's default).
 
 The vision loop draws its LEDs flat (:data:`itg_vision.imaging.FLAT_LIGHT`), as an emitter
 looks; with no shading the plain intensity weights are unbiased: ``method="intensity"``
@@ -22,12 +22,13 @@ sensor noise of the background). Flat LED, intensity weights: 0.087 px RMS at su
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from .camera import Camera
+from .imaging import Patch
 
 #: Lowest score (grey levels) counted as LED: well above sensor noise (a few grey levels).
 MIN_SCORE = 40
@@ -118,7 +119,7 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     if method == "intensity":  # other blobs out; the rim below MIN_SCORE stays
         if n > 2:
             s[(lab != best) & (lab != 0)] = 0
-    else:  # coverage and binary count the blob's own pixels only (calibration's numbers)
+    else:  # coverage and binary count the blob's own pixels only (find_led's default)
         s[lab != best] = 0
     peak = float(s.max())
     core = (s >= 0.5 * peak).view(np.uint8)
@@ -205,10 +206,28 @@ def _touches_frame_edge(score: np.ndarray, patch) -> bool:
                 or (right and lit[:, -1].any()) or (bottom and lit[-1].any()))
 
 
+def locate_led_near(patch, rgb, predicted_uv, *, half_window: int = HALF_WINDOW_PX,
+                    **locate) -> Detection:
+    """:func:`locate_led` in a window of ``half_window`` px around ``predicted_uv`` first (if
+    given and finite), the whole ``patch`` if the LED is not found there; ``locate``: its
+    options (``method``, ``min_roundness``)."""
+    if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
+        (W, H), img = patch.frame_size, patch.image
+        u, v = (int(round(float(c))) for c in predicted_uv)
+        x0, y0 = max(u - half_window, 0), max(v - half_window, 0)
+        x1, y1 = min(u + half_window + 1, W), min(v + half_window + 1, H)
+        if x1 - x0 > 2 and y1 - y0 > 2:
+            d = locate_led(Patch(img[y0:y1, x0:x1], (x0, y0), (W, H)), rgb, **locate)
+            if d.ok or d.reason == "several candidates":
+                return d
+    return locate_led(patch, rgb, **locate)
+
+
 def find_led(image: np.ndarray, camera: Camera, rgb, *, predicted_uv=None,
              half_window: int = HALF_WINDOW_PX, method: str = "coverage",
              min_roundness: float = 0.75) -> Detection:
-    """Detect one LED and undistort its centroid.
+    """Detect one LED in a whole captured frame (:func:`locate_led_near`) and undistort its
+    centroid.
 
     Parameters
     ----------
@@ -225,27 +244,6 @@ def find_led(image: np.ndarray, camera: Camera, rgb, *, predicted_uv=None,
     Detection
     """
     H, W = image.shape[:2]
-    windows = []
-    if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
-        u, v = (int(round(float(c))) for c in predicted_uv)
-        x0, y0 = max(u - half_window, 0), max(v - half_window, 0)
-        x1, y1 = min(u + half_window + 1, W), min(v + half_window + 1, H)
-        if x1 - x0 > 2 and y1 - y0 > 2:
-            windows.append((x0, y0, x1, y1))
-    windows.append((0, 0, W, H))
-    uv, area, reason = _nan2(), 0.0, "not found"
-    for x0, y0, x1, y1 in windows:
-        score = score_image(image[y0:y1, x0:x1], rgb)
-        uv, area, rnd, reason = blob_centroid(score, method)
-        full = (x0, y0, x1, y1) == (0, 0, W, H)
-        if reason == "touches the border" and full:
-            reason = "at the image border"
-        if not reason and rnd < min_roundness:
-            reason = f"not round ({rnd:.2f}): partly hidden?"
-        if not reason or reason in ("several candidates",) or full:
-            break
-    uv = uv + np.array([x0, y0], float)
-    if reason:
-        return Detection(False, _nan2(), uv, area, reason)
-    und = camera.undistort(uv)
-    return Detection(True, und, uv, area, "")
+    d = locate_led_near(Patch(image, (0, 0), (W, H)), rgb, predicted_uv, half_window=half_window,
+                        method=method, min_roundness=min_roundness)
+    return replace(d, uv_px=camera.undistort(d.uv_raw_px)) if d.ok else d

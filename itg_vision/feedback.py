@@ -18,7 +18,7 @@ import numpy as np
 
 from .arm import ArmSpec, forward_kinematics
 from .contracts import Markers, Observation
-from .detect import HALF_WINDOW_PX, Detection, locate_led
+from .detect import Detection, locate_led_near
 from .imaging import Patch
 
 #: Default supersampling of the vision loop: the most accurate setting that keeps the stereo
@@ -200,7 +200,7 @@ class VisionFeedback:
                 pred = None
                 if patch.full_frame and np.all(np.isfinite(self._last[name])):
                     pred = cam.project(self._last[name])
-                dets.append(_find(patch, LED_RGB[name], pred))
+                dets.append(locate_led_near(patch, LED_RGB[name], pred))
             if all(d.ok for d in dets) and self.dropout > 0 and self.rng.random() < self.dropout:
                 dets = [Detection(False, np.full(2, np.nan), d.uv_raw_px, d.area_px, "dropped")
                         for d in dets]
@@ -276,18 +276,3 @@ class VisionFeedback:
         self.last_observation = Observation(markers, patches, detections, residual, reasons,
                                             timing)
         return markers
-
-
-def _find(patch: Patch, rgb, predicted_uv) -> Detection:
-    """An LED in a patch; in a whole frame, a window of ``HALF_WINDOW_PX`` around
-    ``predicted_uv`` first (the whole frame if the LED is not found there)."""
-    if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
-        (W, H), img = patch.frame_size, patch.image
-        u, v = (int(round(float(c))) for c in predicted_uv)
-        x0, y0 = max(u - HALF_WINDOW_PX, 0), max(v - HALF_WINDOW_PX, 0)
-        x1, y1 = min(u + HALF_WINDOW_PX + 1, W), min(v + HALF_WINDOW_PX + 1, H)
-        if x1 - x0 > 2 and y1 - y0 > 2:
-            d = locate_led(Patch(img[y0:y1, x0:x1], (x0, y0), (W, H)), rgb)
-            if d.ok or d.reason == "several candidates":
-                return d
-    return locate_led(patch, rgb)

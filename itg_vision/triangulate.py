@@ -1,7 +1,8 @@
 """Stereo triangulation of undistorted centroids, refinement, residuals and error prediction.
 
 All pixel coordinates here are *undistorted* (pinhole) pixels of the rig's cameras, as returned
-by :func:`itg_vision.detect.find_led`; points are in mm, world frame.
+by the eye's detection (:meth:`itg_vision.feedback.VisionFeedback.detect`,
+:func:`itg_vision.detect.find_led`); points are in mm, world frame.
 """
 
 from __future__ import annotations
