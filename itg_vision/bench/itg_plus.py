@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         if args.workers is not None and args.workers < 1:
             raise UserError(f"--workers: must be >= 1, got {args.workers}")
-        out = outputs.check_out_dir(args.out, COMMAND)
+        out = noise.check_out(args.out, COMMAND)  # resumable: no --force
         if not (out / outputs.MANIFEST).exists():
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")

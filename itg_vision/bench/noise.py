@@ -28,11 +28,12 @@ from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJ
 COMMAND = "bench noise"
 
 
-def check_out(out: Path) -> None:
-    """Refuse an ``--out`` this benchmark must not write into (`UserError`, writes nothing).
+def check_out(out: Path, command: str = COMMAND) -> Path:
+    """Refuse an ``--out`` the benchmark ``command`` must not write into (`UserError`, writes
+    nothing); return its path.
 
     Allowed: a new path, an empty folder, or a folder this benchmark made (its manifest, or a
-    ``sweep.json`` written by an earlier version): it resumes there. Anything else (a file, a
+    ``sweep.json`` written by an earlier version): it resumes there (no ``--force``). Anything else (a file, a
     folder of other things, another command's output) is refused: report.md and the plots
     would be written over whatever is there. The folder must be writable.
     """
@@ -41,13 +42,14 @@ def check_out(out: Path) -> None:
         raise UserError(f"--out {out}: exists and is not a folder")
     if path.is_dir() and any(path.iterdir()):
         made = outputs.read_manifest(path)
-        if made is not None and made.get("command") != COMMAND:
+        if made is not None and made.get("command") != command:
             raise UserError(f"--out {out}: holds the output of `{made.get('command')}`; choose "
                             "another --out")
         if made is None and not (path / "sweep.json").is_file():
             raise UserError(f"--out {out}: is a folder this benchmark did not make; choose "
                             "another --out")
     outputs.probe_folder(path)
+    return path
 
 
 def build_parser() -> argparse.ArgumentParser:
