@@ -632,6 +632,18 @@ class _Scope:
         return _Scope(set(self.defined), dict(self.known))
 
 
+def _definitions_read(nodes, lets: dict) -> set[str]:
+    """The names of the definitions (``lets``: name -> `Definition`) that ``nodes`` read,
+    directly or through other definitions."""
+    found, names = set(), [name for node in nodes for name, _ in _names_in(node)]
+    while names:
+        name = names.pop()
+        if name in lets and name not in found:
+            found.add(name)
+            names += [n for n, _ in _names_in(lets[name].expr)]
+    return found
+
+
 class _Writer:
     """The compiled function's lines: definitions computed where first needed, subexpressions
     evaluated more than once computed once."""
@@ -705,13 +717,7 @@ class _Writer:
 
     def reads(self, nodes) -> set[str]:
         """The definitions ``nodes`` read, directly or through other definitions."""
-        found, names = set(), [name for node in nodes for name, _ in _names_in(node)]
-        while names:
-            name = names.pop()
-            if name in self.lets and name not in found:
-                found.add(name)
-                names += [n for n, _ in _names_in(self.lets[name].expr)]
-        return found
+        return _definitions_read(nodes, self.lets)
 
     def define(self, names: set[str], scope: _Scope, depth: int) -> None:
         """Compute the definitions ``names`` that ``scope`` lacks, in file order (a definition
@@ -946,20 +952,12 @@ class RuleBase:
         return Step(np.array(dq), tuple(fired), False)
 
     def _inputs_of(self, node: Node) -> list[str]:
-        """The function's inputs ``node`` reads, directly or through definitions, in order (a
-        definition reads only those above it: no cycle)."""
-        lets = {d.name: d.expr for d in self.definitions}
-        inputs: list[str] = []
-
-        def visit(n: Node) -> None:
-            for name, _ in _names_in(n):
-                if name in lets:
-                    visit(lets[name])
-                elif name not in inputs:
-                    inputs.append(name)
-
-        visit(node)
-        return inputs
+        """The function's inputs ``node`` reads, directly or through definitions (in file
+        order), each once."""
+        lets = {d.name: d for d in self.definitions}
+        read = _definitions_read([node], lets)
+        nodes = [node] + [d.expr for d in self.definitions if d.name in read]
+        return list(dict.fromkeys(n for x in nodes for n, _ in _names_in(x) if n not in lets))
 
     def _non_finite_step(self, j: int, value: float, fired, args) -> float:
         """A step of joint j that is not a finite number: 0 if it came from a NaN input (a
