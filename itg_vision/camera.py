@@ -653,8 +653,6 @@ def perturbed(rig: Rig, seed: int, *, angle_deg: float, shift_mm: float,
     Rig
         The perturbed copy (its ``true_rig`` names the rig to render with).
     """
-    import dataclasses
-
     rng = np.random.default_rng([int(seed), 0x5EED])
 
     def draw():
@@ -673,8 +671,8 @@ def perturbed(rig: Rig, seed: int, *, angle_deg: float, shift_mm: float,
         else:
             C_new = pivot + dR @ (C - pivot) + shift
         R = cam.R @ dR.T  # the camera's axes turn with the body: R' = R dR^T
-        cams.append(dataclasses.replace(cam, rotation=tuple(tuple(float(v) for v in r) for r in R),
-                                        translation_mm=tuple(float(v) for v in -R @ C_new)))
+        cams.append(Camera.from_arrays(cam.name, cam.size, cam.K, cam.dist_coeffs, R, -R @ C_new,
+                                       cam.noise_sigma_gray, cam.exposure))
     truth = true_rig if true_rig is not None else (rig.true_rig or rig.source)
     if not truth:
         raise ValueError("perturbed: the rig has no source file; pass true_rig")

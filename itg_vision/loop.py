@@ -21,6 +21,12 @@ import numpy as np
 from .contracts import Controller, Markers, Step
 
 
+def distance_mm(a, b, planar: bool) -> float:
+    """|a - b| in the plane (x, y) for a planar arm, in space otherwise (mm)."""
+    d = np.asarray(a, float) - np.asarray(b, float)
+    return float(np.linalg.norm(d[:2] if planar else d))
+
+
 @dataclass(frozen=True)
 class SetPointRecord:
     """What one set point left behind (mm, deg).
@@ -260,8 +266,7 @@ class Session:
         self._fired += [r for r in step.fired if r not in self._fired]
         self._oor |= bool(step.out_of_reach)
         truth = self.world.true_markers()
-        d = self.desired_mm - truth["gripper"]
-        self.last_error_mm = float(np.linalg.norm(d[:2] if self.trace.planar else d))
+        self.last_error_mm = distance_mm(self.desired_mm, truth["gripper"], self.trace.planar)
         self._iteration += 1
         if self._iteration == self.iterations:
             self._finish_set_point(truth)

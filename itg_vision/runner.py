@@ -17,7 +17,7 @@ from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
-from .loop import Trace, simulate
+from .loop import Trace, distance_mm, simulate
 from .rules import PARAM_FIELDS, load_rules
 from .world import World
 
@@ -286,13 +286,12 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          tracking_start=prep.trajectory.tracking_start, progress=progress,
                          recorder=recorder)
     wall_s = time.perf_counter() - t0
-    dims = 2 if prep.model.planar else 3
     summary = {
         **trace.metrics(),
         # the first set point: its distance from the gripper at the start, and E_i after its
         # iterations (a first step that moves the gripper away shows as first > start)
-        "start_error_mm": float(np.linalg.norm((prep.trajectory.points_mm[0]
-                                                - start_gripper_mm)[:dims])),
+        "start_error_mm": distance_mm(prep.trajectory.points_mm[0], start_gripper_mm,
+                                      prep.model.planar),
         "first_error_mm": float(trace.error_mm()[0]),
         "arm": prep.model.name,
         "links_mm": list(prep.model.links_mm),
