@@ -72,9 +72,7 @@ def summarize(rows: list[dict]) -> dict:
         s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in rs) for col, _ in STATS}
         worst = [_float(r["track_max_mm"]) for r in rs]
         s.update({"worst_max": max((w for w in worst if math.isfinite(w)), default=float("nan")),
-                  "diverged": sum(r["diverged"] == "1" for r in rs),
-                  "missed": float(np.mean([_float(r["n_missed"]) for r in rs])),
-                  "wall": float(np.sum([_float(r["wall_s"]) for r in rs])), "n": len(rs)})
+                  "diverged": sum(r["diverged"] == "1" for r in rs), "n": len(rs)})
         out[key] = s
     return out
 

@@ -158,8 +158,9 @@ def _extra_conditions(by: dict[str, Condition]) -> dict[str, Condition]:
 
 
 #: The robustness sweep's conditions (its default: every one of them).
-ROBUSTNESS_CONDITIONS: tuple[str, ...] = tuple(_all_conditions())
-CONDITIONS: dict[str, Condition] = {**_all_conditions(), **_extra_conditions(_all_conditions())}
+_ROBUSTNESS = _all_conditions()
+ROBUSTNESS_CONDITIONS: tuple[str, ...] = tuple(_ROBUSTNESS)
+CONDITIONS: dict[str, Condition] = {**_ROBUSTNESS, **_extra_conditions(_ROBUSTNESS)}
 
 #: Named sweeps: ``robustness`` (the default: every robustness condition), ``start-tie`` (the
 #: three-link arm from its straight-up start, many seeds: how often does it diverge?), and
