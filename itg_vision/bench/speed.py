@@ -27,8 +27,9 @@ from ..world import World
 
 def _per_call_us(methods: dict, repeat: int) -> dict:
     """Median over ``repeat`` passes of the mean time per call (microseconds) of each method
-    (name -> (function, argument tuples)). The passes interleave the methods, so a slow patch
-    of the machine falls on all of them alike and their ratios hold."""
+    (name -> (function, argument tuples)), and beside it (``<name>_max``) the slowest pass's.
+    The passes interleave the methods, so a slow patch of the machine falls on all of them
+    alike and their ratios hold."""
     times: dict = {name: [] for name in methods}
     for _ in range(repeat):
         for name, (fn, args_list) in methods.items():
@@ -36,7 +37,8 @@ def _per_call_us(methods: dict, repeat: int) -> dict:
             for a in args_list:
                 fn(*a)
             times[name].append((time.perf_counter() - t0) / len(args_list))
-    return {name: float(np.median(t) * 1e6) for name, t in times.items()}
+    out = {name: float(np.median(t) * 1e6) for name, t in times.items()}
+    return out | {f"{name}_max": float(np.max(t) * 1e6) for name, t in times.items()}
 
 
 def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
@@ -206,14 +208,15 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         c = decision_costs()
         base = c["rules_compiled_us"]
-        print("one decision, two-link arm, same 720 set points (median of 7 interleaved passes, one core)")
-        print(f"{'method':<44}{'us/step':>10}{'x rules':>10}")
+        print("one decision, two-link arm, same 720 set points (median of 7 interleaved passes, "
+              "and the slowest pass; one core)")
+        print(f"{'method':<44}{'us/step':>10}{'slowest':>10}{'x rules':>10}")
         for key, label in (("rules_compiled_us", "Table 2 rules, compiled function"),
                            ("rules_step_us", "Table 2 rules, RuleBase.step (with wrapping)"),
                            ("itg_plus_compiled_us", "ITG+ rules, compiled function"),
                            ("ik_closed_form_us", "closed-form inverse kinematics (math)"),
                            ("ik_pybullet_us", "pybullet.calculateInverseKinematics")):
-            print(f"{label:<44}{c[key]:>10.3f}{c[key] / base:>10.2f}")
+            print(f"{label:<44}{c[key]:>10.3f}{c[key + '_max']:>10.3f}{c[key] / base:>10.2f}")
         print(f"PyBullet IK / compiled ITG+ step: {c['ik_pybullet_us'] / c['itg_plus_compiled_us']:.1f}x "
               f"(target >= {SPEED_FACTOR:g}x); / compiled Table 2 step: {c['ik_pybullet_us'] / base:.1f}x")
         if not args.no_vision:
