@@ -445,7 +445,10 @@ def _div(a: float, b: float) -> float:
 
 def _pow(a: float, b: float) -> float:
     """``a ^ b``, total: 0 ^ -1 is inf, an overflow +-inf, a complex result (a negative base to
-    a fractional power) NaN (Python raises, or returns a complex number)."""
+    a fractional power) NaN (Python raises, or returns a complex number, or overflows one:
+    ``(-1e300) ^ 1.5``), as C99's pow."""
+    if a < 0 and math.isfinite(a) and math.isfinite(b) and b != math.floor(b):
+        return math.nan
     try:
         r = a ** b
     except ZeroDivisionError:
@@ -938,7 +941,8 @@ class RuleBase:
         nan_q = (math.nan,) * self.n_joints  # rules that read no q are not given the encoders
         return (xd, yd, zd, xg, yg, zg, xe, ye, ze,
                 xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
-                *(nan_q if q_deg is None else (float(q) for q in q_deg)), self.f, self.S, self.w, links[0], *links)
+                *(nan_q if q_deg is None else (float(q) for q in q_deg)),
+                float(self.f), float(self.S), float(self.w), links[0], *links)
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""
