@@ -11,6 +11,13 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _native_cache(tmp_path_factory):
+    """Rule bases compiled to C (itg_vision.native) go to a folder of this session, not the
+    user's cache (commands run by the tests inherit it)."""
+    os.environ["ITG_VISION_CACHE"] = str(tmp_path_factory.mktemp("native-cache"))
+
+
 def run_cli(module: str, *args, cwd=None, timeout=600):
     """Run ``python -m <module> args`` and return the CompletedProcess (text)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

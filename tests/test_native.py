@@ -1,0 +1,122 @@
+"""Rule bases compiled to C: the same steps and fired rules as the Python function, bit for bit,
+against the independent tree-walking evaluator of test_rules."""
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from itg_vision import native
+from itg_vision.arm import ArmSpec
+from itg_vision.rules import RuleBase, load_rules, shipped_rules
+from test_rules import (_ARM_OF, SPECIAL_VALUES, _exactly, _reference_step, _situations,
+                        markers, random_rule_base)
+
+
+@pytest.fixture(autouse=True)
+def _compiler():
+    """Skip where the machine has no C compiler, except in CI (whose machines have one: there
+    a missing compiler fails the tests rather than hiding them)."""
+    try:
+        native.compiler()
+    except native.NativeUnavailable as exc:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(str(exc))
+
+
+def _assert_same(fn, rb, args):
+    got, want = _exactly(fn(*args)), _exactly(_reference_step(rb, args))
+    assert got == want, (rb.source, args, fn(*args), _reference_step(rb, args))
+    assert got == _exactly(rb.compiled(*args))
+
+
+def test_shipped_rule_bases_in_c_equal_the_reference():
+    """Every shipped rule base, at four parameter sets, on the situations of test_rules (poses,
+    set points out of reach, on the gripper, markers missing, degenerate poses)."""
+    bases, arms = [], []
+    for name in shipped_rules():
+        arm = ArmSpec.from_args(_ARM_OF.get(name, "two-link"))
+        for f, S, w in ((0.06, 0.5, 0.5), (0.5, 20.0, 0.5), (0.05, 2.0, 3.0), (0.1, 20, 0.5)):
+            bases.append(load_rules(name, arm.n_joints, arm.links_mm, f=f, S=S, w=w))
+            arms.append(arm)
+    rng = np.random.default_rng(11)
+    for fn, rb, arm in zip(native.build(bases), bases, arms):
+        for d, m, q in _situations(arm, rng, 400):
+            _assert_same(fn, rb, rb.arguments(d, m, q))
+
+
+def test_random_rule_bases_in_c_equal_the_reference():
+    """300 random rule bases (test_rules.random_rule_base: definitions, OUT_OF_REACH, HOLD,
+    several joints per rule, divisions by zero, powers) in one module, on inputs drawn from
+    zeros of both signs, NaN, inf and 1e200."""
+    rng = np.random.default_rng(3)
+
+    def pick(options):
+        options = list(options)
+        return options[rng.integers(len(options))]
+
+    bases = [random_rule_base(pick) for _ in range(300)]
+    for fn, rb in zip(native.build(bases), bases):
+        for _ in range(8):
+            _assert_same(fn, rb, tuple(pick(SPECIAL_VALUES) for _ in rb.argument_names))
+
+
+def test_powers_and_divisions_at_their_edges_equal_python():
+    """x ^ y and x / y over signed zeros, infinities, NaN, overflow and negative bases to
+    fractional powers (where C's pow and Python's float power could part: (-0) ^ -1 is +inf in
+    the rules, -inf in C99)."""
+    rb = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 += xd ^ yd, q2 += xd / yd", 2, (100.0, 100.0))
+    fn = native.native_step(rb)
+    values = [0.0, -0.0, 1.0, -1.0, 0.5, -0.5, 2.0, -2.0, 3.0, -3.0, 1e300, -1e300, 1e-300,
+              math.inf, -math.inf, math.nan, 1.5, -1.5]
+    for x in values:
+        for y in values:
+            args = rb.arguments(np.array([x, y, 0.0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+            _assert_same(fn, rb, args)
+
+
+def test_the_c_function_is_plain_c99_of_doubles():
+    """The portable part (what a microcontroller port takes) names no Python API."""
+    arm = ArmSpec.from_args("two-link")
+    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm)
+    text = native.c_function(rb)
+    assert text.startswith("static int itg_rules(const double *in, double *dq, int *fired, int *n_fired)")
+    assert "Py" not in text and "sqrt" not in text and "atan" not in text and "sin(" not in text
+
+
+def test_bad_arguments_are_refused_like_a_python_function():
+    rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += xd", 1, (100.0,))
+    fn = native.native_step(rb)
+    with pytest.raises(TypeError, match="takes 18 arguments"):
+        fn(1.0)
+    with pytest.raises(TypeError):
+        fn(*(["a"] + [0.0] * 17))
+    assert fn(*([2.0] + [0.0] * 17)) == ([2.0], [1])
+    assert fn(*([2] + [0] * 17)) == ([2.0], [1])  # ints are numbers, as in Python
+
+
+def test_modules_are_cached_by_source_and_a_failed_build_leaves_nothing(tmp_path, monkeypatch):
+    monkeypatch.setenv("ITG_VISION_CACHE", str(tmp_path))
+    monkeypatch.setattr(native, "_loaded", {})
+    rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += 2 * xd", 1, (100.0,))
+    fn = native.native_step(rb)
+    built = sorted((tmp_path / "native").iterdir())
+    assert len(built) == 1 and fn(*([2.0] + [0.0] * 17)) == ([4.0], [1])
+
+    monkeypatch.setattr(native, "_loaded", {})  # a new process: the module comes from the cache
+    monkeypatch.setattr(native, "_compile", lambda *a: pytest.fail("compiled again"))
+    assert native.native_step(rb)(*([2.0] + [0.0] * 17)) == ([4.0], [1])
+
+    monkeypatch.undo()
+    monkeypatch.setenv("ITG_VISION_CACHE", str(tmp_path))
+    monkeypatch.setenv("CC", "false")  # a compiler that fails
+    other = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += 3 * xd", 1, (100.0,))
+    with pytest.raises(native.NativeUnavailable, match=r"C compiler false failed \(exit 1\)"):
+        native.native_step(other)
+    assert sorted((tmp_path / "native").iterdir()) == built  # no partial module, no build folder
+
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    with pytest.raises(native.NativeUnavailable, match="no C compiler: .*no-such-cc.* not found"):
+        native.native_step(other)
