@@ -151,9 +151,14 @@ def test_servo_bound_is_a_lower_bound_and_tight():
 
 
 def test_speed_target_is_the_ratio_of_the_times():
-    t = itg_plus.speed_target({"itg_plus_compiled_us": 0.5, "ik_pybullet_us": 30.0,
-                               "rules_compiled_us": 0.4})
-    assert t.measured == pytest.approx(60.0) and t.met
+    """IK over the step compiled to C; over the Python function where C could not be built."""
+    costs = {"itg_plus_compiled_us": 0.5, "ik_pybullet_us": 20.0, "rules_compiled_us": 0.4}
+    t = itg_plus.speed_target(costs | {"native_error": "no C compiler: 'cc' not found"})
+    assert t.measured == pytest.approx(40.0) and not t.met and t.case.endswith("Python")
+    assert "C not built: no C compiler" in t.note
+    t = itg_plus.speed_target(costs | {"itg_plus_native_us": 0.1, "native_error": None})
+    assert t.measured == pytest.approx(200.0) and t.met and t.case.endswith("to C")
+    assert "compiled to Python 0.50 us (40.0x)" in t.note
 
 
 @pytest.mark.slow

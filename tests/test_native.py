@@ -120,3 +120,13 @@ def test_modules_are_cached_by_source_and_a_failed_build_leaves_nothing(tmp_path
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     with pytest.raises(native.NativeUnavailable, match="no C compiler: .*no-such-cc.* not found"):
         native.native_step(other)
+
+
+def test_bench_speed_times_the_steps_compiled_to_c():
+    """`bench speed` times the C functions tested above, beside the Python ones."""
+    from itg_vision.bench.speed import decision_costs
+
+    c = decision_costs(n_points=30, repeat=1)
+    assert c["native_error"] is None
+    assert all(c[k] > 0 for k in ("rules_native_us", "itg_plus_native_us", "call_native_us",
+                                  "itg_plus_compiled_us", "ik_pybullet_us"))

@@ -20,8 +20,8 @@ from ..camera import Rig, default_rig_path
 from ..controllers import two_link_ik
 from ..errors import run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, Markers, VisionFeedback
-from ..rules import load_rules
-from .. import trajectory as traj
+from ..rules import RuleBase, load_rules
+from .. import native, trajectory as traj
 from ..world import World
 
 
@@ -59,16 +59,23 @@ def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
     plus = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
                       S=float(arm.benchmark["max_step_deg"]), w=0.5)
     plus_args = [plus.arguments(*a) for a in rule_args]
+    methods = {"rules_compiled_us": (rb.compiled, raw_args),
+               "rules_step_us": (rb.step, rule_args),
+               "itg_plus_compiled_us": (plus.compiled, plus_args),
+               "ik_closed_form_us": (two_link_ik, ik_args)}
+    try:  # the same rule bases compiled to C, called from Python with the same arguments
+        nothing = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD", 2, arm.links_mm)
+        rules_c, plus_c, call_c = native.build([rb, plus, nothing])
+        methods |= {"rules_native_us": (rules_c, raw_args), "itg_plus_native_us": (plus_c, plus_args),
+                    "call_native_us": (call_c, plus_args)}
+        native_error = None
+    except native.NativeUnavailable as exc:
+        native_error = str(exc)
     with World(arm) as world:
         targets = [((p[0], p[1], arm.led_standoff_mm),) for p in pts]
-        out = _per_call_us({
-            "rules_compiled_us": (rb.compiled, raw_args),
-            "rules_step_us": (rb.step, rule_args),
-            "itg_plus_compiled_us": (plus.compiled, plus_args),
-            "ik_closed_form_us": (two_link_ik, ik_args),
-            "ik_pybullet_us": (world.inverse_kinematics, targets),
-        }, repeat)
-    return out
+        methods["ik_pybullet_us"] = (world.inverse_kinematics, targets)
+        out = _per_call_us(methods, repeat)
+    return out | {"native_error": native_error}
 
 
 #: Vision settings timed side by side: (label, supersample, full_frame): windows at 1-4,
@@ -206,19 +213,35 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     def body() -> int:
+        from .itg_plus import speed_target
+
         c = decision_costs()
         base = c["rules_compiled_us"]
         print("one decision, two-link arm, same 720 set points (median of 7 interleaved passes, "
               "and the slowest pass; one core)")
         print(f"{'method':<44}{'us/step':>10}{'slowest':>10}{'x rules':>10}")
-        for key, label in (("rules_compiled_us", "Table 2 rules, compiled function"),
+        for key, label in (("rules_compiled_us", "Table 2 rules, compiled to Python"),
+                           ("rules_native_us", "Table 2 rules, compiled to C"),
                            ("rules_step_us", "Table 2 rules, RuleBase.step (with wrapping)"),
-                           ("itg_plus_compiled_us", "ITG+ rules, compiled function"),
+                           ("itg_plus_compiled_us", "ITG+ rules, compiled to Python"),
+                           ("itg_plus_native_us", "ITG+ rules, compiled to C"),
+                           ("call_native_us", "C rules that compute nothing (the call)"),
                            ("ik_closed_form_us", "closed-form inverse kinematics (math)"),
                            ("ik_pybullet_us", "pybullet.calculateInverseKinematics")):
-            print(f"{label:<44}{c[key]:>10.3f}{c[key + '_max']:>10.3f}{c[key] / base:>10.2f}")
-        print(f"PyBullet IK / compiled ITG+ step: {c['ik_pybullet_us'] / c['itg_plus_compiled_us']:.1f}x "
-              f"(target >= {SPEED_FACTOR:g}x); / compiled Table 2 step: {c['ik_pybullet_us'] / base:.1f}x")
+            if key in c:
+                print(f"{label:<44}{c[key]:>10.3f}{c[key + '_max']:>10.3f}{c[key] / base:>10.2f}")
+        if c["native_error"]:
+            print(f"rules compiled to C: not timed ({c['native_error']})")
+        ik = c["ik_pybullet_us"]
+        for key, label in (("itg_plus_compiled_us", "ITG+ step compiled to Python"),
+                           ("itg_plus_native_us", "ITG+ step compiled to C"),
+                           ("rules_compiled_us", "Table 2 step compiled to Python"),
+                           ("rules_native_us", "Table 2 step compiled to C")):
+            if key in c:
+                print(f"PyBullet IK / {label}: {ik / c[key]:.1f}x")
+        t = speed_target(c)
+        print(f"target: {t.what}, {t.case} >= {SPEED_FACTOR:g}x: {t.measured:.1f}x "
+              f"({'met' if t.met else 'NOT met'})")
         if not args.no_vision:
             rows = vision_costs(frames=args.frames, passes=args.passes)
             print(f"\nstereo loop per iteration at 640x480 (two LEDs, two cameras, distortion and "
