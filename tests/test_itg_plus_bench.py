@@ -150,6 +150,35 @@ def test_servo_bound_is_a_lower_bound_and_tight():
         assert bound >= sampled - 2 * slack - 1.0
 
 
+def test_greedy_step_is_the_best_servo_limited_step():
+    """greedy_step_deg against 200k random steps in the servo box, by the forward kinematics of
+    the arm module (not the oracle's own): its step is within the box, its distance is what the
+    forward kinematics gives for it, and no sampled step lands closer than it by more than a
+    micrometre, whether one step can reach the target or not; the oracle tracks a path whose set points are each one step apart exactly."""
+    import numpy as np
+
+    from itg_vision.arm import forward_kinematics
+
+    arm = ArmSpec.from_args("two-link")
+    servo = 20.0
+    rng = np.random.default_rng(9)
+    for k in range(8):  # targets one step can reach (the best step inside the box), and others
+        q = rng.uniform(-180, 180, 2)
+        q_target = q + rng.uniform(-servo, servo, 2) if k % 2 else rng.uniform(-180, 180, 2)
+        target = forward_kinematics(arm, q_target)["gripper"][:2]
+        step, dist = itg_plus.greedy_step_deg(q, target, arm.links_mm, servo)
+        assert np.all(np.abs(step) <= servo + 1e-9)
+        landed = forward_kinematics(arm, q + step)["gripper"][:2]
+        assert abs(np.linalg.norm(landed - target) - dist) < 1e-9
+        dq = np.radians(q + rng.uniform(-servo, servo, (200_000, 2)))
+        x = 100 * np.cos(dq[:, 0]) + 100 * np.cos(dq.sum(1)) - target[0]
+        y = 100 * np.sin(dq[:, 0]) + 100 * np.sin(dq.sum(1)) - target[1]
+        assert dist <= float(np.sqrt(np.min(x * x + y * y))) + 1e-3
+    qs = np.array([90.0, 0.0]) + np.outer(np.arange(1, 30), [7.0, -5.0])  # 7 and 5 deg a step
+    path = [forward_kinematics(arm, q)["gripper"] for q in qs]
+    assert itg_plus.greedy_tracking_mm(path, arm.links_mm, servo, (90.0, 0.0)).max() < 1e-3
+
+
 def test_speed_target_is_the_ratio_of_the_times():
     """IK over the step compiled to C; over the Python function where C could not be built."""
     costs = {"itg_plus_compiled_us": 0.5, "ik_pybullet_us": 20.0, "rules_compiled_us": 0.4}

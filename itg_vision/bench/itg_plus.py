@@ -14,7 +14,8 @@ own folder under ``--out``, resumable):
 then times one compiled ITG+ step against PyBullet's numerical IK on the same set points
 (as ``bench speed`` does for Table 2), and writes ``targets.md``: each target with its
 measured value, its threshold and a verdict computed from the two (printed too), with the
-tail beside each median and the servo bound (:func:`servo_bound_mm`) beside each tracking max.
+tail beside each median, and beside each tracking max the servo bound (:func:`servo_bound_mm`)
+and the tracking max of an exact one-step greedy oracle (:func:`greedy_tracking_mm`).
 The sweeps run through :func:`itg_vision.bench.noise.run_sweep`, the noise command's own.
 """
 
@@ -69,11 +70,13 @@ def _pick(rows, **eq) -> list[dict]:
     return [r for r in rows if all(r[k] == v for k, v in eq.items())]
 
 
-def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None) -> list[Target]:
+def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
+                     greedy: dict | None = None) -> list[Target]:
     """Two-link vision targets per trajectory, from the ``itg-plus`` sweep's rows; ``bounds``:
-    :func:`servo_bound_mm` per trajectory, stated beside the tracking max."""
+    :func:`servo_bound_mm` per trajectory, and ``greedy``: the tracking max of
+    :func:`greedy_tracking_mm`, stated beside the tracking max."""
     out = []
-    bounds = bounds or {}
+    bounds, greedy = bounds or {}, greedy or {}
     for t in trajectories:
         clean = {k: _pick(rows, trajectory=t, condition="clean", controller=k)
                  for k in (SUBJECT, DLS, TABLE2)}
@@ -82,6 +85,8 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None)
         worst = {k: max(_f(r["track_max_mm"]) for r in rs) for k, rs in clean.items()}
         bound = f"; no tracker on the path does better than {bounds[t]:.3g} (servo bound)" \
             if t in bounds else ""
+        if t in greedy:
+            bound += f"; the exact one-step greedy oracle {greedy[t]:.3g}"
         out.append(Target("tracking-phase max E_i (worst seed)", t, worst[SUBJECT], "<",
                           TRACK_MAX_MM, "mm", f"DLS {worst[DLS]:.3g}, Table 2 {worst[TABLE2]:.3g}"
                           + bound))
@@ -140,6 +145,48 @@ def servo_bound_mm(points_mm, links_mm, max_step_deg: float, closed: bool) -> fl
         worst = max(worst, best)
     slack = (l1 + 2 * l2) * math.radians(BOUND_GRID_DEG) / 2
     return max(0.0, worst - slack)
+
+
+#: Grids of the one-step oracle's search (deg): over the servo box, then around its best node.
+GREEDY_GRID_DEG = (0.25, 0.01)
+
+
+def _gripper_xy(links_mm, q1_rad, q2_rad):
+    l1, l2 = links_mm
+    return (l1 * np.cos(q1_rad) + l2 * np.cos(q1_rad + q2_rad),
+            l1 * np.sin(q1_rad) + l2 * np.sin(q1_rad + q2_rad))
+
+
+def greedy_step_deg(q_deg, target_mm, links_mm, max_step_deg: float) -> tuple[np.ndarray, float]:
+    """(step, distance): the servo-limited step (each joint within +-max_step_deg) that brings the
+    planar two-link arm's gripper closest to ``target_mm`` by its exact model, and the distance
+    it leaves (a grid over the servo box, then a finer grid around its best node)."""
+    coarse, fine = GREEDY_GRID_DEG
+    limit = math.radians(max_step_deg)
+    q = np.radians(np.asarray(q_deg, float))
+    d = np.radians(np.arange(-max_step_deg, max_step_deg + 1e-9, coarse))
+    d1, d2 = np.meshgrid(d, d)
+    f = np.radians(np.arange(-coarse, coarse + 1e-9, fine))
+    for _ in range(2):
+        x, y = _gripper_xy(links_mm, q[0] + d1, q[1] + d2)
+        k = int(np.argmin((x - target_mm[0]) ** 2 + (y - target_mm[1]) ** 2))
+        best = np.array([d1.flat[k], d2.flat[k]])
+        d1, d2 = (np.clip(b + g, -limit, limit) for b, g in zip(best, np.meshgrid(f, f)))
+    x, y = _gripper_xy(links_mm, *(q + best))
+    return np.degrees(best), float(math.hypot(x - target_mm[0], y - target_mm[1]))
+
+
+def greedy_tracking_mm(points_mm, links_mm, max_step_deg: float, start_deg) -> np.ndarray:
+    """E_i of an oracle that knows the arm exactly and, at each set point, takes the
+    servo-limited step that lands closest to it (:func:`greedy_step_deg`): what a tracker gets
+    that moves once per set point looking at that set point alone and choosing greedily. From
+    ``start_deg``, over ``points_mm`` once."""
+    q, out = np.asarray(start_deg, float), []
+    for p in np.asarray(points_mm, float)[:, :2]:
+        step, e = greedy_step_deg(q, p, links_mm, max_step_deg)
+        q = q + step
+        out.append(e)
+    return np.array(out)
 
 
 def _tails(rows: list[dict], label: str) -> str:
@@ -241,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from ..arm import ArmSpec
         from . import noise
-        from .sweep import SWEEPS, build_sweep, load_trajectory
+        from .sweep import LAPS, SWEEPS, build_sweep, load_trajectory
 
         args = build_parser().parse_args(argv)
         if args.workers is not None and args.workers < 1:
@@ -261,12 +308,16 @@ def main(argv: list[str] | None = None) -> int:
                                                 workers=args.workers, quiet=args.quiet)
             status = max(status, done)
         arm = ArmSpec.from_args("two-link")
-        bounds = {}
+        bounds, greedy = {}, {}
+        servo = float(arm.benchmark["max_step_deg"])
         for t in SWEEPS["itg-plus"]["trajectories"]:  # the paths the runs followed
             path = load_trajectory(t, points[t])
-            bounds[t] = servo_bound_mm(path.points_mm, arm.links_mm,
-                                       float(arm.benchmark["max_step_deg"]), path.closed)
-        targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], bounds)
+            bounds[t] = servo_bound_mm(path.points_mm, arm.links_mm, servo, path.closed)
+            run = path.repeated(LAPS) if path.closed else path
+            e = greedy_tracking_mm(run.points_mm, arm.links_mm, servo, arm.start_pose_deg)
+            greedy[t] = float(e[run.tracking_start:].max())
+        targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], bounds,
+                                   greedy)
         targets.append(first_step_target(rows["itg-plus"], SUBJECT, "two-link, vision, every run"))
         targets += three_link_targets(rows["itg-plus-three-link"],
                                       SWEEPS["itg-plus-three-link"]["trajectories"])
@@ -284,7 +335,9 @@ def main(argv: list[str] | None = None) -> int:
                 "tracking median: mean and p95 (median over seeds) and max (worst seed); beside "
                 "each tracking max: the servo bound, the least any tracker that is on the path "
                 "can reach the next set point with one servo-limited step (grid search, "
-                "`servo_bound_mm`).", ""]
+                "`servo_bound_mm`), and the tracking max of an oracle that knows the arm exactly "
+                "and takes at each set point the servo-limited step landing closest to it, from "
+                "the same start (`greedy_tracking_mm`).", ""]
         text += table(targets) + [""]
         text += [f"{sum(t.met for t in targets)} of {len(targets)} targets met.", ""]
         outputs.write_text(out / "targets.md", "\n".join(text))
