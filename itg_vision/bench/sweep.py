@@ -71,7 +71,7 @@ CONTROLLER_TITLES = {
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
 #: ``peanut``, ``limacon``, ``rose`` (closed, two-link) and ``helix`` (three-link) are files in
-#: data/trajectories; of the two-link ones only ``lemniscate`` is still held out (see the README).
+#: data/trajectories; of the two-link ones only ``ellipse-by-base`` is still held out (see the README).
 TRAJECTORIES: dict[str, str] = {
     "ellipse-t1": "two-link",
     "ellipse-t2": "two-link",
@@ -82,9 +82,11 @@ TRAJECTORIES: dict[str, str] = {
     "limacon": "two-link",
     "rose": "two-link",
     "lemniscate": "two-link",
+    "ellipse-by-base": "two-link",
 }
 TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv", "limacon": "limacon.csv",
-                    "rose": "rose.csv", "lemniscate": "lemniscate.csv"}
+                    "rose": "rose.csv", "lemniscate": "lemniscate.csv",
+                    "ellipse-by-base": "ellipse-by-base.csv"}
 NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
 DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
@@ -177,7 +179,7 @@ SWEEPS = {
     # issue 13's targets (bench itg-plus): two-link tracking under vision, clean and 1 px
     "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision"),
                  "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut", "limacon",
-                                  "rose", "lemniscate"),
+                                  "rose", "lemniscate", "ellipse-by-base"),
                  "conditions": ("clean", "noise-1px"), "seeds": 3},
     # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
     "itg-plus-three-link": {"controllers": ("itg-plus-vision", "jacobian-vision"),
