@@ -16,7 +16,9 @@ module with the machine's C compiler (``$CC``, else the one Python was built wit
 functions with the contract of :attr:`RuleBase.compiled`: the same arguments, the same
 ``(dq, fired)``, bit for bit the same steps (tested against the Python function and an
 independent evaluator). Compiled with ``-ffp-contract=off`` (no fused multiply-add: every
-operation rounds as Python's does) and without fast-math. Modules are cached by the hash of
+operation rounds as Python's does), without fast-math, and with ``-fno-math-errno`` (``pow``
+then has no side effect, so the compiler computes a definition only on the paths that read it:
+the C function computes every definition first, in file order). Modules are cached by the hash of
 their source and compiler under ``$ITG_VISION_CACHE`` (default ``~/.cache/itg_vision``),
 written to a temporary name and renamed.
 """
@@ -39,7 +41,7 @@ from .errors import UserError
 from .rules import Binary, Name, Node, Num, RuleBase, Unary, _moves
 
 #: Flags that keep C's arithmetic Python's: every operation rounded on its own.
-CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math")
+CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno")
 
 
 class NativeUnavailable(UserError):

@@ -609,13 +609,17 @@ def _definitions_placed(tests: list[_Test], reads) -> tuple[list[set], list[set]
     """(before, inside): for each test, the definitions computed before it (with an ``if``, for
     its whole chain: nothing can stand before an ``elif``) and those its body reads. A
     definition is computed before the first test that reads it; one that only a rule's steps
-    read, before that rule's test too if a later rule reads it, else in its body."""
+    read, before that rule's test too if a later rule reads it and the rule does not return,
+    else in its body."""
     tested = [reads([t.rule.condition]) for t in tests]
     inside = [reads([a.step for a in _moves(t.rule).values()]) for t in tests]
     later = [set() for _ in tests]  # what the rules after each read
     for i in reversed(range(len(tests) - 1)):
         later[i] = later[i + 1] | tested[i + 1] | inside[i + 1]
-    before = [tested[i] | inside[i] & later[i] for i in range(len(tests))]
+    # (a rule that returns when it fires leaves nothing for the rules after it: its steps'
+    # definitions go in its body alone)
+    before = [tested[i] | (set() if tests[i].returns else inside[i] & later[i])
+              for i in range(len(tests))]
     for i in reversed(range(len(tests) - 1)):
         if tests[i + 1].keyword == "elif":
             before[i] |= before[i + 1]
@@ -633,6 +637,20 @@ class _Scope:
     def inner(self) -> "_Scope":
         """The scope of a block inside (what it computes is not known after it)."""
         return _Scope(set(self.defined), dict(self.known))
+
+
+def _conjuncts(node: Node) -> list[Node]:
+    """``a AND b AND c`` as [a, b, c], left to right (the order Python evaluates them)."""
+    if isinstance(node, Binary) and node.op == "and":
+        return _conjuncts(node.left) + _conjuncts(node.right)
+    return [node]
+
+
+def _conjunction(nodes: list[Node]) -> Node:
+    node = nodes[0]
+    for other in nodes[1:]:
+        node = Binary("and", node, other)
+    return node
 
 
 def _definitions_read(nodes, lets: dict) -> set[str]:
@@ -704,19 +722,32 @@ class _Writer:
             self.line(depth, f"{local} = {self.py(node, scope)}")
             scope.known[key] = local
 
-    def share_before_test(self, i: int, scope: _Scope) -> None:
+    def share_before_test(self, i: int, scope: _Scope, condition: Node | None = None) -> None:
         """Before the test of the i-th rule tested (which evaluates its condition whenever
-        reached: no elif, no guard), what its condition shares with itself and what follows."""
+        reached: no elif, no guard), what its condition (or the part of it tested first,
+        ``condition``) shares with itself and what follows."""
         def uses(key):
             at = self._at.get(key, ())
             return len(at) - bisect.bisect_left(at, i)
 
-        self.share(self.tested[i][:1], uses, scope, 1)
+        self.share([self.tested[i][0] if condition is None else condition], uses, scope, 1)
 
-    def share_in_body(self, steps, scope: _Scope) -> None:
+    def share_in_body(self, steps, scope: _Scope, depth: int = 2) -> None:
         """At the start of a rule's body, what its steps share."""
         counts = Counter(self.key(n) for node in steps for n in _subtrees(node))
-        self.share(steps, counts.__getitem__, scope, 2)
+        self.share(steps, counts.__getitem__, scope, depth)
+
+    def deferred(self, condition: Node, scope: _Scope):
+        """``a AND b AND ...`` whose later operands read definitions the earlier ones do not:
+        (the earlier operands, the later ones, those definitions), split at the first such
+        operand, so that the definitions are computed only where the earlier operands hold
+        (ITG+'s near-base predictions, read only near the base); else None."""
+        terms = _conjuncts(condition)
+        for k in range(1, len(terms)):
+            lazy = self.reads(terms[k:]) - self.reads(terms[:k]) - scope.defined
+            if lazy:
+                return _conjunction(terms[:k]), _conjunction(terms[k:]), lazy
+        return None
 
     def reads(self, nodes) -> set[str]:
         """The definitions ``nodes`` read, directly or through other definitions."""
@@ -883,27 +914,40 @@ class RuleBase:
             out.line(1, "fired = []")
         before, inside = _definitions_placed(tests, out.reads)
         for i, t in enumerate(tests):
+            # an `if` that no `elif` follows may nest: `if a:` then the definitions only `b`
+            # reads, then `if b:` (the same as `if a and b:` after computing them all)
+            alone = t.keyword == "if" and not t.guard and (
+                i + 1 == len(tests) or tests[i + 1].keyword == "if")
+            split = out.deferred(t.rule.condition, top) if alone else None
+            scope, depth = top, 1
             if t.keyword == "if":
-                out.define(before[i], top, 1)
+                out.define(before[i] - (split[2] if split else set()), top, 1)
             if t.keyword == "if" and not t.guard:
-                out.share_before_test(len(out_of_reach) + i, top)
+                out.share_before_test(len(out_of_reach) + i, top, split and split[0])
             guard = "".join(f"free{j} and " for j in t.guard)
-            condition = out.py(t.rule.condition, top, _AND if t.guard else _IF_ELSE)
-            out.line(1, f"{t.keyword} {guard}{condition}:")
-            body, moves = top.inner(), _moves(t.rule)
-            out.define(inside[i], body, 2)
-            out.share_in_body([a.step for a in moves.values()], body)
+            if split:
+                first, then, lazy = split
+                out.line(1, f"if {out.py(first, top)}:")
+                scope, depth = top.inner(), 2
+                out.define(lazy, scope, 2)
+                condition = out.py(then, scope)
+            else:
+                condition = out.py(t.rule.condition, top, _AND if t.guard else _IF_ELSE)
+            out.line(depth, f"{t.keyword} {guard}{condition}:")
+            body, moves, depth = scope.inner(), _moves(t.rule), depth + 1
+            out.define(inside[i], body, depth)
+            out.share_in_body([a.step for a in moves.values()], body, depth)
             dq = {j: "-" + out.py(a.step, body, _NEGATIVE) if a.kind == "dec" else
                   out.py(a.step, body) for j, a in moves.items()}
             if t.returns:
                 values = ", ".join(dq.get(j, "0.0") for j in range(1, n + 1))
-                out.line(2, f"return [{values}], [{t.rule.number}]")
+                out.line(depth, f"return [{values}], [{t.rule.number}]")
                 continue
             for j, value in dq.items():
-                out.line(2, f"dq{j} = {value}")
+                out.line(depth, f"dq{j} = {value}")
             for j in sorted({a.joint for a in t.rule.actions} & set(flagged)):
-                out.line(2, f"free{j} = False")
-            out.line(2, f"fired.append({t.rule.number})")
+                out.line(depth, f"free{j} = False")
+            out.line(depth, f"fired.append({t.rule.number})")
         values = ", ".join(f"dq{j}" if j in stepped else "0.0" for j in range(1, n + 1))
         out.line(1, f"return [{values}], {'fired' if scanning else '[]'}")
         return "\n".join(out.lines) + "\n"
