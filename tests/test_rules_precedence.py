@@ -51,3 +51,19 @@ def test_python_source_is_what_runs():
         d, g, e = rng.uniform(-150, 150, (3, 3))
         args = a.arguments(d, Markers(g, e), [10.0, 20.0])
         assert ns["_itg_step"](*args) == a.compiled(*args)
+
+
+def test_definitions_a_condition_reads_after_its_first_operand_wait_for_it():
+    """``IF a AND b``: the definitions only ``b`` reads are computed where ``a`` holds (inside
+    ``if a:``), and a rule that returns computes its steps' definitions in its body; the
+    results are the tree-walking reference's (test_rules)."""
+    rb = RuleBase.from_text("LET E = xd * 2\nLET F = yd * 3\n"
+                            "RULE 1: IF xg > 0 AND E > 1 THEN q1 += F\n"
+                            "RULE 2: IF 1 > 0 THEN q1 += 2", 1, (100.0,))
+    lines = rb.python_source.splitlines()
+    depth = {name: next(len(l) - len(l.lstrip()) for l in lines if l.strip().startswith(name))
+             for name in ("if v_xg > 0.0:", "v_E =", "v_F =")}
+    assert depth["v_E ="] > depth["if v_xg > 0.0:"] and depth["v_F ="] > depth["v_E ="]
+    for xg, xd, want in ((1.0, 1.0, [6.0]), (1.0, 0.0, [2.0]), (-1.0, 1.0, [2.0])):
+        args = (xd, 2.0, 0.0, xg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.06, 0.5, 0.5, 100.0, 100.0)
+        assert rb.compiled(*args)[0] == want
