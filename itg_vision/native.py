@@ -16,19 +16,25 @@ module with the machine's C compiler (``$CC``, else the one Python was built wit
 functions with the contract of :attr:`RuleBase.compiled`: the same arguments, the same
 ``(dq, fired)``, bit for bit the same steps (tested against the Python function and an
 independent evaluator). Compiled with ``-ffp-contract=off`` (no fused multiply-add: every
-operation rounds as Python's does), without fast-math, and with ``-fno-math-errno`` (``pow``
-then has no side effect, so the compiler computes a definition only on the paths that read it:
-the C function computes every definition first, in file order). Modules are cached by the hash of
-their source and compiler under ``$ITG_VISION_CACHE`` (default ``~/.cache/itg_vision``),
-written to a temporary name and renamed.
+operation rounds as Python's does), without fast-math, with ``-fno-builtin-pow`` (libm's pow
+at run time, as Python calls it: GCC would otherwise turn ``x ^ -1`` into ``1 / x``, a power
+that folds to 2 into a product and a constant to a constant power into its exact value, where
+libm's pow may differ by an ulp) and with ``-fno-math-errno``; ``itg_pow`` is declared a pure
+function, so that the compiler computes a definition only on the paths that read it (the C
+function computes every definition first, in file order). Modules are cached by the hash of
+their source, the compiler (command, flags, version), the machine and its C library under
+``$ITG_VISION_CACHE`` (default ``~/.cache/itg_vision``), written to a temporary name and
+renamed; a cache that cannot be used is :class:`NativeUnavailable`, as a missing compiler is.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.machinery
 import importlib.util
 import os
+import platform
 import shlex
 import shutil
 import subprocess
@@ -41,7 +47,8 @@ from .errors import UserError
 from .rules import Binary, Name, Node, Num, RuleBase, Unary, _moves
 
 #: Flags that keep C's arithmetic Python's: every operation rounded on its own.
-CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno")
+CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno",
+          "-fno-builtin-pow")
 
 
 class NativeUnavailable(UserError):
@@ -76,8 +83,12 @@ _PRELUDE = """\
 
 /* a ^ b as the rules define it (Python's float power, total): 0 ^ -b is +inf whatever the
    zero's sign; otherwise C99's pow (an overflow +-inf, a negative base to a fractional power
-   NaN). */
-static inline double itg_pow(double a, double b) {
+   NaN). A pure function (GCC, clang: declared so, and kept a call), so that a definition is
+   computed only on the paths that read it. */
+#if defined(__GNUC__)
+__attribute__((const, noinline))
+#endif
+static double itg_pow(double a, double b) {
     if (a == 0.0 && b < 0.0) return INFINITY;
     return pow(a, b);
 }
@@ -177,7 +188,7 @@ def module_source(rule_bases, module: str) -> str:
     wrapper (``step_<k>``)."""
     parts = ["#define PY_SSIZE_T_CLEAN", "#include <Python.h>", _PRELUDE, _RESULT]
     for k, rb in enumerate(rule_bases):
-        parts.append(f"/* {rb.source} */")
+        parts.append(f"/* rule base {k} */")  # (never the file's name: it is not C)
         parts.append(c_function(rb, f"rules_{k}"))
         parts.append(_wrapper(rb, k))
     table = "".join(f'    {{"step_{k}", (PyCFunction)(void (*)(void))step_{k}, METH_FASTCALL, NULL}},\n'
@@ -232,17 +243,32 @@ def build(rule_bases) -> list:
     flags = [*CFLAGS, *_link_flags(), f"-I{sysconfig.get_paths()['include']}"]
     suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
     key = hashlib.sha256("\0".join([module_source(rule_bases, "itg_native"), *cc, *flags,
-                                    suffix]).encode()).hexdigest()[:20]
+                                    suffix, *_toolchain(tuple(cc))]).encode()).hexdigest()[:20]
     name = f"itg_native_{key}"
     if name not in _loaded:
         path = cache_dir() / f"{name}{suffix}"
-        if not path.exists():
-            _compile(module_source(rule_bases, name), cc, flags, path)
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+        try:
+            if not path.exists():
+                _compile(module_source(rule_bases, name), cc, flags, path)
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        except (ImportError, OSError) as exc:  # the cache folder or a cached module unusable
+            raise NativeUnavailable(f"{path}: {type(exc).__name__}: {exc}") from None
         _loaded[name] = module
     return [getattr(_loaded[name], f"step_{k}") for k in range(len(rule_bases))]
+
+
+@functools.lru_cache(maxsize=None)
+def _toolchain(cc: tuple | list) -> tuple[str, ...]:
+    """What else decides the module's bytes: the compiler's version line, the machine and its
+    C library (a cache shared by machines, or a compiler upgraded, builds anew)."""
+    try:
+        version = subprocess.run([*cc, "--version"], capture_output=True, text=True,
+                                 timeout=60).stdout.partition("\n")[0]
+    except (OSError, subprocess.TimeoutExpired):
+        version = ""
+    return version, platform.machine(), " ".join(platform.libc_ver())
 
 
 def _compile(source: str, cc: list[str], flags: list[str], path: Path) -> None:
@@ -252,8 +278,8 @@ def _compile(source: str, cc: list[str], flags: list[str], path: Path) -> None:
         c_file.write_text(source)
         try:
             done = subprocess.run([*cc, *flags, str(c_file), "-o", str(so_file), "-lm"],
-                                  capture_output=True, text=True)
-        except OSError as exc:
+                                  capture_output=True, text=True, timeout=600)
+        except (OSError, subprocess.TimeoutExpired) as exc:
             raise NativeUnavailable(f"C compiler {cc[0]!r} could not run: {exc}") from None
         if done.returncode != 0:
             first = next((ln for ln in done.stderr.splitlines() if "error" in ln),
