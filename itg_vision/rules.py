@@ -737,14 +737,16 @@ class _Writer:
         counts = Counter(self.key(n) for node in steps for n in _subtrees(node))
         self.share(steps, counts.__getitem__, scope, depth)
 
-    def deferred(self, condition: Node, scope: _Scope):
-        """``a AND b AND ...`` whose later operands read definitions the earlier ones do not:
-        (the earlier operands, the later ones, those definitions), split at the first such
-        operand, so that the definitions are computed only where the earlier operands hold
-        (ITG+'s near-base predictions, read only near the base); else None."""
+    def deferred(self, condition: Node, scope: _Scope, before: set[str]):
+        """``a AND b AND ...`` whose later operands read definitions that neither the earlier
+        operands nor the other definitions due ``before`` the test read: (the earlier
+        operands, the later ones, those definitions), split at the first such operand, so that
+        the definitions are computed only where the earlier operands hold (ITG+'s near-base
+        predictions, read only near the base); else None."""
         terms = _conjuncts(condition)
         for k in range(1, len(terms)):
             lazy = self.reads(terms[k:]) - self.reads(terms[:k]) - scope.defined
+            lazy -= self.reads([self.lets[d].expr for d in before - lazy])  # what they need
             if lazy:
                 return _conjunction(terms[:k]), _conjunction(terms[k:]), lazy
         return None
@@ -918,7 +920,7 @@ class RuleBase:
             # reads, then `if b:` (the same as `if a and b:` after computing them all)
             alone = t.keyword == "if" and not t.guard and (
                 i + 1 == len(tests) or tests[i + 1].keyword == "if")
-            split = out.deferred(t.rule.condition, top) if alone else None
+            split = out.deferred(t.rule.condition, top, before[i]) if alone else None
             scope, depth = top, 1
             if t.keyword == "if":
                 out.define(before[i] - (split[2] if split else set()), top, 1)

@@ -2,6 +2,7 @@
 first) against Python's own, on generated conditions."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from itg_vision.feedback import Markers
@@ -67,3 +68,19 @@ def test_definitions_a_condition_reads_after_its_first_operand_wait_for_it():
     for xg, xd, want in ((1.0, 1.0, [6.0]), (1.0, 0.0, [2.0]), (-1.0, 1.0, [2.0])):
         args = (xd, 2.0, 0.0, xg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.06, 0.5, 0.5, 100.0, 100.0)
         assert rb.compiled(*args)[0] == want
+
+
+@pytest.mark.parametrize("first", ["", "RULE 0: IF yg > 0 AND D > 5 THEN q3 += 1\n"])
+def test_a_definition_the_steps_share_with_later_rules_is_computed_with_what_it_reads(first):
+    """``IF a AND b`` where b reads D, the rule's step reads E = D + 1 and a later rule reads E
+    too: E is computed before the test, so D is too (found in review: E was computed before D,
+    an UnboundLocalError, always or only where an earlier rule's first operand failed)."""
+    from test_rules import _exactly, _reference_step
+
+    rb = RuleBase.from_text("LET D = xd * 2\nLET E = D + 1\n" + first
+                            + "RULE 1: IF xg > 0 AND D > 1 THEN q1 += E\n"
+                            "RULE 2: IF yd > 0 THEN q2 += E", 3, (100.0,) * 3)
+    for xd, xg, yg in ((1.0, 1.0, 1.0), (1.0, 1.0, -1.0), (0.2, -1.0, -1.0), (5.0, 1.0, 1.0)):
+        args = (xd, 1.0, 0.0, xg, yg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                0.06, 0.5, 0.5, 100.0, 100.0, 100.0, 100.0)
+        assert _exactly(rb.compiled(*args)) == _exactly(_reference_step(rb, args))
