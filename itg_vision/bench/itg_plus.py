@@ -83,8 +83,7 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
         if not all(clean.values()):
             continue
         worst = {k: max(_f(r["track_max_mm"]) for r in rs) for k, rs in clean.items()}
-        bound = f"; no tracker on the path does better than {bounds[t]:.3g} (servo bound)" \
-            if t in bounds else ""
+        bound = f"; servo bound from the exact on-path pose {bounds[t]:.3g}" if t in bounds else ""
         if t in greedy:
             bound += f"; the exact one-step greedy oracle {greedy[t]:.3g}"
         out.append(Target("tracking-phase max E_i (worst seed)", t, worst[SUBJECT], "<",
@@ -164,14 +163,16 @@ def greedy_step_deg(q_deg, target_mm, links_mm, max_step_deg: float) -> tuple[np
     coarse, fine = GREEDY_GRID_DEG
     limit = math.radians(max_step_deg)
     q = np.radians(np.asarray(q_deg, float))
-    d = np.radians(np.arange(-max_step_deg, max_step_deg + 1e-9, coarse))
-    d1, d2 = np.meshgrid(d, d)
-    f = np.radians(np.arange(-coarse, coarse + 1e-9, fine))
-    for _ in range(2):
+
+    def nearest(d1, d2):
         x, y = _gripper_xy(links_mm, q[0] + d1, q[1] + d2)
         k = int(np.argmin((x - target_mm[0]) ** 2 + (y - target_mm[1]) ** 2))
-        best = np.array([d1.flat[k], d2.flat[k]])
-        d1, d2 = (np.clip(b + g, -limit, limit) for b, g in zip(best, np.meshgrid(f, f)))
+        return np.array([d1.flat[k], d2.flat[k]])
+
+    best = nearest(*np.meshgrid(*[np.radians(np.arange(-max_step_deg, max_step_deg + 1e-9,
+                                                       coarse))] * 2))
+    f = np.radians(np.arange(-coarse, coarse + 1e-9, fine))
+    best = nearest(*(np.clip(b + g, -limit, limit) for b, g in zip(best, np.meshgrid(f, f))))
     x, y = _gripper_xy(links_mm, *(q + best))
     return np.degrees(best), float(math.hypot(x - target_mm[0], y - target_mm[1]))
 
