@@ -4,9 +4,10 @@ Runs two sweeps of the noise benchmark (same definition, store, executors and re
 own folder under ``--out``, resumable):
 
 - ``tracking/``: sweep ``itg-plus``: the two-link arm under vision feedback on T1, T2, ``abcd``
-  and the closed curves ``peanut``, ``limacon``, ``rose``, ``lemniscate`` and the held-out
-  ``ellipse-by-base`` (2 laps; each passes within 1.6 mm of the base), clean and with 1 px centroid noise, ITG+
-  against the DLS Jacobian tracker and the paper's Table 2, same seeds, same servo limit;
+  and the closed curves ``peanut``, ``limacon``, ``rose``, ``lemniscate`` and
+  ``ellipse-by-base`` (2 laps; each passes within 1.6 mm of the base), clean and with 1 px
+  centroid noise, ITG+ against the DLS Jacobian tracker and the paper's Table 2, same seeds,
+  same servo limit;
 - ``three-link/``: sweep ``itg-plus-three-link``: the three-link arm from its straight-up start
   on ``line-ab-reach`` and the held-out ``helix``, links -5/0/+5 % x joint offset 0/1 deg,
   40 seeds, under vision feedback (the rendered stereo eye, as the two-link sweep);

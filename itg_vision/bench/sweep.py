@@ -70,8 +70,9 @@ CONTROLLER_TITLES = {
     "itg-plus-truth-noise": f"ITG+ fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
-#: ``peanut``, ``limacon``, ``rose`` (closed, two-link) and ``helix`` (three-link) are files in
-#: data/trajectories; of the two-link ones only ``ellipse-by-base`` is still held out (see the README).
+#: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base`` (closed, two-link) and
+#: ``helix`` (three-link) are files in data/trajectories; the README says which of them each
+#: ITG+ form was measured on unseen.
 TRAJECTORIES: dict[str, str] = {
     "ellipse-t1": "two-link",
     "ellipse-t2": "two-link",
