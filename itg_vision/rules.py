@@ -674,7 +674,8 @@ class _Writer:
         self.lines: list[str] = []
         self.temps, self.shared = itertools.count(), itertools.count()
         self.lets = {d.name: d for d in definitions}  # in file order
-        self._keys: dict[int, int] = {}  # id(node) -> key
+        self._keys: dict[int, tuple] = {}  # id(node) -> (node, key): the node kept alive, so
+        # that no node made later (the operands a split AND regroups) reuses its id
         self._shapes: dict = {}  # shape -> key
         self.tested = tested
         self._at: dict[int, list[int]] = {}  # key -> the rules that surely evaluate it if tested
@@ -691,11 +692,13 @@ class _Writer:
     def key(self, node: Node) -> int:
         """A number per shape (the tree without its tokens): equal keys, equal values, since
         every operation is a pure function of its operands."""
-        key = self._keys.get(id(node))
-        if key is None:
-            shape = (repr(node.value) if isinstance(node, Num) else node.name
-                     if isinstance(node, Name) else (node.op, *map(self.key, children(node))))
-            key = self._keys[id(node)] = self._shapes.setdefault(shape, len(self._shapes))
+        known = self._keys.get(id(node))
+        if known is not None:
+            return known[1]
+        shape = (repr(node.value) if isinstance(node, Num) else node.name
+                 if isinstance(node, Name) else (node.op, *map(self.key, children(node))))
+        key = self._shapes.setdefault(shape, len(self._shapes))
+        self._keys[id(node)] = (node, key)
         return key
 
     def share(self, nodes, uses, scope: _Scope, depth: int) -> None:
@@ -737,16 +740,14 @@ class _Writer:
         counts = Counter(self.key(n) for node in steps for n in _subtrees(node))
         self.share(steps, counts.__getitem__, scope, depth)
 
-    def deferred(self, condition: Node, scope: _Scope, before: set[str]):
-        """``a AND b AND ...`` whose later operands read definitions that neither the earlier
-        operands nor the other definitions due ``before`` the test read: (the earlier
-        operands, the later ones, those definitions), split at the first such operand, so that
-        the definitions are computed only where the earlier operands hold (ITG+'s near-base
-        predictions, read only near the base); else None."""
+    def deferred(self, condition: Node, scope: _Scope):
+        """``a AND b AND ...`` whose later operands read definitions the earlier ones do not:
+        (the earlier operands, the later ones, those definitions), split at the first such
+        operand, so that the definitions are computed only where the earlier operands hold
+        (ITG+'s near-base predictions, read only near the base); else None."""
         terms = _conjuncts(condition)
         for k in range(1, len(terms)):
             lazy = self.reads(terms[k:]) - self.reads(terms[:k]) - scope.defined
-            lazy -= self.reads([self.lets[d].expr for d in before - lazy])  # what they need
             if lazy:
                 return _conjunction(terms[:k]), _conjunction(terms[k:]), lazy
         return None
@@ -756,8 +757,9 @@ class _Writer:
         return _definitions_read(nodes, self.lets)
 
     def define(self, names: set[str], scope: _Scope, depth: int) -> None:
-        """Compute the definitions ``names`` that ``scope`` lacks, in file order (a definition
-        reads only those above it)."""
+        """Compute the definitions ``names`` that ``scope`` lacks, and those they read, in file
+        order (a definition reads only those above it)."""
+        names = set(names) | self.reads([self.lets[name].expr for name in names])
         for d in self.lets.values():
             if d.name in names and d.name not in scope.defined:
                 self.line(depth, f"v_{d.name} = {self.py(d.expr, scope)}")
@@ -920,7 +922,7 @@ class RuleBase:
             # reads, then `if b:` (the same as `if a and b:` after computing them all)
             alone = t.keyword == "if" and not t.guard and (
                 i + 1 == len(tests) or tests[i + 1].keyword == "if")
-            split = out.deferred(t.rule.condition, top, before[i]) if alone else None
+            split = out.deferred(t.rule.condition, top) if alone else None
             scope, depth = top, 1
             if t.keyword == "if":
                 out.define(before[i] - (split[2] if split else set()), top, 1)
