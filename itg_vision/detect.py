@@ -208,16 +208,18 @@ def _touches_frame_edge(score: np.ndarray, patch) -> bool:
 
 def locate_led_near(patch, rgb, predicted_uv, *, half_window: int = HALF_WINDOW_PX,
                     **locate) -> Detection:
-    """:func:`locate_led` in a window of ``half_window`` px around ``predicted_uv`` first (if
-    given and finite), the whole ``patch`` if the LED is not found there; ``locate``: its
-    options (``method``, ``min_roundness``)."""
+    """:func:`locate_led` in a window of ``half_window`` px around ``predicted_uv`` (frame
+    pixels) first (if given and finite), the whole ``patch`` (a frame or a window of one) if
+    the LED is not found there; ``locate``: its options (``method``, ``min_roundness``)."""
     if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
-        (W, H), img = patch.frame_size, patch.image
+        (ox, oy), img = patch.origin_px, patch.image
+        h, w = img.shape[:2]
         u, v = (int(round(float(c))) for c in predicted_uv)
-        x0, y0 = max(u - half_window, 0), max(v - half_window, 0)
-        x1, y1 = min(u + half_window + 1, W), min(v + half_window + 1, H)
+        x0, y0 = max(u - ox - half_window, 0), max(v - oy - half_window, 0)  # in the patch
+        x1, y1 = min(u - ox + half_window + 1, w), min(v - oy + half_window + 1, h)
         if x1 - x0 > 2 and y1 - y0 > 2:
-            d = locate_led(Patch(img[y0:y1, x0:x1], (x0, y0), (W, H)), rgb, **locate)
+            d = locate_led(Patch(img[y0:y1, x0:x1], (ox + x0, oy + y0), patch.frame_size), rgb,
+                           **locate)
             if d.ok or d.reason == "several candidates":
                 return d
     return locate_led(patch, rgb, **locate)

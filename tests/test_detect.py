@@ -93,6 +93,21 @@ def test_window_and_fallback():
     assert np.allclose(far.uv_raw_px, full.uv_raw_px, atol=1e-9)
 
 
+def test_a_prediction_in_a_window_of_the_frame_is_searched_in_frame_pixels():
+    """locate_led_near on a window (origin (60, 20)) with a prediction in frame pixels: the
+    LED's frame pixel, as from the whole frame, whether the prediction is on it or off, and
+    (40, 21), where the LED sits in the window's own pixels, is not mistaken for it."""
+    from itg_vision.detect import locate_led, locate_led_near
+    from itg_vision.imaging import Patch
+
+    img = _disc_image([(100.2, 40.7)])
+    whole = locate_led(Patch(img, (0, 0), (160, 120)), RED)
+    window = Patch(img[20:100, 60:150], (60, 20), (160, 120))
+    for predicted in ((100, 41), (95, 45), (70, 90), (10, 10), (40, 21)):
+        d = locate_led_near(window, RED, predicted)
+        assert d.ok and np.allclose(d.uv_raw_px, whole.uv_raw_px, atol=1e-9), predicted
+
+
 def _sphere_image_centre(cam: Camera, X_mm, r_mm: float) -> np.ndarray:
     """Distorted pixel of the centre of a sphere's image (an ellipse), not of its centre.
 
