@@ -21,10 +21,12 @@ import numpy as np
 from .contracts import Controller, Markers, Step
 
 
-def distance_mm(a, b, planar: bool) -> float:
-    """|a - b| in the plane (x, y) for a planar arm, in space otherwise (mm)."""
+def distance_mm(a, b, planar: bool):
+    """|a - b| in the plane (x, y) for a planar arm, in space otherwise (mm): a float for two
+    points, an array for two arrays of points (..., 3)."""
     d = np.asarray(a, float) - np.asarray(b, float)
-    return float(np.linalg.norm(d[:2] if planar else d))
+    e = np.linalg.norm(d[..., :2] if planar else d, axis=-1)
+    return float(e) if e.ndim == 0 else e
 
 
 @dataclass(frozen=True)
@@ -120,8 +122,7 @@ class Trace:
 
     def error_mm(self) -> np.ndarray:
         """E_i per set point, shape (n,)."""
-        diff = self.desired_mm - self.gripper_mm
-        return np.linalg.norm(diff[:, :2] if self.planar else diff, axis=1)
+        return distance_mm(self.desired_mm, self.gripper_mm, self.planar)
 
     def tracking_errors_mm(self) -> np.ndarray:
         """E_i over the tracking phase (from ``tracking_start``), set points in reach only."""
