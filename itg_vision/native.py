@@ -44,7 +44,7 @@ import tempfile
 from pathlib import Path
 
 from .errors import UserError
-from .rules import Binary, Name, Node, Num, RuleBase, Unary, _moves
+from .rules import Name, Node, Num, RuleBase, Unary, _moves
 
 #: Flags that keep C's arithmetic Python's: every operation rounded on its own.
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno",
@@ -56,8 +56,7 @@ class NativeUnavailable(UserError):
 
 
 # --------------------------------------------------------------------------- C source
-_C_OPS = {"+": "+", "-": "-", "*": "*", "/": "/", "<": "<", "<=": "<=", ">": ">", ">=": ">=",
-          "==": "==", "!=": "!=", "and": "&&", "or": "||"}
+_C_OPS = {"and": "&&", "or": "||"}  # the others are C's own
 
 
 def _c(node: Node) -> str:
@@ -75,7 +74,7 @@ def _c(node: Node) -> str:
         return f"itg_square({left})"
     if node.op == "^":
         return f"itg_pow({left}, {_c(node.right)})"
-    return f"({left} {_C_OPS[node.op]} {_c(node.right)})"
+    return f"({left} {_C_OPS.get(node.op, node.op)} {_c(node.right)})"
 
 
 _PRELUDE = """\
@@ -102,22 +101,24 @@ def c_function(rb: RuleBase, name: str = "itg_rules") -> str:
     OUT_OF_REACH rules, then each rule in file order firing when its condition holds and none
     of its joints is set yet."""
     n = rb.n_joints
-    position = {id(r): k for k, r in enumerate(rb.rules)}
     L = [f"static int {name}(const double *in, double *dq, int *fired, int *n_fired) {{"]
     L += [f"    const double v_{a} = in[{k}];" for k, a in enumerate(rb.argument_names)]
     L += [f"    const double v_{d.name} = {_c(d.expr)};" for d in rb.definitions]
-    for r in (r for r in rb.rules if r.out_of_reach):
-        L += [f"    if ({_c(r.condition)}) {{ fired[0] = {position[id(r)]}; *n_fired = 1; return 1; }}"]
+    for k, r in enumerate(rb.rules):  # k: the rule's position in the file
+        if r.out_of_reach:
+            L += [f"    if ({_c(r.condition)}) {{ fired[0] = {k}; *n_fired = 1; return 1; }}"]
     L += [f"    int set[{n}] = {{0}};", "    int n = 0, k = 0;"]
     L += [f"    dq[{j}] = 0.0;" for j in range(n)]
-    for r in (r for r in rb.rules if not r.out_of_reach):
-        joints = sorted({a.joint for a in r.actions})
+    for k, r in enumerate(rb.rules):
+        if r.out_of_reach:
+            continue
+        joints = sorted(r.joints)
         free = " && ".join(f"!set[{j - 1}]" for j in joints)
         L.append(f"    if ({free} && {_c(r.condition)}) {{")
         for j, a in _moves(r).items():
             L.append(f"        dq[{j - 1}] = {'-' if a.kind == 'dec' else ''}({_c(a.step)});")
         L += [f"        set[{j - 1}] = 1;" for j in joints]
-        L += [f"        fired[k++] = {position[id(r)]}; n += {len(joints)};",
+        L += [f"        fired[k++] = {k}; n += {len(joints)};",
               f"        if (n == {n}) goto done;", "    }"]
     L += ["done:", "    *n_fired = k;", "    return 0;", "}"]
     return "\n".join(L) + "\n"
@@ -185,18 +186,26 @@ fail:
 
 def module_source(rule_bases, module: str) -> str:
     """One extension module: the C function of each rule base (``rules_<k>``) and its
-    wrapper (``step_<k>``)."""
+    wrapper (``step_<k>``), then the module's table and init."""
+    return _module_body(rule_bases) + _module_init(rule_bases, module)
+
+
+def _module_body(rule_bases) -> str:
     parts = ["#define PY_SSIZE_T_CLEAN", "#include <Python.h>", _PRELUDE, _RESULT]
     for k, rb in enumerate(rule_bases):
         parts.append(f"/* rule base {k} */")  # (never the file's name: it is not C)
         parts.append(c_function(rb, f"rules_{k}"))
         parts.append(_wrapper(rb, k))
+    return "\n".join(parts) + "\n"
+
+
+def _module_init(rule_bases, module: str) -> str:
     table = "".join(f'    {{"step_{k}", (PyCFunction)(void (*)(void))step_{k}, METH_FASTCALL, NULL}},\n'
                     for k in range(len(rule_bases)))
     numbers = "".join(
         f'    if ((numbers_{k}[{i}] = PyLong_FromString("{r.number}", NULL, 10)) == NULL) return NULL;\n'
         for k, rb in enumerate(rule_bases) for i, r in enumerate(rb.rules))
-    parts.append(f"""
+    return f"""
 static PyMethodDef methods[] = {{
 {table}    {{NULL, NULL, 0, NULL}}
 }};
@@ -206,8 +215,7 @@ static struct PyModuleDef module_def = {{PyModuleDef_HEAD_INIT, "{module}", NULL
 PyMODINIT_FUNC PyInit_{module}(void) {{
 {numbers}    return PyModule_Create(&module_def);
 }}
-""")
-    return "\n".join(parts)
+"""
 
 
 # --------------------------------------------------------------------------- build
@@ -242,14 +250,15 @@ def build(rule_bases) -> list:
     cc = compiler()
     flags = [*CFLAGS, *_link_flags(), f"-I{sysconfig.get_paths()['include']}"]
     suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
-    key = hashlib.sha256("\0".join([module_source(rule_bases, "itg_native"), *cc, *flags,
+    body = _module_body(rule_bases)  # the module's source but its name, made once
+    key = hashlib.sha256("\0".join([body + _module_init(rule_bases, "itg_native"), *cc, *flags,
                                     suffix, *_toolchain(tuple(cc))]).encode()).hexdigest()[:20]
     name = f"itg_native_{key}"
     if name not in _loaded:
         path = cache_dir() / f"{name}{suffix}"
         try:
             if not path.exists():
-                _compile(module_source(rule_bases, name), cc, flags, path)
+                _compile(body + _module_init(rule_bases, name), cc, flags, path)
             spec = importlib.util.spec_from_file_location(name, path)
             module = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(module)
@@ -260,7 +269,7 @@ def build(rule_bases) -> list:
 
 
 @functools.lru_cache(maxsize=None)
-def _toolchain(cc: tuple | list) -> tuple[str, ...]:
+def _toolchain(cc: tuple) -> tuple[str, ...]:
     """What else decides the module's bytes: the compiler's version line, the machine and its
     C library (a cache shared by machines, or a compiler upgraded, builds anew)."""
     try:

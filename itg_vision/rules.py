@@ -204,6 +204,11 @@ class Rule:
     def out_of_reach(self) -> bool:
         return any(a.kind == "out" for a in self.actions)
 
+    @property
+    def joints(self) -> set[int]:
+        """The joints it sets (moves or holds), 1-based."""
+        return {a.joint for a in self.actions if a.kind != "out"}
+
 
 @dataclass(frozen=True)
 class Definition:
@@ -592,7 +597,7 @@ def _plan(rules: list[Rule], n_joints: int) -> list[_Test]:
     :data:`MAX_ELIF` rules (Python's compiler recurses on each ``elif``)."""
     tests, maybe, chain, before_chain = [], set(), [], set()
     for r in rules:
-        joints = {a.joint for a in r.actions}
+        joints = r.joints
         returns = len(joints) == n_joints
         if not returns and 0 < len(chain) < MAX_ELIF and all(joints & c for c in chain):
             tests.append(_Test(r, "elif", tuple(sorted(joints & before_chain)), False))
@@ -949,7 +954,7 @@ class RuleBase:
                 continue
             for j, value in dq.items():
                 out.line(depth, f"dq{j} = {value}")
-            for j in sorted({a.joint for a in t.rule.actions} & set(flagged)):
+            for j in sorted(t.rule.joints & set(flagged)):
                 out.line(depth, f"free{j} = False")
             out.line(depth, f"fired.append({t.rule.number})")
         values = ", ".join(f"dq{j}" if j in stepped else "0.0" for j in range(1, n + 1))
