@@ -220,7 +220,7 @@ def test_near_the_base_the_step_never_ends_farther_and_beats_the_dls_step():
         after = distance(arm, p, q + got.dq_deg)
         assert after < before, (q, p, before, after)
         best = greedy_step_deg(q, p, arm.links_mm, SERVO["two-link"])[1]
-        step_dls = np.clip(tracker.step(p, observe(arm, q), q).dq_deg, -20, 20)
+        step_dls = step(tracker, arm, p, q)
         excess.append(after - best)
         excess_dls.append(distance(arm, p, q + step_dls) - best)
     assert fired == {3, 4, 5, 6}

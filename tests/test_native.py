@@ -10,8 +10,8 @@ import pytest
 from itg_vision import native
 from itg_vision.arm import ArmSpec
 from itg_vision.rules import RuleBase, load_rules, shipped_rules
-from test_rules import (_ARM_OF, SPECIAL_VALUES, _exactly, _reference_step, _situations,
-                        markers, random_rule_base)
+from test_rules import (_ARM_OF, PARAMETER_SETS, SPECIAL_VALUES, _assert_compiled_is_reference,
+                        _exactly, _situations, markers, random_rule_base, rng_pick)
 
 
 @pytest.fixture(autouse=True)
@@ -27,9 +27,8 @@ def _compiler():
 
 
 def _assert_same(fn, rb, args):
-    got, want = _exactly(fn(*args)), _exactly(_reference_step(rb, args))
-    assert got == want, (rb.source, args, fn(*args), _reference_step(rb, args))
-    assert got == _exactly(rb.compiled(*args))
+    _assert_compiled_is_reference(rb, args, fn)
+    assert _exactly(fn(*args)) == _exactly(rb.compiled(*args))
 
 
 def test_shipped_rule_bases_in_c_equal_the_reference():
@@ -38,7 +37,7 @@ def test_shipped_rule_bases_in_c_equal_the_reference():
     bases, arms = [], []
     for name in shipped_rules():
         arm = ArmSpec.from_args(_ARM_OF.get(name, "two-link"))
-        for f, S, w in ((0.06, 0.5, 0.5), (0.5, 20.0, 0.5), (0.05, 2.0, 3.0), (0.1, 20, 0.5)):
+        for f, S, w in PARAMETER_SETS:
             bases.append(load_rules(name, arm.n_joints, arm.links_mm, f=f, S=S, w=w))
             arms.append(arm)
     rng = np.random.default_rng(11)
@@ -52,11 +51,7 @@ def test_random_rule_bases_in_c_equal_the_reference():
     several joints per rule, divisions by zero, powers) in one module, on inputs drawn from
     zeros of both signs, NaN, inf and 1e200."""
     rng = np.random.default_rng(3)
-
-    def pick(options):
-        options = list(options)
-        return options[rng.integers(len(options))]
-
+    pick = rng_pick(rng)
     bases = [random_rule_base(pick) for _ in range(300)]
     for fn, rb in zip(native.build(bases), bases):
         for _ in range(8):
@@ -112,7 +107,7 @@ def test_rule_numbers_keep_their_references():
     assert (sys.getrefcount(number), sys.getrefcount(out)) == before
 
 
-def test_the_rule_files_name_never_reaches_the_c_source(tmp_path):
+def test_the_rule_files_name_never_reaches_the_c_source():
     """A path is not C: one that closes a comment and carries code compiles as nothing."""
     rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += xd", 1, (100.0,),
                             source="*/ int injected = 1; /*\n#error injected")

@@ -397,9 +397,24 @@ def _exactly(result):
     return type(dq), steps, type(fired), list(fired)
 
 
-def _assert_compiled_is_reference(rb, args):
-    got, want = _exactly(rb.compiled(*args)), _exactly(_reference_step(rb, args))
-    assert got == want, (args, rb.compiled(*args), _reference_step(rb, args))
+def _assert_compiled_is_reference(rb, args, fn=None):
+    """``fn`` (default: the rule base's compiled function) returns what the reference does."""
+    fn = fn or rb.compiled
+    got, want = _exactly(fn(*args)), _exactly(_reference_step(rb, args))
+    assert got == want, (rb.source, args, fn(*args), _reference_step(rb, args))
+
+
+#: (f, S, w) the shipped rule bases are compared at: defaults, the servo-limit S, a wide band.
+PARAMETER_SETS = ((0.06, 0.5, 0.5), (0.5, 20.0, 0.5), (0.05, 2.0, 3.0), (0.1, 20, 0.5))
+
+
+def rng_pick(rng):
+    """``pick(options)`` drawing from a numpy Generator (for the random rule bases)."""
+    def pick(options):
+        options = list(options)
+        return options[rng.integers(len(options))]
+
+    return pick
 
 
 _ARM_OF = {"table1": "one-link", "itg-plus-one-link": "one-link", "three-link": "three-link",
@@ -444,7 +459,7 @@ def _situations(arm, rng, n):
 def test_compiled_shipped_rule_bases_equal_the_tree_walking_reference(name):
     arm = ArmSpec.from_args(_ARM_OF.get(name, "two-link"))
     rng = np.random.default_rng(7)
-    for f, S, w in ((0.06, 0.5, 0.5), (0.5, 20.0, 0.5), (0.05, 2.0, 3.0), (0.1, 20, 0.5)):
+    for f, S, w in PARAMETER_SETS:
         rb = load_rules(name, arm.n_joints, arm.links_mm, f=f, S=S, w=w)
         for d, m, q in _situations(arm, rng, 400):
             _assert_compiled_is_reference(rb, rb.arguments(d, m, q))
@@ -559,11 +574,7 @@ def test_compiled_layered_rule_bases_equal_the_tree_walking_reference():
     special values with ordinary numbers: the compiled function raises nothing and returns
     the reference's steps and fired rules."""
     rng = np.random.default_rng(21)
-
-    def pick(options):
-        options = list(options)
-        return options[rng.integers(len(options))]
-
+    pick = rng_pick(rng)
     for _ in range(2000):
         rb = random_layered_rule_base(pick, rng)
         for _ in range(6):
