@@ -21,7 +21,7 @@ from .errors import UserError
 from .contracts import Step
 
 
-def _wrap_deg(a):
+def wrap_deg(a):
     return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
 
 
@@ -87,7 +87,7 @@ class InverseKinematics:
             cands = [np.array(c) for c in three_link_ik(desired_mm, L, self.model.led_standoff_mm)]
         if not cands:
             return None
-        return min(cands, key=lambda c: float(np.sum(_wrap_deg(c - q_now) ** 2)))
+        return min(cands, key=lambda c: float(np.sum(wrap_deg(c - q_now) ** 2)))
 
     def params(self) -> dict:
         """The parameters it runs with (none: the nominal model is all it knows)."""
@@ -97,7 +97,7 @@ class InverseKinematics:
         target = self.solve(desired_mm, q_deg)
         if target is None:
             return Step(np.zeros(self.model.n_joints), (), True)
-        return Step(_wrap_deg(target - np.asarray(q_deg, float)), (), False)
+        return Step(wrap_deg(target - np.asarray(q_deg, float)), (), False)
 
 
 #: Below this horizontal forearm length (mm) the three-link tracker takes the pitch axis from

@@ -33,6 +33,14 @@ SETTINGS = (("windows s=1", 1, False), ("windows s=2", 2, False), ("windows s=3"
                                         DEFAULT_SUPERSAMPLE, True))
 
 
+
+def _tail(values) -> tuple[float, float, float]:
+    """(RMS, 95th percentile, max) of error lengths (NaN for none)."""
+    if not values:
+        return (float("nan"),) * 3
+    v = np.asarray(values, float)
+    return float(np.sqrt(np.mean(v ** 2))), float(np.percentile(v, 95)), float(np.max(v))
+
 def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
             supersample: int = DEFAULT_SUPERSAMPLE, full_frame: bool = False) -> dict:
     """Errors of one setting over ``n_poses`` random poses, for each added noise in ``sigmas``
@@ -72,18 +80,19 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
                         for cam, d in zip(rig.cameras, fb.last_observation.detections[name]):
                             centroid_err.append(d.uv_raw_px - cam.project(truth[name]))
     c = np.array(centroid_err)
-    sigma_render = float(np.sqrt(np.mean(np.sum(c**2, axis=1)) / 2))  # per axis
+    length = np.hypot(c[:, 0], c[:, 1])  # each centroid error's length (px)
+    mean_square = np.mean(np.sum(c**2, axis=1))
+    rms, sigma_render = float(np.sqrt(mean_square)), float(np.sqrt(mean_square / 2))
+    # the tail beside each RMS: 95th percentile and max of the error's length
+    tails = {n: _tail(v) for n, v in by_marker.items()}
     out = {"n_poses": n_poses, "centroid_mean_px": c.mean(axis=0).tolist(),
-           "centroid_rms_px": float(np.sqrt(np.mean(np.sum(c**2, axis=1)))),
-           "sigma_render_px": sigma_render, "n_missed": missed,
-           "marker_rms_mm": {n: float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
-                             for n, v in by_marker.items()},
-           # the tail beside the RMS: 95th percentile and max of the error's length
-           "centroid_p95_px": float(np.percentile(np.hypot(c[:, 0], c[:, 1]), 95)),
-           "centroid_max_px": float(np.max(np.hypot(c[:, 0], c[:, 1]))),
-           "marker_p95_mm": {n: float(np.percentile(v, 95)) if v else float("nan")
-                             for n, v in by_marker.items()},
-           "marker_max_mm": {n: float(np.max(v)) if v else float("nan") for n, v in by_marker.items()},
+           "centroid_rms_px": rms, "sigma_render_px": sigma_render,  # per axis
+           "n_missed": missed,
+           "marker_rms_mm": {n: t[0] for n, t in tails.items()},
+           "centroid_p95_px": float(np.percentile(length, 95)),
+           "centroid_max_px": float(np.max(length)),
+           "marker_p95_mm": {n: t[1] for n, t in tails.items()},
+           "marker_max_mm": {n: t[2] for n, t in tails.items()},
            "rows": []}
     pts = np.array(pts)
     for s in sigmas:

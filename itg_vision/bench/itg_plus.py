@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import outputs
 from ..errors import UserError, run_main
-from .report import _float as _f
+from .report import _float as _f, worst
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -83,12 +83,12 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
                  for k in (SUBJECT, DLS, TABLE2)}
         if not all(clean.values()):
             continue
-        worst = {k: max(_f(r["track_max_mm"]) for r in rs) for k, rs in clean.items()}
+        maxima = {k: worst(rs) for k, rs in clean.items()}
         bound = f"; servo bound from the exact on-path pose {bounds[t]:.3g}" if t in bounds else ""
         if t in greedy:
             bound += f"; the exact one-step greedy oracle {greedy[t]:.3g}"
-        out.append(Target("tracking-phase max E_i (worst seed)", t, worst[SUBJECT], "<",
-                          TRACK_MAX_MM, "mm", f"DLS {worst[DLS]:.3g}, Table 2 {worst[TABLE2]:.3g}"
+        out.append(Target("tracking-phase max E_i (worst seed)", t, maxima[SUBJECT], "<",
+                          TRACK_MAX_MM, "mm", f"DLS {maxima[DLS]:.3g}, Table 2 {maxima[TABLE2]:.3g}"
                           + bound))
         med, med_dls = _median(clean[SUBJECT], "track_median_mm"), _median(clean[DLS], "track_median_mm")
         out.append(Target("tracking median E_i (median over seeds)", t, med, "<=",
@@ -115,13 +115,15 @@ BOUND_GRID_DEG = 0.1
 
 
 def servo_bound_mm(points_mm, links_mm, max_step_deg: float, closed: bool) -> float:
-    """A lower bound on any tracker's largest E_i once it is on the path (planar two-link arm):
-    from the exact pose at each set point (either elbow branch), the closest one servo-limited
+    """A lower bound on the largest E_i of a tracker that sits exactly on the path at every set
+    point (planar two-link arm; one that is off the path may do better, as ITG+ and the greedy
+    oracle do on some curves): from the exact pose at each set point (either elbow branch), the
+    closest one servo-limited
     step (every joint within +-max_step_deg) can bring the gripper to the next set point; the
     largest such distance over the path (closed paths: the wrap to the first point too), minus
     the grid's own error (a joint grid of BOUND_GRID_DEG moves the gripper at most
     (L1 + L2 + L2) * BOUND_GRID_DEG / 2 rad between nodes)."""
-    from ..controllers import two_link_ik
+    from ..controllers import wrap_deg, two_link_ik
 
     l1, l2 = (float(v) for v in links_mm)
     pts = np.asarray(points_mm, float)[:, :2]
@@ -133,14 +135,13 @@ def servo_bound_mm(points_mm, links_mm, max_step_deg: float, closed: bool) -> fl
         if np.hypot(*(b - a)) <= worst:  # staying put already does as well
             continue
         starts, ends = two_link_ik(a[0], a[1], l1, l2), two_link_ik(b[0], b[1], l1, l2)
-        if any(np.all(np.abs((np.subtract(qb, qa) + 180.0) % 360.0 - 180.0) <= max_step_deg)
+        if any(np.all(np.abs(wrap_deg(np.subtract(qb, qa))) <= max_step_deg)
                for qa in starts for qb in ends):
             continue  # one step reaches b exactly
         best = math.inf
         for q in starts:
-            q1, q2 = np.radians(q[0]) + d1, np.radians(q[1]) + d2
-            x = l1 * np.cos(q1) + l2 * np.cos(q1 + q2) - b[0]
-            y = l1 * np.sin(q1) + l2 * np.sin(q1 + q2) - b[1]
+            x, y = _gripper_xy((l1, l2), np.radians(q[0]) + d1, np.radians(q[1]) + d2)
+            x, y = x - b[0], y - b[1]
             best = min(best, float(np.sqrt(np.min(x * x + y * y))))
         worst = max(worst, best)
     slack = (l1 + 2 * l2) * math.radians(BOUND_GRID_DEG) / 2
@@ -193,9 +194,8 @@ def greedy_tracking_mm(points_mm, links_mm, max_step_deg: float, start_deg) -> n
 
 def _tails(rows: list[dict], label: str) -> str:
     """The tracking phase's tail beside its median: mean and p95 (median over seeds), max (worst)."""
-    worst = max(_f(r["track_max_mm"]) for r in rows)
     return (f"{label} mean {_median(rows, 'track_mean_mm'):.3g} / p95 "
-            f"{_median(rows, 'track_p95_mm'):.3g} / max {worst:.3g}")
+            f"{_median(rows, 'track_p95_mm'):.3g} / max {worst(rows):.3g}")
 
 
 def _degradation(clean: list[dict], noisy: list[dict]) -> float:
@@ -290,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from ..arm import ArmSpec
         from . import noise
-        from .sweep import LAPS, SWEEPS, build_sweep, load_trajectory
+        from .sweep import SWEEPS, build_sweep, load_trajectory
 
         args = build_parser().parse_args(argv)
         if args.workers is not None and args.workers < 1:
@@ -300,22 +300,22 @@ def main(argv: list[str] | None = None) -> int:
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         status = 0
-        rows, points = {}, {}
+        rows, first = {}, {}
         for sweep, sub, seeds in (("itg-plus", "tracking", args.seeds),
                                   ("itg-plus-three-link", "three-link", args.seeds_three_link)):
             specs = build_sweep(sweep=sweep, seeds=seeds, points=args.points)
-            points.update({s.trajectory: s.points for s in specs})
+            first[sweep] = {s.trajectory: s for s in specs}
             options = {"sweep": sweep, "seeds": seeds, "points": args.points}
             done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command.strip(),
                                                 workers=args.workers, quiet=args.quiet)
             status = max(status, done)
         arm = ArmSpec.from_args("two-link")
         bounds, greedy = {}, {}
-        servo = float(arm.benchmark["max_step_deg"])
-        for t in SWEEPS["itg-plus"]["trajectories"]:  # the paths the runs followed
-            path = load_trajectory(t, points[t])
+        for t, spec in first["itg-plus"].items():  # the paths the runs followed
+            servo = spec.max_step_deg
+            path = load_trajectory(t, spec.points)
             bounds[t] = servo_bound_mm(path.points_mm, arm.links_mm, servo, path.closed)
-            run = path.repeated(LAPS) if path.closed else path
+            run = path.repeated(spec.laps)
             e = greedy_tracking_mm(run.points_mm, arm.links_mm, servo, arm.start_pose_deg)
             greedy[t] = float(e[run.tracking_start:].max())
         targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], bounds,

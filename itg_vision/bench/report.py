@@ -70,11 +70,15 @@ def summarize(rows: list[dict]) -> dict:
     out = {}
     for key, rs in groups.items():
         s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in rs) for col, _ in STATS}
-        worst = [_float(r["track_max_mm"]) for r in rs]
-        s.update({"worst_max": max((w for w in worst if math.isfinite(w)), default=float("nan")),
-                  "diverged": sum(r["diverged"] == "1" for r in rs), "n": len(rs)})
+        s.update({"worst_max": worst(rs), "diverged": sum(r["diverged"] == "1" for r in rs),
+                  "n": len(rs)})
         out[key] = s
     return out
+
+
+def worst(rows: list[dict], col: str = "track_max_mm") -> float:
+    """The largest finite ``col`` of the rows (NaN when none is)."""
+    return max((w for w in (_float(r[col]) for r in rows) if math.isfinite(w)), default=float("nan"))
 
 
 def _limits_line(specs: list[RunSpec], traj: str) -> str:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -171,14 +172,18 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
                         "definition (no sweep.json): choose another --out")
 
 
+@functools.cache
 def code_hash() -> str:
     """A hash of what decides a run's numbers besides its parameters: the package's Python
     sources and the arm, rig and trajectory files beside it (those that exist)."""
+    from ..arm import ARMS_DIR
+    from ..camera import CAMERAS_DIR
+    from ..trajectory import TRAJECTORIES_DIR
+
     package = Path(__file__).resolve().parents[1]
     root = package.parent
-    files = sorted(package.rglob("*.py")) + sorted((root / "data" / "arms").glob("*.yaml")) \
-        + sorted((root / "cameras").glob("*.yaml")) \
-        + sorted((root / "data" / "trajectories").glob("*.csv"))
+    files = sorted(package.rglob("*.py")) + sorted(ARMS_DIR.glob("*.yaml")) \
+        + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(TRAJECTORIES_DIR.glob("*.csv"))
     h = hashlib.sha256()
     for f in files:
         h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
