@@ -135,7 +135,8 @@ class ArmSpec:
 
 
 # ---------------------------------------------------------------------------- arm files
-def _arm_path(name_or_path: str) -> Path:
+def arm_path(name_or_path: str) -> Path:
+    """The arm file of a shipped arm's name, or the path given (an unknown name: a UserError)."""
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or "/" in name_or_path:
         return p
@@ -153,7 +154,7 @@ def load_arm(name_or_path: str) -> ArmSpec:
 
     from .inputs import read_text
 
-    path = _arm_path(name_or_path)
+    path = arm_path(name_or_path)
     try:
         doc = yaml.safe_load(read_text(path, "arm file"))
     except yaml.YAMLError as exc:

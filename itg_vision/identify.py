@@ -158,6 +158,12 @@ def zero_direction(centre_mm, axis, points_mm, angles_deg) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- start-up
+class StartUpFailed(UserError):
+    """The start-up measurement saw too few LEDs: the run cannot start (the rig does not see
+    the arm, or rejects every look). A user error for ``run``; an outcome of its condition for a
+    benchmark sweep, which records it as a run that did not start."""
+
+
 def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
     """The median of ``SAMPLES_PER_POSE`` observations in which every marker was measured."""
     got: list = []
@@ -167,7 +173,7 @@ def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
             got.append({n: m.get(n) for n in names})
             if len(got) == SAMPLES_PER_POSE:
                 return {n: np.median([g[n] for g in got], axis=0) for n in names}
-    raise UserError(f"start-up measurement: the LEDs were measured in only {len(got)} of "
+    raise StartUpFailed(f"start-up measurement: the LEDs were measured in only {len(got)} of "
                     f"{MAX_TRIES_PER_POSE} observations {where}; the arm's lengths cannot be "
                     "measured (check the rig)")
 
@@ -183,7 +189,7 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
 
     Raises
     ------
-    UserError : a marker was not seen.
+    StartUpFailed : a marker was not seen (a UserError).
     """
     if arm.planar:
         m = _observe(world, feedback, arm.marker_names, "at the start pose")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -140,6 +141,77 @@ def test_an_edited_rule_file_gives_its_runs_new_ids_and_leaves_the_others(tmp_pa
     assert before["itg-plus-vision"] != after["itg-plus-vision"]
     assert before["itg-vision"] == after["itg-vision"]
     assert before["jacobian-vision"] == after["jacobian-vision"]
+
+
+
+def test_an_edited_trajectory_or_rig_file_gives_its_runs_new_ids(tmp_path, monkeypatch):
+    """The files a run reads besides its rules are in its id too (schema 5): a resume after an
+    edit of the trajectory's file or of the arm's rig reruns the runs that read it."""
+    from itg_vision import camera
+    from itg_vision.bench import sweep
+
+    traj = tmp_path / "peanut.csv"
+    traj.write_text(Path(sweep.trajectory_source("peanut")).read_text())
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(camera.default_rig_path("two-link").read_text())
+    source, rig_of = sweep.trajectory_source, camera.default_rig_path
+    monkeypatch.setattr(sweep, "trajectory_source",
+                        lambda name: str(traj) if name == "peanut" else source(name))
+    monkeypatch.setattr(camera, "default_rig_path",
+                        lambda arm, calibrated=False: rig if not calibrated else rig_of(arm, True))
+    kw = dict(sweep="itg-plus", seeds=1, trajectories=("peanut", "ellipse-t1"), conditions=("clean",))
+
+    def ids():
+        return {(s.trajectory, s.controller): s.run_id for s in build_sweep(**kw)}
+
+    before = ids()
+    lines = traj.read_text().splitlines()
+    lines[-1] = lines[-1][:-1] + str((int(lines[-1][-1]) + 1) % 10)  # the last digit, moved
+    traj.write_text("\n".join(lines) + "\n")
+    edited = ids()
+    assert all(edited[k] != before[k] for k in before if k[0] == "peanut")
+    assert all(edited[k] == before[k] for k in before if k[0] == "ellipse-t1")
+    rig.write_text(rig.read_text() + "\n# an edit\n")
+    assert all(v != edited[k] for k, v in ids().items())
+
+
+def test_a_run_that_cannot_start_is_a_row_not_a_failure(tmp_path, capsys, monkeypatch):
+    """A start-up measurement that sees no LED (as under rig-perturbed-cams, whose rays miss by
+    ~10 px) is an outcome of the condition: a row naming why, metrics empty, its cell saying
+    how many did not start, exit 0, and a resume does not rerun it; a stale failures.log of an
+    earlier attempt goes."""
+    from itg_vision import runner
+    from itg_vision.identify import StartUpFailed
+
+    prepare = runner.prepare
+    why = [RuntimeError("boom")]  # the first attempt fails; its retry cannot start
+
+    def failing(cfg, estimate_rig=None):
+        if cfg.seed == 1 and cfg.feedback == "vision":
+            raise why[0]
+        return prepare(cfg, estimate_rig=estimate_rig)
+
+    monkeypatch.setattr(runner, "prepare", failing)
+    out = tmp_path / "o"
+    args = ["--quick", "--controllers", "itg-vision,ik", "--conditions", "clean", "--seeds", "2",
+            "--points", "8", "--out", str(out), "--workers", "1", "--quiet"]
+    assert main(args) == 1 and (out / "failures.log").exists()
+    capsys.readouterr()
+    why[0] = StartUpFailed("start-up measurement: the LEDs were measured in only 0 of 50")
+    assert main(args) == 0
+    rows = {(r["controller"], r["seed"]): r for r in _rows(out)}
+    gone = rows["itg-vision", "1"]
+    assert gone["no_start"].startswith("start-up measurement: the LEDs were measured in only 0")
+    assert gone["e_av_mm"] == gone["track_max_mm"] == gone["diverged"] == ""
+    assert all(r["no_start"] == "" and math.isfinite(float(r["e_av_mm"]))
+               for k, r in rows.items() if k != ("itg-vision", "1"))
+    report = (out / "report.md").read_text()
+    assert "(1 of 2 did not start)" in report and "**Runs that did not start**" in report
+    assert not (out / "failures.log").exists()
+    err = capsys.readouterr().err
+    assert "1 did not start" in err and "error" not in err
+    assert main(args) == 0
+    assert "0 to run" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------- Dask

@@ -152,7 +152,8 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
               quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> tuple[int, list[dict]]:
     """Run the sweep ``specs`` into ``out`` (resuming what it holds), write its report, and
     return the exit status (0, or 1 when runs failed, each in ``failures.log``) and the rows
-    ``results.csv`` holds. ``options``
+    ``results.csv`` holds. A run that did not start (its start-up measurement saw no LED) is a
+    row, not a failure: the report names it. ``options``
     are recorded in ``sweep.json``; ``command`` (what reproduces it) heads the report.
     Raises :class:`UserError` (before writing anything) for an ``--out`` that is not this
     sweep's."""
@@ -193,9 +194,13 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     if failures:
         outputs.write_text(out / "failures.log",
                            "".join(f"{k}\t{v}\n" for k, v in failures.items()))
+    elif (out / "failures.log").exists():  # an earlier attempt's, now stale (this command's file)
+        (out / "failures.log").unlink()
     done = sum(1 for s in specs if s.run_id in store.rows)
-    print(f"{done} of {len(specs)} runs in {out / 'results.csv'}; report {out / 'report.md'}; "
-          f"{len(plots)} plots", file=sys.stderr)
+    gone = sum(1 for s in specs if store.rows.get(s.run_id, {}).get("no_start"))
+    print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
+          + (f" ({gone} did not start: see the report)" if gone else "")
+          + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)
     if failures:
         print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
               "same command to retry them", file=sys.stderr)

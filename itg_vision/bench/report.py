@@ -62,18 +62,27 @@ def summarize(rows: list[dict]) -> dict:
 
     ``s["track_max"] = (median, q1, q3)`` over seeds of each run's statistic (keys: the
     ``STATS`` columns without ``_mm``), ``worst_max`` the largest tracking-phase E_i of any
-    seed, ``diverged`` and ``n`` the number of diverged runs and of runs.
+    seed, ``diverged`` and ``n`` the number of diverged runs and of runs that started,
+    ``no_start`` the number that did not start (``why``: the first one's reason). The
+    statistics are over the runs that started.
     """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["trajectory"], r["condition"], r["controller"]), []).append(r)
     out = {}
     for key, rs in groups.items():
-        s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in rs) for col, _ in STATS}
-        s.update({"worst_max": worst(rs), "diverged": sum(r["diverged"] == "1" for r in rs),
-                  "n": len(rs)})
+        ran = [r for r in rs if not r.get("no_start")]
+        s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in ran) for col, _ in STATS}
+        s.update({"worst_max": worst(ran), "diverged": sum(r["diverged"] == "1" for r in ran),
+                  "n": len(ran), "no_start": len(rs) - len(ran),
+                  "why": next((r["no_start"] for r in rs if r.get("no_start")), "")})
         out[key] = s
     return out
+
+
+def _no_start_note(s) -> str:
+    """`` (3 of 5 did not start)`` for a cell whose runs did not all start, else ``""``."""
+    return f" ({s['no_start']} of {s['n'] + s['no_start']} did not start)" if s["no_start"] else ""
 
 
 def worst(rows: list[dict], col: str = "track_max_mm") -> float:
@@ -103,8 +112,10 @@ def _grid(summary, traj, conds, ctrls, cell) -> list[str]:
 def _table(summary, traj, conds, ctrls, metric) -> list[str]:
     """Median [IQR] over seeds of one per-run statistic."""
     def cell(s):
+        if not s["n"]:
+            return f"did not start{_no_start_note(s)}"
         med, q1, q3 = s[metric]
-        return f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]"
+        return f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]" + _no_start_note(s)
 
     return _grid(summary, traj, conds, ctrls, cell)
 
@@ -113,9 +124,12 @@ def _tail_table(summary, traj, conds, ctrls) -> list[str]:
     """Tracking phase per cell: median / mean / p95 / max of E_i (medians over seeds), the
     worst max of any seed, and the diverged runs."""
     def cell(s):
+        if not s["n"]:
+            return f"did not start{_no_start_note(s)}"
         text = " / ".join(_fmt_mm(s[m][0]) for m in ("track_median", "track_mean", "track_p95",
                                                      "track_max"))
         text += f" ({_fmt_mm(s['worst_max'])})"
+        text += _no_start_note(s)
         return text + (f" **{s['diverged']}/{s['n']} diverged**" if s["diverged"] else "")
 
     return _grid(summary, traj, conds, ctrls, cell)
@@ -139,14 +153,16 @@ def _compare(med, trajs, conds, a_ctrl, b_ctrl):
 
 
 def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> list[str]:
-    """Plain-words findings computed from the medians over seeds (thresholds stated inline)."""
+    """Plain-words findings computed from the medians over seeds (thresholds stated inline).
+    A cell where a run did not start is left out of the comparisons (its median is over fewer
+    seeds than the others') and named in a line of its own."""
     out = []
     if subject not in ctrls:
         return [f"({subject} not in this sweep: no comparison.)"]
     for metric, label in (("e_av", "E_av (the paper's metric, start transient included)"),
                           ("track_mean", "tracking-phase mean E_i"),
                           ("track_max", "tracking-phase max E_i (the tail)")):
-        med = {k: v[metric][0] for k, v in summary.items()}
+        med = {k: v[metric][0] for k, v in summary.items() if not v["no_start"]}
         parts = []
         for other in [c for c in ctrls if c != subject]:
             wins, losses, ties = _compare(med, trajs, conds, subject, other)
@@ -178,6 +194,12 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
             if parts:
                 out.append(f"- **Model error on {t}** (change of the median tracking E_i from "
                            "clean, mm): " + "; ".join(parts) + ".")
+    gone = [(key, s) for key, s in summary.items() if s["no_start"] and key[2] in ctrls]
+    if gone:
+        out.append("- **Runs that did not start** (left out of the comparisons above): "
+                   + "; ".join(f"{k} {c} on {t}: {s['no_start']} of {s['n'] + s['no_start']}"
+                               for (t, c, k), s in sorted(gone))
+                   + f". The first one's reason: {gone[0][1]['why']}")
     div = [(key, s) for key, s in summary.items() if s["diverged"]]
     if div:
         out.append(f"- **Diverged runs** (tracking-phase median E_i > {DIVERGED_MM:g} mm): "
@@ -201,11 +223,14 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     ctrls = list(dict.fromkeys(s.controller for s in specs))
     summary = summarize(rows)
     seeds = sorted({s.seed for s in specs})
-    pts = {t: sorted({int(_float(r["points"])) for r in rows if r["trajectory"] == t}) for t in trajs}
-    wall = sum(_float(r["wall_s"]) for r in rows)
+    pts = {t: sorted({int(_float(r["points"])) for r in rows
+                      if r["trajectory"] == t and not r.get("no_start")}) for t in trajs}
+    wall = sum(_float(r["wall_s"]) for r in rows if r["wall_s"])
+    n_gone = sum(1 for r in rows if r.get("no_start"))
     L = ["# Noise-robustness benchmark", "",
          f"Produced by `{command}`.", "",
          f"{len(rows)} of {len(specs)} runs in `results.csv`"
+         + (f", {n_gone} of which did not start (the conclusion names them)" if n_gone else "")
          + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
          + f"; {len(seeds)} seeds per cell; simulated time in runs {wall:.0f} s.", ""]
     if failures:
@@ -270,9 +295,9 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
 def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]:
     made = []
 
-    def med(t, c, k, metric):
+    def med(t, c, k, metric):  # a cell where a run did not start is not drawn
         s = summary.get((t, c, k))
-        return s[metric][0] if s else float("nan")
+        return s[metric][0] if s and not s["no_start"] else float("nan")
 
     def curve(t, k, pairs, metric):
         xs, ys = [], []

@@ -7,8 +7,8 @@
 - ``sweep.json``: the sweep's definition (its hash and the options that made it) and the code
   that made its first rows (:func:`code_hash`). A different definition in the same folder is
   refused, no row touched (:func:`check_sweep_file`); a resume by other code is allowed with a
-  warning (:func:`code_warning`): run ids cover the parameters, rule files and calibrated rigs,
-  not the code.
+  warning (:func:`code_warning`): run ids cover the parameters and the files a run reads (rule
+  file, arm file, rigs, trajectory file), not the code.
 """
 
 from __future__ import annotations
@@ -33,10 +33,10 @@ RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median
                "first_error_mm", "wall_s"]
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
-            "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
+            "inputs_sha", "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
             "measured_links_mm", "iterations", "max_step_deg", "rules", "rules_sha", "controller_params"]
            + RUN_METRICS
-           + ["diverged"])
+           + ["diverged", "no_start"])
 
 
 def definition_hash(specs: list[RunSpec]) -> str:
@@ -60,8 +60,13 @@ def params_cell(params: dict) -> str:
     return ";".join(f"{k}={_cell(v)}" for k, v in params.items())
 
 
-def make_row(spec: RunSpec, s: dict) -> dict:
+def make_row(spec: RunSpec, s: dict | None, no_start: str = "") -> dict:
+    """A run's row: its spec and its summary ``s``; or, for a run that did not start
+    (``s`` None), its spec and ``no_start``, why (its metrics empty)."""
     row = {"run_id": spec.run_id, **dataclasses.asdict(spec)}
+    if s is None:
+        row["no_start"] = no_start
+        return {c: _cell(row.get(c)) for c in COLUMNS}
     row["points"] = s["n_setpoints"] // max(1, spec.laps)
     row.update({k: s.get(k) for k in ["links_mm", "true_links_mm", "joint_offset_deg"]
                 + RUN_METRICS})

@@ -105,7 +105,8 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 4  # 3: the gain column (always empty) became controller_params; 4: rules_sha
+SCHEMA = 5  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
+#            5: inputs_sha, and the no_start column
 
 
 @dataclass(frozen=True)
@@ -210,6 +211,7 @@ class RunSpec:
     dropout: float
     rig: str  # true | calibrated | perturbed | perturbed-cams
     rig_sha: str  # content hash of the calibrated rig file ("" otherwise)
+    inputs_sha: str  # content hash of the arm file, its true rig and the trajectory file (if any)
     link_error: float
     offset_deg: float
     iterations: int
@@ -300,6 +302,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     for traj_name in trajs:
         arm = TRAJECTORIES[traj_name]
         spec_arm = ArmSpec.from_args(arm)
+        inputs = inputs_sha(traj_name)
         limits = spec_arm.benchmark  # the servo limit every controller runs under
         laps = LAPS if load_trajectory(traj_name).closed else 1
         n = None if traj_name in TRAJECTORY_FILES else points  # a file has its own points
@@ -323,7 +326,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         points=n, seed=seed, rc_controller=rc, feedback=fb,
                         rules=rules, rules_sha=rules_sha[rules],
                         noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
-                        rig=cond.rig, rig_sha=sha, link_error=cond.link_error,
+                        rig=cond.rig, rig_sha=sha, inputs_sha=inputs, link_error=cond.link_error,
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
                         max_step_deg=float(limits["max_step_deg"]), laps=laps))
     return specs
@@ -341,6 +344,20 @@ def _calibrated_rig_sha(arm: str) -> str:
 
 def _file_sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+
+
+def inputs_sha(trajectory: str) -> str:
+    """A hash of the files a run of ``trajectory`` reads besides its rule base and calibrated
+    rig: its arm file, the arm's true rig (what renders the images) and the trajectory's file
+    (a named trajectory is code). An edited file is a new run."""
+    from ..arm import arm_path
+    from ..camera import default_rig_path
+
+    arm = TRAJECTORIES[trajectory]
+    files = [arm_path(arm), default_rig_path(arm)]
+    if trajectory in TRAJECTORY_FILES:
+        files.append(Path(trajectory_source(trajectory)))
+    return hashlib.sha256("".join(_file_sha(f) for f in files).encode()).hexdigest()[:12]
 
 
 def run_config(spec: RunSpec, rig_path: str | None = None):
