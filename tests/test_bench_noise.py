@@ -87,23 +87,23 @@ def test_resume_after_interruption_and_a_torn_last_line(tmp_path):
 
 
 def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
-    """Run ids cover parameters, rule files and calibrated rigs, not the code: a folder whose
-    rows other code made says so on resume (and is silent when the code is the same)."""
-    import json
-
+    """Run ids cover parameters and input files, not the code: each row records the code that
+    made it, and a resume says how many rows other code made (silent when none did)."""
     args = ["--quick", "--controllers", "itg-model,ik", "--out", str(tmp_path), "--quiet",
             "--workers", "1"]
     assert main(args + ["--limit", "3"]) == 0
     assert main(args + ["--limit", "1"]) == 0
     assert "other code" not in capsys.readouterr().err
-    sweep = json.loads((tmp_path / "sweep.json").read_text())
-    sweep["code"] = "000000000000"
-    (tmp_path / "sweep.json").write_text(json.dumps(sweep))
-    before = len(_rows(tmp_path))
+    rows = _rows(tmp_path)
+    assert len(rows) == 4 and len({r["code"] for r in rows}) == 1 and len(rows[0]["code"]) == 12
+    text = (tmp_path / "results.csv").read_text()
+    (tmp_path / "results.csv").write_text(text.replace(rows[0]["code"], "000000000000", 2))
     assert main(args + ["--limit", "1"]) == 0
     err = capsys.readouterr().err
-    assert f"its {before} earlier rows were computed by other code (000000000000" in err
-    assert len(_rows(tmp_path)) == before + 1
+    assert "2 of its 4 earlier rows were computed by other code (000000000000; now" in err
+    assert main(args + ["--limit", "1"]) == 0  # the new row is this code's: still 2 of 5
+    assert "2 of its 5 earlier rows were computed by other code" in capsys.readouterr().err
+    assert len(_rows(tmp_path)) == 6
 
 
 def test_an_inline_executor_hands_each_row_over_as_it_is_made_in_order(monkeypatch):

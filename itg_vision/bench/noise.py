@@ -172,7 +172,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
     record_sweep_file(out, definition, options, specs)
     store.repair()
-    for msg in store.problems + [m for m in [code_warning(out, store)] if m]:
+    for msg in store.problems + [m for m in [code_warning(store)] if m]:
         print(f"warning: {msg}", file=sys.stderr)
     todo = [s for s in specs if s.run_id not in store.rows]
     if limit is not None:

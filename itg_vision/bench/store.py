@@ -5,9 +5,9 @@
   restart with the same ``--out`` skips the ``run_id`` s already there; a torn (partial) last
   line or a damaged row is dropped, named, and its run redone (:class:`Results`).
 - ``sweep.json``: the sweep's definition (its hash and the options that made it) and the code
-  that made its first rows (:func:`code_hash`). A different definition in the same folder is
-  refused, no row touched (:func:`check_sweep_file`); a resume by other code is allowed with a
-  warning (:func:`code_warning`): run ids cover the parameters and the files a run reads (rule
+  that started it (:func:`code_hash`; each row has its own in its ``code`` column). A different
+  definition in the same folder is refused, no row touched (:func:`check_sweep_file`); a resume
+  by other code is allowed with a warning counting the rows other code made (:func:`code_warning`): run ids cover the parameters and the files a run reads (rule
   file, arm file, rigs, trajectory file), not the code.
 """
 
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+from collections import Counter
 import functools
 import hashlib
 import json
@@ -36,7 +37,7 @@ COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", 
             "inputs_sha", "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
             "measured_links_mm", "iterations", "max_step_deg", "rules", "rules_sha", "controller_params"]
            + RUN_METRICS
-           + ["diverged", "no_start"])
+           + ["diverged", "no_start", "code"])
 
 
 def definition_hash(specs: list[RunSpec]) -> str:
@@ -63,7 +64,7 @@ def params_cell(params: dict) -> str:
 def make_row(spec: RunSpec, s: dict | None, no_start: str = "") -> dict:
     """A run's row: its spec and its summary ``s``; or, for a run that did not start
     (``s`` None), its spec and ``no_start``, why (its metrics empty)."""
-    row = {"run_id": spec.run_id, **dataclasses.asdict(spec)}
+    row = {"run_id": spec.run_id, **dataclasses.asdict(spec), "code": code_hash()}
     if s is None:
         row["no_start"] = no_start
         return {c: _cell(row.get(c)) for c in COLUMNS}
@@ -195,18 +196,18 @@ def code_hash() -> str:
     return h.hexdigest()[:12]
 
 
-def code_warning(out: Path, results: Results) -> str | None:
-    """A one-line warning when ``out`` holds rows made by other code than this (else None)."""
-    try:
-        stored = json.loads((out / "sweep.json").read_text()).get("code")
-    except (OSError, ValueError, AttributeError):
-        return None
+def code_warning(results: Results) -> str | None:
+    """A one-line warning when rows of ``results`` were made by other code than this (each
+    row's ``code`` column), else None."""
     now = code_hash()
-    if stored is None or stored == now or not results.rows:
+    other = Counter(r["code"] for r in results.rows.values() if r["code"] != now)
+    if not other:
         return None
-    return (f"--out {out}: its {len(results.rows)} earlier rows were computed by other code "
-            f"({stored}, now {now}); they are kept and reported beside the new ones: rerun into "
-            "a new --out for rows of this code alone")
+    n = sum(other.values())
+    return (f"--out {results.path.parent}: {n} of its {len(results.rows)} earlier rows were "
+            f"computed by other code ({', '.join(sorted(other))}; now {now}); they are kept "
+            "and reported beside the new ones: rerun into a new --out for rows of this code "
+            "alone")
 
 
 def record_sweep_file(out: Path, definition: str, options: dict, specs: list[RunSpec]) -> None:
