@@ -32,6 +32,18 @@ class ArgumentParser(argparse.ArgumentParser):
         raise UserError(f"{message} (see {self.prog} --help)")
 
 
+def at_least_one(text: str) -> int:
+    """An argparse ``type``: a whole number >= 1 (``--workers``); otherwise the option's one-line
+    error, ``argument --workers: must be >= 1, got 0``."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
+    return n
+
+
 def run_main(body: Callable[[], int]) -> int:
     """Run a command body; turn a `UserError` into one line on stderr and status 2.
 

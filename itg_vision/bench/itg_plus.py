@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
-from ..errors import UserError, run_main
+from ..errors import at_least_one, run_main
 from .report import _float as _f, worst
 
 #: What each target compares (issue 13).
@@ -286,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seeds of the three-link sweep (default: its 40)")
     ap.add_argument("--points", type=int, metavar="N",
                     help="set points of the named trajectories (default: each one's own)")
-    ap.add_argument("--workers", type=int, metavar="N", help="local worker processes")
+    ap.add_argument("--workers", type=at_least_one, metavar="N", help="local worker processes")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
@@ -300,8 +300,6 @@ def main(argv: list[str] | None = None) -> int:
         from .sweep import SWEEPS, build_sweep, load_trajectory
 
         args = build_parser().parse_args(argv)
-        if args.workers is not None and args.workers < 1:
-            raise UserError(f"--workers: must be >= 1, got {args.workers}")
         out = noise.check_out(args.out, COMMAND)  # resumable: no --force
         if not (out / outputs.MANIFEST).exists():
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from .. import outputs
-from ..errors import UserError, run_main
+from ..errors import UserError, at_least_one, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import Results, check_sweep_file, code_warning, definition_hash, record_sweep_file
@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
                          + ", ".join(QUICK["conditions"]).replace("%", "%%"))
     ap.add_argument("--seeds", type=int, metavar="K",
                     help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
-    ap.add_argument("--workers", type=int, metavar="N",
+    ap.add_argument("--workers", type=at_least_one, metavar="N",
                     help="local worker processes (default: the number of CPUs; 1 = this process)")
     ap.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                     help="run on this Dask distributed scheduler instead of a local pool "
@@ -113,8 +113,6 @@ def main(argv: list[str] | None = None) -> int:
         ctrls = _parse_names(args.controllers, ALL_CONTROLLERS, "controllers", "controller")
         plot_metrics = _parse_names(args.plot_metrics, PLOT_METRICS, "plot-metrics", "metric")
         trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
-        if args.workers is not None and args.workers < 1:
-            raise UserError(f"--workers: must be >= 1, got {args.workers}")
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         if args.list:
