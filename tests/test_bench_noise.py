@@ -145,8 +145,9 @@ def test_an_edited_rule_file_gives_its_runs_new_ids_and_leaves_the_others(tmp_pa
 
 
 def test_an_edited_trajectory_or_rig_file_gives_its_runs_new_ids(tmp_path, monkeypatch):
-    """The files a run reads besides its rules are in its id too (schema 5): a resume after an
-    edit of the trajectory's file or of the arm's rig reruns the runs that read it."""
+    """The files a run reads besides its rules are in its id too (schema 5): after an edit of
+    the trajectory's file or of the arm's rig, the runs that read it get new ids, the others
+    keep theirs."""
     from itg_vision import camera
     from itg_vision.bench import sweep
 
@@ -159,7 +160,8 @@ def test_an_edited_trajectory_or_rig_file_gives_its_runs_new_ids(tmp_path, monke
                         lambda name: str(traj) if name == "peanut" else source(name))
     monkeypatch.setattr(camera, "default_rig_path",
                         lambda arm, calibrated=False: rig if not calibrated else rig_of(arm, True))
-    kw = dict(sweep="itg-plus", seeds=1, trajectories=("peanut", "ellipse-t1"), conditions=("clean",))
+    kw = dict(seeds=1, trajectories=("peanut", "ellipse-t1"), conditions=("clean",),
+              controllers=("itg-plus-vision", "itg-plus-model", "ik"))
 
     def ids():
         return {(s.trajectory, s.controller): s.run_id for s in build_sweep(**kw)}
@@ -172,7 +174,9 @@ def test_an_edited_trajectory_or_rig_file_gives_its_runs_new_ids(tmp_path, monke
     assert all(edited[k] != before[k] for k in before if k[0] == "peanut")
     assert all(edited[k] == before[k] for k in before if k[0] == "ellipse-t1")
     rig.write_text(rig.read_text() + "\n# an edit\n")
-    assert all(v != edited[k] for k, v in ids().items())
+    vision = {s.controller for s in build_sweep(**kw) if s.vision}
+    assert vision == {"itg-plus-vision"}
+    assert all((v != edited[k]) == (k[1] in vision) for k, v in ids().items())
 
 
 def test_a_run_that_cannot_start_is_a_row_not_a_failure(tmp_path, capsys, monkeypatch):

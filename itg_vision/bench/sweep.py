@@ -211,7 +211,7 @@ class RunSpec:
     dropout: float
     rig: str  # true | calibrated | perturbed | perturbed-cams
     rig_sha: str  # content hash of the calibrated rig file ("" otherwise)
-    inputs_sha: str  # content hash of the arm file, its true rig and the trajectory file (if any)
+    inputs_sha: str  # content hash of the arm file, the trajectory file (if any), the true rig (vision)
     link_error: float
     offset_deg: float
     iterations: int
@@ -302,7 +302,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     for traj_name in trajs:
         arm = TRAJECTORIES[traj_name]
         spec_arm = ArmSpec.from_args(arm)
-        inputs = inputs_sha(traj_name)
+        inputs = {v: inputs_sha(traj_name, vision=v) for v in (False, True)}
         limits = spec_arm.benchmark  # the servo limit every controller runs under
         laps = LAPS if load_trajectory(traj_name).closed else 1
         n = None if traj_name in TRAJECTORY_FILES else points  # a file has its own points
@@ -326,7 +326,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         points=n, seed=seed, rc_controller=rc, feedback=fb,
                         rules=rules, rules_sha=rules_sha[rules],
                         noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
-                        rig=cond.rig, rig_sha=sha, inputs_sha=inputs, link_error=cond.link_error,
+                        rig=cond.rig, rig_sha=sha, inputs_sha=inputs[fb == "vision"], link_error=cond.link_error,
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
                         max_step_deg=float(limits["max_step_deg"]), laps=laps))
     return specs
@@ -346,15 +346,16 @@ def _file_sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
 
 
-def inputs_sha(trajectory: str) -> str:
+def inputs_sha(trajectory: str, vision: bool) -> str:
     """A hash of the files a run of ``trajectory`` reads besides its rule base and calibrated
-    rig: its arm file, the arm's true rig (what renders the images) and the trajectory's file
-    (a named trajectory is code). An edited file is a new run."""
+    rig: its arm file, the trajectory's file (a named trajectory is code) and, for a run fed by
+    vision, the arm's true rig (what renders the images). An edited file is a new run of
+    exactly the runs that read it."""
     from ..arm import arm_path
     from ..camera import default_rig_path
 
     arm = TRAJECTORIES[trajectory]
-    files = [arm_path(arm), default_rig_path(arm)]
+    files = [arm_path(arm)] + ([default_rig_path(arm)] if vision else [])
     if trajectory in TRAJECTORY_FILES:
         files.append(Path(trajectory_source(trajectory)))
     return hashlib.sha256("".join(_file_sha(f) for f in files).encode()).hexdigest()[:12]
