@@ -176,7 +176,16 @@ def test_an_edited_trajectory_or_rig_file_gives_its_runs_new_ids(tmp_path, monke
     rig.write_text(rig.read_text() + "\n# an edit\n")
     vision = {s.controller for s in build_sweep(**kw) if s.vision}
     assert vision == {"itg-plus-vision"}
-    assert all((v != edited[k]) == (k[1] in vision) for k, v in ids().items())
+    rigged = ids()
+    assert all((v != edited[k]) == (k[1] in vision) for k, v in rigged.items())
+    from itg_vision import arm as arm_module  # the arm file: every run of its trajectories
+
+    arm_file = tmp_path / "two-link.yaml"
+    arm_file.write_text(arm_module.arm_path("two-link").read_text() + "\n# an edit\n")
+    arm_path = arm_module.arm_path
+    monkeypatch.setattr(arm_module, "arm_path",
+                        lambda name: arm_file if name == "two-link" else arm_path(name))
+    assert all(v != rigged[k] for k, v in ids().items())
 
 
 def test_a_run_that_cannot_start_is_a_row_not_a_failure(tmp_path, capsys, monkeypatch):
@@ -210,12 +219,71 @@ def test_a_run_that_cannot_start_is_a_row_not_a_failure(tmp_path, capsys, monkey
     assert all(r["no_start"] == "" and math.isfinite(float(r["e_av_mm"]))
                for k, r in rows.items() if k != ("itg-vision", "1"))
     report = (out / "report.md").read_text()
-    assert "(1 of 2 did not start)" in report and "**Runs that did not start**" in report
+    assert "(1 of 2 did not start)" in report
+    assert "Runs that did not start (left out of the conclusions' comparisons and of the plots): " \
+        "itg-vision clean on ellipse-t1: 1 of 2. Why: start-up measurement" in report
     assert not (out / "failures.log").exists()
     err = capsys.readouterr().err
     assert "1 did not start" in err and "error" not in err
     assert main(args) == 0
     assert "0 to run" in capsys.readouterr().err
+
+
+
+def test_a_limited_resume_keeps_the_failures_it_did_not_retry(tmp_path, capsys, monkeypatch):
+    """failures.log lists every run that failed and still has no row: a resume with --limit
+    that retries some of them keeps the others' lines (and exits 1); it goes once none is left."""
+    from itg_vision import runner
+
+    prepare, broken = runner.prepare, [True]
+
+    def failing(cfg, estimate_rig=None):
+        if broken[0] and cfg.controller == "itg":
+            raise RuntimeError("boom")
+        return prepare(cfg, estimate_rig=estimate_rig)
+
+    monkeypatch.setattr(runner, "prepare", failing)
+    out = tmp_path / "o"
+    args = ["--quick", "--controllers", "itg-model,ik", "--conditions", "clean", "--seeds", "3",
+            "--points", "8", "--out", str(out), "--workers", "1", "--quiet"]
+    assert main(args) == 1
+    assert len((out / "failures.log").read_text().splitlines()) == 3
+    broken[0] = False
+    assert main(args + ["--limit", "1"]) == 1  # one retried and done, two left untried
+    assert len((out / "failures.log").read_text().splitlines()) == 2
+    assert main(args) == 0 and not (out / "failures.log").exists()
+    assert len(_rows(out)) == 6
+
+
+def test_cells_where_a_run_did_not_start_are_named_and_left_out_of_the_comparisons():
+    """The conclusion compares medians over the same seeds only: a cell where a run did not
+    start (here itg-vision's rig-perturbed-cams and links+5%) is in no comparison and no
+    model-error line, and no_start_lines names each such cell and each reason once."""
+    from itg_vision.bench.report import conclusion, no_start_lines, summarize
+
+    def row(k, cond, seed, e, why=""):
+        return {"trajectory": "ellipse-t1", "condition": cond, "controller": k, "seed": str(seed),
+                "diverged": "" if why else "0", "no_start": why,
+                **{c: "" if why else str(e) for c in ("e_av_mm", "e_max_mm", "track_median_mm",
+                                                       "track_mean_mm", "track_p95_mm", "track_max_mm")}}
+
+    why = "start-up measurement: the LEDs were measured in only 0 of 50 observations"
+    rows = [row(k, c, s, e) for k, e in (("itg-vision", 9.0), ("ik", 1.0))
+            for c in ("clean", "links+5%", "rig-perturbed-cams") for s in range(3)]
+    rows = [row(r["controller"], r["condition"], r["seed"], 0, why) if r["controller"] == "itg-vision"
+            and r["condition"] in ("rig-perturbed-cams", "links+5%") and r["seed"] != "0" else r
+            for r in rows]
+    summary = summarize(rows)
+    assert summary["ellipse-t1", "links+5%", "itg-vision"]["n"] == 1
+    conds, ctrls = ["clean", "links+5%", "rig-perturbed-cams"], ["itg-vision", "ik"]
+    text = "\n".join(conclusion(summary, ["ellipse-t1"], conds, ctrls))
+    assert "lower in 0 of 1 cells, higher in 1" in text  # clean only
+    assert "ik: links+5% +0.00" in text and "itg-vision: links+5%" not in text
+    assert "nan" not in text
+    lines = no_start_lines(summary)
+    assert lines[0].count("itg-vision") == 2 and "links+5% on ellipse-t1: 2 of 3" in lines[0]
+    assert lines[0].endswith("Why: " + why)
+    assert no_start_lines(summarize([r for r in rows if not r["no_start"]])) == []
 
 
 # ---------------------------------------------------------------------------- Dask

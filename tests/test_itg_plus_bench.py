@@ -69,7 +69,7 @@ def _row(controller, seed, trajectory="ellipse-t1", condition="clean", **metrics
     row = {"controller": controller, "seed": str(seed), "trajectory": trajectory,
            "condition": condition, "diverged": "0", "first_error_mm": "1",
            "start_error_mm": "2", "track_max_mm": "1", "track_median_mm": "0.1",
-           "track_mean_mm": "0.2", "track_p95_mm": "0.5", "e_av_mm": "1"}
+           "track_mean_mm": "0.2", "track_p95_mm": "0.5", "e_av_mm": "1", "no_start": ""}
     row.update({k: str(v) for k, v in metrics.items()})
     return row
 
@@ -120,6 +120,36 @@ def test_first_step_and_three_link_targets_count_runs():
     assert div.measured == 0 and div.met and "DLS 1" in div.note
     rows[2]["diverged"] = "1"
     assert not itg_plus.three_link_targets(rows, ["helix"])[0].met
+    # the note gives the other controllers' counts (DLS: first error 1 < start 2 in all 3)
+    assert t.note == "of 3; DLS 0 of 3"
+
+
+def _no_start(row):
+    return {**row, **{k: "" for k in ("first_error_mm", "start_error_mm", "track_max_mm",
+                                      "track_median_mm", "track_mean_mm", "track_p95_mm",
+                                      "e_av_mm", "diverged")},
+            "no_start": "start-up measurement: the LEDs were measured in only 0 of 50"}
+
+
+def test_a_target_over_a_run_that_did_not_start_is_not_met():
+    """A run that did not start has no metrics; a target over it is not met whatever the runs
+    that started show (counted over them alone it would be), and the note says why."""
+    rows = [_row(k, s) for k in (itg_plus.SUBJECT, itg_plus.DLS, itg_plus.TABLE2) for s in range(3)]
+    rows += [_row(k, s, condition="noise-1px", track_median_mm=1)
+             for k in (itg_plus.SUBJECT, itg_plus.DLS) for s in range(3)]
+    rows = [{**r, "track_median_mm": "0.05"} if r["controller"] == itg_plus.SUBJECT
+            and r["condition"] == "clean" else r for r in rows]
+    before = itg_plus.tracking_targets(rows, ["ellipse-t1"])
+    assert [t.met for t in before] == [True, True, False, False, False]
+    assert before[0].full_note == before[0].note
+    gone = [_no_start(r) if r["controller"] == itg_plus.DLS and r["seed"] == "2" else r for r in rows]
+    after = itg_plus.tracking_targets(gone, ["ellipse-t1"])
+    assert [t.measured for t in after[:2]] == [t.measured for t in before[:2]]
+    assert [t.no_start for t in after] == [1, 1, 0, 1, 2]  # DLS's clean and noisy seed 2
+    assert not any(t.met for t in after)
+    assert "1 of its runs did not start: not met until every run starts" in after[0].full_note
+    first = itg_plus.first_step_target([_no_start(rows[0])] + rows[1:], itg_plus.SUBJECT, "c")
+    assert first.measured == 0 and first.no_start == 1 and not first.met
 
 
 def test_servo_bound_is_a_lower_bound_and_tight():

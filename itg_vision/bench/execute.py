@@ -21,9 +21,9 @@ from .sweep import RIG_ANGLE_DEG, RIG_SHIFT_MM, RunSpec, calibrated_rig_path, ru
 def run_one(spec: RunSpec) -> dict:
     """Execute one spec (in a worker); return its results row, or ``{'run_id', 'error'}``.
 
-    A run whose start-up measurement fails (the rig sees no LED: an outcome of its condition,
-    the same for every retry) is a row of its own, ``no_start`` saying why; any other exception
-    is an error, retried by the next resume.
+    A run whose start-up measurement fails (the LEDs measured in too few looks: an outcome of
+    its condition, the same at every retry) is a row of its own, ``no_start`` saying why; any
+    other exception is an error, retried by the next resume.
 
     Builds its own World (PyBullet clients are per process) and, for ``rig-perturbed``, its own
     perturbed rig in memory: nothing is shared with the caller but the spec.
@@ -44,7 +44,7 @@ def run_one(spec: RunSpec) -> dict:
         prep = prepare(run_config(spec, rig_path), estimate_rig=rig)
         _, s = execute(prep)
     except StartUpFailed as exc:
-        return make_row(spec, None, no_start=str(exc).splitlines()[0])
+        return make_row(spec, None, no_start=(str(exc).strip().splitlines() or [type(exc).__name__])[0])
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
         return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
     return make_row(spec, s)

@@ -150,7 +150,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
               quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> tuple[int, list[dict]]:
     """Run the sweep ``specs`` into ``out`` (resuming what it holds), write its report, and
     return the exit status (0, or 1 when runs failed, each in ``failures.log``) and the rows
-    ``results.csv`` holds. A run that did not start (its start-up measurement saw no LED) is a
+    ``results.csv`` holds. A run that did not start (its start-up measurement found the LEDs in too few looks) is a
     row, not a failure: the report names it. ``options``
     are recorded in ``sweep.json``; ``command`` (what reproduces it) heads the report.
     Raises :class:`UserError` (before writing anything) for an ``--out`` that is not this
@@ -189,10 +189,11 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     shutdown(executor, client=client)
     rows = list(store.rows.values())
     plots = write_report(out, rows, specs, command, failures, plot_metrics)
+    failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
     if failures:
         outputs.write_text(out / "failures.log",
                            "".join(f"{k}\t{v}\n" for k, v in failures.items()))
-    elif (out / "failures.log").exists():  # an earlier attempt's, now stale (this command's file)
+    elif (out / "failures.log").exists():  # every run it listed has its row now
         (out / "failures.log").unlink()
     done = sum(1 for s in specs if s.run_id in store.rows)
     gone = sum(1 for s in specs if store.rows.get(s.run_id, {}).get("no_start"))
@@ -204,6 +205,16 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
               "same command to retry them", file=sys.stderr)
         return 1, rows
     return 0, rows
+
+
+def _earlier_failures(path: Path, store: Results, tried: list[RunSpec]) -> dict[str, str]:
+    """The failures an earlier attempt listed in ``path`` whose runs were not tried again now
+    (``--limit``) and still have no row."""
+    if not path.exists():
+        return {}
+    done = {s.run_id for s in tried} | set(store.rows)
+    lines = (line.split("\t", 1) for line in path.read_text(errors="replace").splitlines())
+    return {p[0]: p[1] for p in lines if len(p) == 2 and p[0] not in done}
 
 
 def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, failures: dict,

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import outputs
+from .store import started
 from .sweep import ALL_CONTROLLERS, CONDITIONS, CONTROLLER_TITLES, DIVERGED_MM, TRAJECTORIES, Condition, RunSpec
 
 def _float(v: str) -> float:
@@ -63,19 +64,19 @@ def summarize(rows: list[dict]) -> dict:
     ``s["track_max"] = (median, q1, q3)`` over seeds of each run's statistic (keys: the
     ``STATS`` columns without ``_mm``), ``worst_max`` the largest tracking-phase E_i of any
     seed, ``diverged`` and ``n`` the number of diverged runs and of runs that started,
-    ``no_start`` the number that did not start (``why``: the first one's reason). The
-    statistics are over the runs that started.
+    ``no_start`` the number that did not start (``why``: their reasons). The statistics are
+    over the runs that started.
     """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["trajectory"], r["condition"], r["controller"]), []).append(r)
     out = {}
     for key, rs in groups.items():
-        ran = [r for r in rs if not r.get("no_start")]
+        ran = started(rs)
         s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in ran) for col, _ in STATS}
         s.update({"worst_max": worst(ran), "diverged": sum(r["diverged"] == "1" for r in ran),
                   "n": len(ran), "no_start": len(rs) - len(ran),
-                  "why": next((r["no_start"] for r in rs if r.get("no_start")), "")})
+                  "why": sorted({r["no_start"] for r in rs if r["no_start"]})})
         out[key] = s
     return out
 
@@ -83,6 +84,10 @@ def summarize(rows: list[dict]) -> dict:
 def _no_start_note(s) -> str:
     """`` (3 of 5 did not start)`` for a cell whose runs did not all start, else ``""``."""
     return f" ({s['no_start']} of {s['n'] + s['no_start']} did not start)" if s["no_start"] else ""
+
+
+def _no_start_cell(s) -> str:
+    return f"none of {s['no_start']} started"
 
 
 def worst(rows: list[dict], col: str = "track_max_mm") -> float:
@@ -113,7 +118,7 @@ def _table(summary, traj, conds, ctrls, metric) -> list[str]:
     """Median [IQR] over seeds of one per-run statistic."""
     def cell(s):
         if not s["n"]:
-            return f"did not start{_no_start_note(s)}"
+            return _no_start_cell(s)
         med, q1, q3 = s[metric]
         return f"{_fmt_mm(med)} [{_fmt_mm(q1)}, {_fmt_mm(q3)}]" + _no_start_note(s)
 
@@ -125,7 +130,7 @@ def _tail_table(summary, traj, conds, ctrls) -> list[str]:
     worst max of any seed, and the diverged runs."""
     def cell(s):
         if not s["n"]:
-            return f"did not start{_no_start_note(s)}"
+            return _no_start_cell(s)
         text = " / ".join(_fmt_mm(s[m][0]) for m in ("track_median", "track_mean", "track_p95",
                                                      "track_max"))
         text += f" ({_fmt_mm(s['worst_max'])})"
@@ -154,8 +159,8 @@ def _compare(med, trajs, conds, a_ctrl, b_ctrl):
 
 def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> list[str]:
     """Plain-words findings computed from the medians over seeds (thresholds stated inline).
-    A cell where a run did not start is left out of the comparisons (its median is over fewer
-    seeds than the others') and named in a line of its own."""
+    A cell where a run did not start is left out (its median is over fewer seeds than the
+    others'); :func:`no_start_lines` names it."""
     out = []
     if subject not in ctrls:
         return [f"({subject} not in this sweep: no comparison.)"]
@@ -184,22 +189,17 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
             parts = []
             for k in ctrls:
                 base = summary.get((t, "clean", k))
-                if base is None:
+                if base is None or base["no_start"] or not math.isfinite(base["track_median"][0]):
                     continue
                 deltas = [f"{c} {summary[(t, c, k)]['track_median'][0] - base['track_median'][0]:+.2f}"
                           for c in model_conds if (t, c, k) in summary
+                          and not summary[(t, c, k)]["no_start"]
                           and math.isfinite(summary[(t, c, k)]["track_median"][0])]
                 if deltas:
                     parts.append(f"{k}: " + ", ".join(deltas))
             if parts:
                 out.append(f"- **Model error on {t}** (change of the median tracking E_i from "
                            "clean, mm): " + "; ".join(parts) + ".")
-    gone = [(key, s) for key, s in summary.items() if s["no_start"] and key[2] in ctrls]
-    if gone:
-        out.append("- **Runs that did not start** (left out of the comparisons above): "
-                   + "; ".join(f"{k} {c} on {t}: {s['no_start']} of {s['n'] + s['no_start']}"
-                               for (t, c, k), s in sorted(gone))
-                   + f". The first one's reason: {gone[0][1]['why']}")
     div = [(key, s) for key, s in summary.items() if s["diverged"]]
     if div:
         out.append(f"- **Diverged runs** (tracking-phase median E_i > {DIVERGED_MM:g} mm): "
@@ -208,6 +208,18 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
     elif summary:
         out.append(f"- No run diverged (tracking-phase median E_i > {DIVERGED_MM:g} mm).")
     return out
+
+
+def no_start_lines(summary) -> list[str]:
+    """The cells where runs did not start, and why (each reason once); [] when every run did."""
+    gone = sorted((key, s) for key, s in summary.items() if s["no_start"])
+    if not gone:
+        return []
+    cells = "; ".join(f"{k} {c} on {t}: {s['no_start']} of {s['n'] + s['no_start']}"
+                      for (t, c, k), s in gone)
+    why = sorted({w for _, s in gone for w in s["why"]})
+    return [f"Runs that did not start (left out of the conclusions' comparisons and of the "
+            f"plots): {cells}. Why: " + " / ".join(why), ""]
 
 
 def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
@@ -223,16 +235,18 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     ctrls = list(dict.fromkeys(s.controller for s in specs))
     summary = summarize(rows)
     seeds = sorted({s.seed for s in specs})
-    pts = {t: sorted({int(_float(r["points"])) for r in rows
-                      if r["trajectory"] == t and not r.get("no_start")}) for t in trajs}
-    wall = sum(_float(r["wall_s"]) for r in rows if r["wall_s"])
-    n_gone = sum(1 for r in rows if r.get("no_start"))
+    ran = started(rows)
+    pts = {t: sorted({int(_float(r["points"])) for r in ran if r["trajectory"] == t})
+           for t in trajs}
+    wall = sum(_float(r["wall_s"]) for r in ran)
+    n_gone = len(rows) - len(ran)
     L = ["# Noise-robustness benchmark", "",
          f"Produced by `{command}`.", "",
          f"{len(rows)} of {len(specs)} runs in `results.csv`"
-         + (f", {n_gone} of which did not start (the conclusion names them)" if n_gone else "")
+         + (f", {n_gone} of which did not start (listed below)" if n_gone else "")
          + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
          + f"; {len(seeds)} seeds per cell; simulated time in runs {wall:.0f} s.", ""]
+    L += no_start_lines(summary)
     if failures:
         L += [f"**{len(failures)} runs failed** this time (rerun to retry): "
               + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]

@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-from collections import Counter
 import functools
 import hashlib
 import json
 import math
 import os
+from collections import Counter
 from pathlib import Path
 
 from .. import outputs
@@ -76,6 +76,12 @@ def make_row(spec: RunSpec, s: dict | None, no_start: str = "") -> dict:
     med = s.get("track_median_mm")
     row["diverged"] = "" if med is None else int(med > DIVERGED_MM)
     return {c: _cell(row.get(c)) for c in COLUMNS}
+
+
+def started(rows: list[dict]) -> list[dict]:
+    """The rows of runs that started (a run whose start-up measurement failed has ``no_start``,
+    why, and no metrics)."""
+    return [r for r in rows if not r["no_start"]]
 
 
 class Results:
@@ -167,9 +173,9 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
         if old != definition:
             was = " ".join(f"{k}={v}" for k, v in stored.get("options", {}).items() if v not in (None, False))
             raise UserError(f"--out {out} holds results of a different sweep definition "
-                            f"({old} [{was or 'defaults'}], now {definition}; other options, an edited "
-                            "rule file or a new calibrated rig): rerun with the same options or "
-                            "choose another --out")
+                            f"({old} [{was or 'defaults'}], now {definition}; other options, or "
+                            "an edited rule, arm, rig or trajectory file, or a new calibrated "
+                            "rig): rerun with the same options or choose another --out")
         return
     ids = {s.run_id for s in specs}
     foreign = [r for r in results.rows if r not in ids]
