@@ -1,6 +1,6 @@
 """Rule bases compiled to C: the step a microcontroller port would run, timed from Python.
 
-:func:`c_source` writes a checked rule base (its parsed tree, never the file's text) as one C
+:func:`c_function` writes a checked rule base (its parsed tree, never the file's text) as one C
 function of doubles, with the semantics of the module docstring of :mod:`itg_vision.rules`:
 
     static int itg_rules(const double *in, double *dq, int *fired, int *n_fired)
@@ -44,7 +44,7 @@ import tempfile
 from pathlib import Path
 
 from .errors import UserError
-from .rules import Name, Node, Num, RuleBase, Unary, _moves
+from .rules import Name, Node, Num, RuleBase, Unary, _is_square, _moves
 
 #: Flags that keep C's arithmetic Python's: every operation rounded on its own.
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno",
@@ -63,14 +63,14 @@ def _c(node: Node) -> str:
     """C expression of a checked tree, fully parenthesised (a double, or an int for a
     condition)."""
     if isinstance(node, Num):
-        return float(node.value).hex()  # exact: the same double as the file's number
+        return node.value.hex()  # exact: the same double as the file's number
     if isinstance(node, Name):
         return f"v_{node.name}"
     if isinstance(node, Unary):
         arg = _c(node.arg)
         return {"-": f"(-{arg})", "abs": f"fabs({arg})", "not": f"(!{arg})"}[node.op]
     left = _c(node.left)
-    if node.op == "^" and node.right == Num(2.0):  # a square is the product, as in Python
+    if _is_square(node):  # a square is the product, as in Python
         return f"itg_square({left})"
     if node.op == "^":
         return f"itg_pow({left}, {_c(node.right)})"

@@ -458,10 +458,15 @@ def _pow(a: float, b: float) -> float:
         r = a ** b
     except ZeroDivisionError:
         return math.inf
-    except OverflowError:
-        odd = b == int(b) and int(b) % 2 == 1
-        return -math.inf if a < 0 and odd else math.inf
-    return math.nan if isinstance(r, complex) else r
+    except OverflowError:  # a negative base has a whole exponent here (see above)
+        return -math.inf if a < 0 and b % 2 == 1 else math.inf
+    return r
+
+
+def _is_square(node: Node) -> bool:
+    """``x ^ 2``, which both compilers (Python and C) write as the product ``x * x`` (no pow
+    call, the same double): they must agree on it bit for bit."""
+    return isinstance(node, Binary) and node.op == "^" and node.right == Num(2.0)
 
 
 _HELPERS = {"_div": _div, "_pow": _pow, "abs": abs, "__builtins__": {}}
@@ -549,7 +554,7 @@ def _py_level(node: Node, temps, local) -> tuple[str, int]:
         return ("-" if node.op == "-" else "not ") + _py(node.arg, temps, local, level), level
     op = node.op
     left, right = _py_level(node.left, temps, local), _py_level(node.right, temps, local)
-    if op == "^" and node.right == Num(2.0):  # squares (RULE 0's r^2): no call, same value
+    if _is_square(node):  # squares (RULE 0's r^2): no call, same value
         if left[0].isidentifier() or isinstance(node.left, Num):
             return f"{left[0]} * {left[0]}", _PRODUCT
         t = f"_t{next(temps)}"
@@ -682,7 +687,6 @@ class _Writer:
         self._keys: dict[int, tuple] = {}  # id(node) -> (node, key): the node kept alive, so
         # that no node made later (the operands a split AND regroups) reuses its id
         self._shapes: dict = {}  # shape -> key
-        self.tested = tested
         self._at: dict[int, list[int]] = {}  # key -> the rules that surely evaluate it if tested
         for i, nodes in enumerate(tested):  # (the condition; the steps if the rule fires)
             for node in (n for node in nodes for n in _evaluated(node)):
@@ -730,15 +734,15 @@ class _Writer:
             self.line(depth, f"{local} = {self.py(node, scope)}")
             scope.known[key] = local
 
-    def share_before_test(self, i: int, scope: _Scope, condition: Node | None = None) -> None:
+    def share_before_test(self, i: int, scope: _Scope, condition: Node) -> None:
         """Before the test of the i-th rule tested (which evaluates its condition whenever
-        reached: no elif, no guard), what its condition (or the part of it tested first,
-        ``condition``) shares with itself and what follows."""
+        reached: no elif, no guard), what ``condition`` (the rule's, or the part of it tested
+        first) shares with itself and what follows."""
         def uses(key):
             at = self._at.get(key, ())
             return len(at) - bisect.bisect_left(at, i)
 
-        self.share([self.tested[i][0] if condition is None else condition], uses, scope, 1)
+        self.share([condition], uses, scope, 1)
 
     def share_in_body(self, steps, scope: _Scope, depth: int = 2) -> None:
         """At the start of a rule's body, what its steps share."""
@@ -909,7 +913,7 @@ class RuleBase:
         top = _Scope()
         for i, r in enumerate(out_of_reach):
             out.define(out.reads([r.condition]), top, 1)
-            out.share_before_test(i, top)
+            out.share_before_test(i, top, r.condition)
             out.line(1, f"if {out.py(r.condition, top)}:")
             out.line(2, f"return None, ({r.number},)")
         scanning = [t for t in tests if not t.returns]  # rules whose firing does not end the scan
@@ -927,15 +931,14 @@ class RuleBase:
             # reads, then `if b:` (the same as `if a and b:` after computing them all)
             alone = t.keyword == "if" and not t.guard and (
                 i + 1 == len(tests) or tests[i + 1].keyword == "if")
-            split = out.deferred(t.rule.condition, top) if alone else None
+            first, then, lazy = (alone and out.deferred(t.rule.condition, top)) or (None, None, set())
             scope, depth = top, 1
             if t.keyword == "if":
-                out.define(before[i] - (split[2] if split else set()), top, 1)
+                out.define(before[i] - lazy, top, 1)
             if t.keyword == "if" and not t.guard:
-                out.share_before_test(len(out_of_reach) + i, top, split and split[0])
+                out.share_before_test(len(out_of_reach) + i, top, first or t.rule.condition)
             guard = "".join(f"free{j} and " for j in t.guard)
-            if split:
-                first, then, lazy = split
+            if first is not None:
                 out.line(1, f"if {out.py(first, top)}:")
                 scope, depth = top.inner(), 2
                 out.define(lazy, scope, 2)

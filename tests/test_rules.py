@@ -398,10 +398,12 @@ def _exactly(result):
 
 
 def _assert_compiled_is_reference(rb, args, fn=None):
-    """``fn`` (default: the rule base's compiled function) returns what the reference does."""
+    """``fn`` (default: the rule base's compiled function) returns what the reference does;
+    returns that result (as :func:`_exactly` gives it)."""
     fn = fn or rb.compiled
     got, want = _exactly(fn(*args)), _exactly(_reference_step(rb, args))
     assert got == want, (rb.source, args, fn(*args), _reference_step(rb, args))
+    return got
 
 
 #: (f, S, w) the shipped rule bases are compared at: defaults, the servo-limit S, a wide band.

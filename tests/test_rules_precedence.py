@@ -75,7 +75,7 @@ def test_a_definition_the_steps_share_with_later_rules_is_computed_with_what_it_
     """``IF a AND b`` where b reads D, the rule's step reads E = D + 1 and a later rule reads E
     too: E is computed before the test, so D is too (found in review: E was computed before D,
     an UnboundLocalError, always or only where an earlier rule's first operand failed)."""
-    from test_rules import _exactly, _reference_step
+    from test_rules import _assert_compiled_is_reference
 
     rb = RuleBase.from_text("LET D = xd * 2\nLET E = D + 1\n" + first
                             + "RULE 1: IF xg > 0 AND D > 1 THEN q1 += E\n"
@@ -83,4 +83,4 @@ def test_a_definition_the_steps_share_with_later_rules_is_computed_with_what_it_
     for xd, xg, yg in ((1.0, 1.0, 1.0), (1.0, 1.0, -1.0), (0.2, -1.0, -1.0), (5.0, 1.0, 1.0)):
         args = (xd, 1.0, 0.0, xg, yg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
                 0.06, 0.5, 0.5, 100.0, 100.0, 100.0, 100.0)
-        assert _exactly(rb.compiled(*args)) == _exactly(_reference_step(rb, args))
+        _assert_compiled_is_reference(rb, args)
