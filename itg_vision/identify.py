@@ -174,8 +174,8 @@ def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
             if len(got) == SAMPLES_PER_POSE:
                 return {n: np.median([g[n] for g in got], axis=0) for n in names}
     raise StartUpFailed(f"start-up measurement: the LEDs were measured in only {len(got)} of "
-                    f"{MAX_TRIES_PER_POSE} observations {where}; the arm's lengths cannot be "
-                    "measured (check the rig)")
+                        f"{MAX_TRIES_PER_POSE} observations {where}; the arm's lengths cannot "
+                        "be measured (check the rig)")
 
 
 def measure_geometry(world, feedback, arm) -> ArmGeometry:

@@ -44,7 +44,8 @@ def run_one(spec: RunSpec) -> dict:
         prep = prepare(run_config(spec, rig_path), estimate_rig=rig)
         _, s = execute(prep)
     except StartUpFailed as exc:
-        return make_row(spec, None, no_start=(str(exc).strip().splitlines() or [type(exc).__name__])[0])
+        why = str(exc).strip().splitlines() or [type(exc).__name__]
+        return make_row(spec, None, no_start=why[0])
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
         return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
     return make_row(spec, s)

@@ -80,6 +80,13 @@ def _pick(rows, **eq) -> list[dict]:
     return [r for r in rows if all(r[k] == v for k, v in eq.items())]
 
 
+def _runs(rows, **eq) -> tuple[list[dict], int]:
+    """(the rows matching ``eq`` of runs that started, how many matching runs did not start)."""
+    every = _pick(rows, **eq)
+    ran = started(every)
+    return ran, len(every) - len(ran)
+
+
 def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
                      greedy: dict | None = None) -> list[Target]:
     """Two-link vision targets per trajectory, from the ``itg-plus`` sweep's rows; ``bounds``:
@@ -88,12 +95,12 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
     out = []
     bounds, greedy = bounds or {}, greedy or {}
     for t in trajectories:
-        every = {k: _pick(rows, trajectory=t, condition="clean", controller=k)
-                 for k in (SUBJECT, DLS, TABLE2)}
-        if not all(every.values()):
+        picked = {k: _runs(rows, trajectory=t, condition="clean", controller=k)
+                  for k in (SUBJECT, DLS, TABLE2)}
+        if not all(ran or gone for ran, gone in picked.values()):
             continue
-        clean = {k: started(rs) for k, rs in every.items()}
-        gone = {k: len(every[k]) - len(clean[k]) for k in every}
+        clean = {k: ran for k, (ran, _) in picked.items()}
+        gone = {k: n for k, (_, n) in picked.items()}
         maxima = {k: worst(rs) for k, rs in clean.items()}
         bound = f"; servo bound from the exact on-path pose {bounds[t]:.3g}" if t in bounds else ""
         if t in greedy:
@@ -104,22 +111,24 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
         med, med_dls = _median(clean[SUBJECT], "track_median_mm"), _median(clean[DLS], "track_median_mm")
         out.append(Target("tracking median E_i (median over seeds)", t, med, "<=",
                           MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}; "
-                          + _tails(clean[SUBJECT], "ITG+") + "; " + _tails(clean[DLS], "DLS"), gone[SUBJECT] + gone[DLS]))
+                          + _tails(clean[SUBJECT], SUBJECT) + "; " + _tails(clean[DLS], DLS),
+                          gone[SUBJECT] + gone[DLS]))
         eav = _median(clean[SUBJECT], "e_av_mm")
-        for other, label in ((TABLE2, "Table 2"), (DLS, "DLS")):
+        for other in (TABLE2, DLS):
             ref = _median(clean[other], "e_av_mm")
-            out.append(Target(f"E_av below {label}'s (median over seeds)", t, eav, "<", ref, "mm",
-                              f"{label} {ref:.3g}", gone[SUBJECT] + gone[other]))
-        every = {k: _pick(rows, trajectory=t, condition="noise-1px", controller=k) for k in (SUBJECT, DLS)}
-        if all(every.values()):
-            noisy = {k: started(rs) for k, rs in every.items()}
-            gone_noisy = sum(gone[k] + len(every[k]) - len(noisy[k]) for k in every)
+            out.append(Target(f"E_av below {LABELS[other]}'s (median over seeds)", t, eav, "<",
+                              ref, "mm", f"{LABELS[other]} {ref:.3g}", gone[SUBJECT] + gone[other]))
+        picked = {k: _runs(rows, trajectory=t, condition="noise-1px", controller=k)
+                  for k in (SUBJECT, DLS)}
+        if all(ran or n for ran, n in picked.values()):
+            noisy = {k: ran for k, (ran, _) in picked.items()}
+            gone_noisy = sum(gone[k] + n for k, (_, n) in picked.items())
             ratio = {k: _degradation(clean[k], noisy[k]) for k in (SUBJECT, DLS)}
             noisy_med = {k: _median(noisy[k], "track_median_mm") for k in (SUBJECT, DLS)}
             out.append(Target("1 px noise: tracking median / clean (same seeds)", t, ratio[SUBJECT],
                               "<=", ratio[DLS], "x", f"DLS {ratio[DLS]:.3g}x; with 1 px: ITG+ "
                               f"{noisy_med[SUBJECT]:.3g} mm, DLS {noisy_med[DLS]:.3g} mm; "
-                              + _tails(noisy[SUBJECT], "ITG+") + "; " + _tails(noisy[DLS], "DLS"),
+                              + _tails(noisy[SUBJECT], SUBJECT) + "; " + _tails(noisy[DLS], DLS),
                               gone_noisy))
     return out
 
@@ -142,8 +151,7 @@ def servo_bound_mm(points_mm, links_mm, max_step_deg: float, closed: bool) -> fl
     l1, l2 = (float(v) for v in links_mm)
     pts = np.asarray(points_mm, float)[:, :2]
     pairs = list(zip(pts[:-1], pts[1:])) + ([(pts[-1], pts[0])] if closed else [])
-    d = np.radians(np.arange(-max_step_deg, max_step_deg + 1e-9, BOUND_GRID_DEG))
-    d1, d2 = np.meshgrid(d, d)
+    grid = _servo_grid(max_step_deg, BOUND_GRID_DEG)
     worst = 0.0
     for a, b in pairs:
         if np.hypot(*(b - a)) <= worst:  # staying put already does as well
@@ -154,9 +162,8 @@ def servo_bound_mm(points_mm, links_mm, max_step_deg: float, closed: bool) -> fl
             continue  # one step reaches b exactly
         best = math.inf
         for q in starts:
-            x, y = _gripper_xy((l1, l2), np.radians(q[0]) + d1, np.radians(q[1]) + d2)
-            x, y = x - b[0], y - b[1]
-            best = min(best, float(np.sqrt(np.min(x * x + y * y))))
+            d2 = _squared_distances((l1, l2), np.radians(q), *grid, b)
+            best = min(best, float(np.sqrt(np.min(d2))))
         worst = max(worst, best)
     slack = (l1 + 2 * l2) * math.radians(BOUND_GRID_DEG) / 2
     return max(0.0, worst - slack)
@@ -172,21 +179,35 @@ def _gripper_xy(links_mm, q1_rad, q2_rad):
             l1 * np.sin(q1_rad) + l2 * np.sin(q1_rad + q2_rad))
 
 
-def greedy_step_deg(q_deg, target_mm, links_mm, max_step_deg: float) -> tuple[np.ndarray, float]:
+def _servo_grid(max_step_deg: float, step_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Joint increments (rad) every ``step_deg`` within +-``max_step_deg``, as a meshgrid."""
+    d = np.radians(np.arange(-max_step_deg, max_step_deg + 1e-9, step_deg))
+    return tuple(np.meshgrid(d, d))
+
+
+def _squared_distances(links_mm, q_rad, d1, d2, target_mm) -> np.ndarray:
+    """Squared distances from ``target_mm`` of the two-link gripper at ``q_rad + (d1, d2)``."""
+    x, y = _gripper_xy(links_mm, q_rad[0] + d1, q_rad[1] + d2)
+    x, y = x - target_mm[0], y - target_mm[1]
+    return x * x + y * y
+
+
+def greedy_step_deg(q_deg, target_mm, links_mm, max_step_deg: float, grid=None
+                    ) -> tuple[np.ndarray, float]:
     """(step, distance): the servo-limited step (each joint within +-max_step_deg) that brings the
     planar two-link arm's gripper closest to ``target_mm`` by its exact model, and the distance
-    it leaves (a grid over the servo box, then a finer grid around its best node)."""
+    it leaves (a grid over the servo box, then a finer grid around its best node). ``grid``:
+    the coarse grid, ``_servo_grid(max_step_deg, GREEDY_GRID_DEG[0])``, made once by a caller
+    that steps many times."""
     coarse, fine = GREEDY_GRID_DEG
     limit = math.radians(max_step_deg)
     q = np.radians(np.asarray(q_deg, float))
 
     def nearest(d1, d2):
-        x, y = _gripper_xy(links_mm, q[0] + d1, q[1] + d2)
-        k = int(np.argmin((x - target_mm[0]) ** 2 + (y - target_mm[1]) ** 2))
+        k = int(np.argmin(_squared_distances(links_mm, q, d1, d2, target_mm)))
         return np.array([d1.flat[k], d2.flat[k]])
 
-    best = nearest(*np.meshgrid(*[np.radians(np.arange(-max_step_deg, max_step_deg + 1e-9,
-                                                       coarse))] * 2))
+    best = nearest(*(grid or _servo_grid(max_step_deg, coarse)))
     f = np.radians(np.arange(-coarse, coarse + 1e-9, fine))
     best = nearest(*(np.clip(b + g, -limit, limit) for b, g in zip(best, np.meshgrid(f, f))))
     x, y = _gripper_xy(links_mm, *(q + best))
@@ -199,16 +220,17 @@ def greedy_tracking_mm(points_mm, links_mm, max_step_deg: float, start_deg) -> n
     that moves once per set point looking at that set point alone and choosing greedily. From
     ``start_deg``, over ``points_mm`` once."""
     q, out = np.asarray(start_deg, float), []
+    grid = _servo_grid(max_step_deg, GREEDY_GRID_DEG[0])
     for p in np.asarray(points_mm, float)[:, :2]:
-        step, e = greedy_step_deg(q, p, links_mm, max_step_deg)
+        step, e = greedy_step_deg(q, p, links_mm, max_step_deg, grid)
         q = q + step
         out.append(e)
     return np.array(out)
 
 
-def _tails(rows: list[dict], label: str) -> str:
+def _tails(rows: list[dict], controller: str) -> str:
     """The tracking phase's tail beside its median: mean and p95 (median over seeds), max (worst)."""
-    return (f"{label} mean {_median(rows, 'track_mean_mm'):.3g} / p95 "
+    return (f"{LABELS[controller]} mean {_median(rows, 'track_mean_mm'):.3g} / p95 "
             f"{_median(rows, 'track_p95_mm'):.3g} / max {worst(rows):.3g}")
 
 
@@ -226,26 +248,23 @@ def first_step_target(rows: list[dict], controller: str, case: str) -> Target:
     def farther(runs):
         return sum(_f(r["first_error_mm"]) > _f(r["start_error_mm"]) for r in runs)
 
-    every = _pick(rows, controller=controller)
-    runs = started(every)
+    runs, gone = _runs(rows, controller=controller)
     others = [f"{LABELS.get(k, k)} {farther(rs)} of {len(rs)}"
-              for k in dict.fromkeys(r["controller"] for r in rows)
-              if k != controller for rs in [started(_pick(rows, controller=k))]]
+              for k in dict.fromkeys(r["controller"] for r in rows) if k != controller
+              for rs, _ in [_runs(rows, controller=k)]]
     return Target("first set point: runs ending farther than they started", case,
                   float(farther(runs)), "==", 0.0, "runs",
-                  f"of {len(runs)}" + (f"; {', '.join(others)}" if others else ""),
-                  len(every) - len(runs))
+                  f"of {len(runs)}" + (f"; {', '.join(others)}" if others else ""), gone)
 
 
 def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
     """Divergences and median against DLS, per trajectory, over every condition and seed."""
     out = []
     for t in trajectories:
-        every = [_pick(rows, trajectory=t, controller=k) for k in (SUBJECT_3, DLS_3)]
-        if not all(every):
+        (mine, gone), (dls, gone_dls) = (_runs(rows, trajectory=t, controller=k)
+                                         for k in (SUBJECT_3, DLS_3))
+        if not (mine or gone) or not (dls or gone_dls):
             continue
-        mine, dls = (started(rs) for rs in every)
-        gone = len(every[0]) - len(mine)
         div = sum(r["diverged"] == "1" for r in mine)
         conds = sorted({r["condition"] for r in mine})
         seeds = len({r["seed"] for r in mine})
@@ -253,12 +272,13 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
                           f"of {len(mine)}: {seeds} seeds x {len(conds)} conditions; DLS "
                           f"{sum(r['diverged'] == '1' for r in dls)}", gone))
         med, med_dls = _median(mine, "track_median_mm"), _median(dls, "track_median_mm")
-        missed = {k: sum(int(_f(r.get("n_missed", 0)) > 0) for r in rs) for k, rs in (("ITG+", mine), ("DLS", dls))}
+        missed = {LABELS[k]: sum(int(_f(r.get("n_missed", 0)) > 0) for r in rs)
+                  for k, rs in ((SUBJECT_3, mine), (DLS_3, dls))}
         out.append(Target("three-link tracking median E_i (median over runs)", t, med, "<=",
                           MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}; "
-                          + _tails(mine, "ITG+") + "; " + _tails(dls, "DLS")
+                          + _tails(mine, SUBJECT_3) + "; " + _tails(dls, DLS_3)
                           + f"; runs with an LED unseen: ITG+ {missed['ITG+']}, DLS {missed['DLS']}",
-                          gone + len(every[1]) - len(dls)))
+                          gone + gone_dls))
     return out
 
 
@@ -324,19 +344,19 @@ def main(argv: list[str] | None = None) -> int:
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         status = 0
-        rows, first = {}, {}
+        rows, paths = {}, {}
         for sweep, sub, seeds in (("itg-plus", "tracking", args.seeds),
                                   ("itg-plus-three-link", "three-link", args.seeds_three_link)):
             specs = build_sweep(sweep=sweep, seeds=seeds, points=args.points)
-            first[sweep] = {s.trajectory: s for s in specs}
+            if sweep == "itg-plus":  # a spec per path: its points, laps and servo limit
+                paths = {s.trajectory: s for s in specs}
             options = {"sweep": sweep, "seeds": seeds, "points": args.points}
-            done, got = noise.run_sweep(specs, out / sub, options, command.strip(),
-                                        workers=args.workers, quiet=args.quiet)
+            done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command.strip(),
+                                                workers=args.workers, quiet=args.quiet)
             status = max(status, done)
-            rows[sweep] = got
         arm = ArmSpec.from_args("two-link")
         bounds, greedy = {}, {}
-        for t, spec in first["itg-plus"].items():  # the paths the runs followed
+        for t, spec in paths.items():  # the paths the runs followed
             servo = spec.max_step_deg
             path = load_trajectory(t, spec.points)
             bounds[t] = servo_bound_mm(path.points_mm, arm.links_mm, servo, path.closed)

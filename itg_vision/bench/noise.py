@@ -20,7 +20,8 @@ from .. import outputs
 from ..errors import UserError, at_least_one, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
-from .store import Results, check_sweep_file, code_warning, definition_hash, record_sweep_file
+from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
+                    started)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
                     _parse_names, build_sweep)
 
@@ -150,9 +151,9 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
               quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> tuple[int, list[dict]]:
     """Run the sweep ``specs`` into ``out`` (resuming what it holds), write its report, and
     return the exit status (0, or 1 when runs failed, each in ``failures.log``) and the rows
-    ``results.csv`` holds. A run that did not start (its start-up measurement found the LEDs in too few looks) is a
-    row, not a failure: the report names it. ``options``
-    are recorded in ``sweep.json``; ``command`` (what reproduces it) heads the report.
+    ``results.csv`` holds. A run that did not start (its start-up measurement found the LEDs in
+    too few looks) is a row, not a failure: the report names it. ``options`` are recorded in
+    ``sweep.json``; ``command`` (what reproduces it) heads the report.
     Raises :class:`UserError` (before writing anything) for an ``--out`` that is not this
     sweep's."""
     check_out(out)
@@ -196,7 +197,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     elif (out / "failures.log").exists():  # every run it listed has its row now
         (out / "failures.log").unlink()
     done = sum(1 for s in specs if s.run_id in store.rows)
-    gone = sum(1 for s in specs if store.rows.get(s.run_id, {}).get("no_start"))
+    gone = len(rows) - len(started(rows))
     print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
           + (f" ({gone} did not start: see the report)" if gone else "")
           + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)

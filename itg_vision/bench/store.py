@@ -7,8 +7,9 @@
 - ``sweep.json``: the sweep's definition (its hash and the options that made it) and the code
   that started it (:func:`code_hash`; each row has its own in its ``code`` column). A different
   definition in the same folder is refused, no row touched (:func:`check_sweep_file`); a resume
-  by other code is allowed with a warning counting the rows other code made (:func:`code_warning`): run ids cover the parameters and the files a run reads (rule
-  file, arm file, rigs, trajectory file), not the code.
+  by other code is allowed with a warning counting the rows other code made
+  (:func:`code_warning`): run ids cover the parameters and the files a run reads (rule file,
+  arm file, rigs, trajectory file), not the code.
 """
 
 from __future__ import annotations

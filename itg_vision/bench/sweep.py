@@ -326,7 +326,8 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         points=n, seed=seed, rc_controller=rc, feedback=fb,
                         rules=rules, rules_sha=rules_sha[rules],
                         noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
-                        rig=cond.rig, rig_sha=sha, inputs_sha=inputs[fb == "vision"], link_error=cond.link_error,
+                        rig=cond.rig, rig_sha=sha, inputs_sha=inputs[fb == "vision"],
+                        link_error=cond.link_error,
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
                         max_step_deg=float(limits["max_step_deg"]), laps=laps))
     return specs
