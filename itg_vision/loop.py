@@ -21,6 +21,30 @@ import numpy as np
 from .contracts import Controller, Markers, Step
 
 
+def aim_mm(desired_mm, previous_mm, gripper_mm, correction: float, planar: bool) -> np.ndarray:
+    """Where the controller is asked to go: the set point, less ``1 - correction`` of the error
+    measured now against the previous decision's set point (``previous_mm``).
+
+    ``correction`` = 1 (the default everywhere): the set point itself. Below 1 the set point's
+    own motion is fed forward whole while the error left behind is corrected by that fraction
+    only; the arm integrates the measurements, so the true error obeys
+    ``e_k = (1 - correction) e_(k-1) - correction n_k`` (n: the eye's error): the eye's noise
+    reaches the gripper scaled by ``correction`` (variance ``correction / (2 - correction)`` of
+    the eye's), while an error of the controller's own step takes ``1 / correction`` steps to
+    correct. ``previous_mm`` None (the first decision) or an unmeasured gripper: the set point.
+    Planar arms: x and y only (z is the LED's stand-off, not an error).
+    """
+    desired = np.asarray(desired_mm, float)
+    if previous_mm is None or correction == 1.0:
+        return desired
+    left = np.asarray(previous_mm, float) - np.asarray(gripper_mm, float)
+    if planar:
+        left[2] = 0.0
+    if not np.all(np.isfinite(left)):
+        return desired
+    return desired - (1.0 - correction) * left
+
+
 def distance_mm(a, b, planar: bool):
     """|a - b| in the plane (x, y) for a planar arm, in space otherwise (mm): a float for two
     points, an array for two arrays of points (..., 3)."""
@@ -291,20 +315,25 @@ class Session:
 
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
-             tracking_start: int | None = None,
+             tracking_start: int | None = None, correction: float = 1.0,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) with ``controller`` and return the trace.
 
-    See :class:`Session` for the parameters. The loop, top to bottom: observe through the
-    feedback, let the controller decide, apply the step under the servo limit.
+    See :class:`Session` for the parameters, :func:`aim_mm` for ``correction``. The loop, top to
+    bottom: observe through the feedback, aim, let the controller decide, apply the step under
+    the servo limit.
     """
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)
+    previous = None  # the set point of the previous decision
     while not session.done:
         estimate = session.observe()
+        desired = session.desired_mm
+        aim = aim_mm(desired, previous, estimate.gripper_mm, correction, planar)
+        previous = desired
         t0 = time.perf_counter()
         q_deg = world.q_deg if controller.uses_encoders else None
-        step = controller.step(session.desired_mm, estimate, q_deg)
+        step = controller.step(aim, estimate, q_deg)
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0))
     return session.trace

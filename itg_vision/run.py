@@ -35,7 +35,7 @@ _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"
           ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
           ("strobe", "strobe"), ("supersample", "ss"), ("full_frame", "fullframe"),
           ("true_links", "truelinks"), ("joint_offset", "offset"),
-          ("seed", "seed"))
+          ("correction", "corr"), ("seed", "seed"))
 #: RunConfig field -> the option that sets it (errors name the option).
 OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
            "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
@@ -43,7 +43,8 @@ OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", 
            "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
            "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
            "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",
-           "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset"}
+           "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset",
+           "correction": "--correction"}
 
 
 def _links(text: str) -> tuple[float, ...]:
@@ -99,6 +100,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="servo rate limit: no joint moves more than DEG per iteration, whatever "
                          "the controller (default: none, as in the paper; the three-link "
                          "composition needs one, see README)")
+    ap.add_argument("--correction", type=float, default=1.0, metavar="K",
+                    help="itg, jacobian: feed the set point's motion forward and correct only K "
+                         "of the error measured against the previous set point (0 < K <= 1; "
+                         "default 1: aim at the set point). The eye's noise then reaches the "
+                         "gripper scaled by K, and the controller's own step errors take 1/K "
+                         "steps to correct (README, 'Noise and memory')")
     ap.add_argument("--laps", type=int, default=1,
                     help="run a closed trajectory this many times (default %(default)s); the "
                          "tracking-phase metrics then cover the laps after the first")
@@ -191,9 +198,15 @@ def run_key(prep) -> dict:
 def _check_default_out(out: Path, key: dict, force: bool) -> None:
     """A default folder holding a run with other settings is not replaced silently."""
     made = outputs.read_manifest(out)
-    if force or made is None or made.get("command") != "run" or made.get("key") == key:
+    if force or made is None or made.get("command") != "run":
         return
     old = made.get("key") or {}
+    if old.get("config") is not None:  # a setting added since that run, at its default, is the same
+        defaults = outputs.json_safe(config_dict(RunConfig()))
+        old = {**old, "config": {**{k: defaults[k] for k in set(key["config"]) - set(old["config"])},
+                                 **old["config"]}}
+    if old == key:
+        return
     diff = sorted(k for k in set(old.get("config", {})) | set(key["config"])
                   if old.get("config", {}).get(k) != key["config"].get(k))
     diff += [f"content of the {k} file" for k in sorted(key["inputs_sha256"])
@@ -214,7 +227,8 @@ def main(argv: list[str] | None = None) -> int:
                         supersample=args.supersample,
                         full_frame=args.full_frame or (args.video and args.feedback == "vision"),
                         seed=args.seed, true_links_mm=args.true_links,
-                        joint_offset_deg=args.joint_offset, allow_unseen=args.allow_unseen)
+                        joint_offset_deg=args.joint_offset, allow_unseen=args.allow_unseen,
+                        correction=args.correction)
         try:
             prep = prepare(cfg)
         except ConfigError as exc:

@@ -42,7 +42,9 @@ class RunConfig:
     (``ik`` takes no gain; ``table1`` uses S, not f), and only the parameters used are recorded.
 
     ``max_step_deg`` is the servo rate limit (deg per iteration), applied by the loop to every
-    controller alike. ``laps`` repeats a closed trajectory. ``noise_mm``: Gaussian noise (std
+    controller alike. ``correction`` < 1 feeds the set point's motion forward and corrects only
+    that fraction of the measured error per decision (:func:`itg_vision.loop.aim_mm`), for the
+    closed-loop controllers (itg, jacobian). ``laps`` repeats a closed trajectory. ``noise_mm``: Gaussian noise (std
     per axis, mm) added to ``truth`` feedback.
 
     Every field is checked by :meth:`validate` (and :func:`prepare`); a bad one raises
@@ -73,6 +75,7 @@ class RunConfig:
     true_links_mm: tuple[float, ...] | None = None
     joint_offset_deg: tuple[float, ...] | None = None
     allow_unseen: bool = False  # skip the start-up check that the cameras can see the arm
+    correction: float = 1.0  # fraction of the measured error corrected per decision (loop.aim_mm)
 
     def validate(self) -> None:
         """Check every field's range; raises `ConfigError` naming the first bad one."""
@@ -120,6 +123,10 @@ class RunConfig:
             ("dropout", 0 <= self.dropout <= 1,
              f"must be a probability in [0, 1], got {self.dropout}"),
             ("seed", self.seed >= 0, f"must be >= 0, got {self.seed}"),
+            ("correction", math.isfinite(self.correction) and 0 < self.correction <= 1,
+             f"must be in (0, 1], got {self.correction}"),
+            ("correction", self.correction == 1 or self.controller != "ik",
+             "applies to the closed-loop controllers (itg, jacobian); ik is open loop"),
         ]
         for name, ok, msg in checks:
             if not ok:
@@ -282,8 +289,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         trace = simulate(world, controller, feedback, prep.trajectory.points_mm,
                          iterations=cfg.iterations, planar=prep.model.planar,
                          max_step_deg=cfg.max_step_deg,
-                         tracking_start=prep.trajectory.tracking_start, progress=progress,
-                         recorder=recorder)
+                         tracking_start=prep.trajectory.tracking_start,
+                         correction=cfg.correction, progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {
         **trace.metrics(),
@@ -301,6 +308,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "feedback": cfg.feedback,
         "iterations": cfg.iterations,
         "max_step_deg": cfg.max_step_deg,
+        "correction": cfg.correction,
         "laps": prep.trajectory.laps,
         "geometry": geometry.record(),
         "feedback_params": feedback_params(

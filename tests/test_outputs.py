@@ -254,6 +254,14 @@ def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     after = _tree(tmp_path / "runs" / names[1])
     assert {k for k in before} == {k for k in after}
     assert before["trace.csv"] == after["trace.csv"]
+    # made before a setting existed (no "correction" in its key): at the setting's default it
+    # is the same run, so the same command replaces it rather than refusing
+    manifest = tmp_path / "runs" / names[1] / outputs.MANIFEST
+    made = json.loads(manifest.read_text())
+    assert made["key"]["config"].pop("correction") == 1.0
+    manifest.write_text(json.dumps(made))
+    assert run.main(base) == 0
+    assert json.loads(manifest.read_text())["key"]["config"]["correction"] == 1.0
     # an edited rule file under the same name: its default folder is not replaced silently
     rules = tmp_path / "mine.rules"
     rules.write_text((RULES_DIR / "table2.rules").read_text())
