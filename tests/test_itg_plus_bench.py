@@ -124,6 +124,29 @@ def test_first_step_and_three_link_targets_count_runs():
     assert t.note == "of 3; DLS 0 of 3"
 
 
+def test_memory_checks_test_the_explanation_by_changing_its_cause():
+    """Both trackers land the same mm under 1 px without memory (1.2 / 1.3) and with it
+    (0.6 / 0.6): the checks hold; ITG+ is better clean (0.05 against 0.1), so the ratio target
+    stays missed with memory for both (12x against 6x) and is met only against DLS without it
+    (12x against 13x), which is printed, never counted. A memory that lowers nothing fails its
+    check."""
+    k = itg_plus
+    clean = {k.SUBJECT: 0.05, k.DLS: 0.1, k.SUBJECT_FF: 0.05, k.DLS_FF: 0.1}
+    noisy = {k.SUBJECT: 1.2, k.DLS: 1.3, k.SUBJECT_FF: 0.6, k.DLS_FF: 0.6}
+    rows = [_row(c, s, condition=cond, track_median_mm=v[c])
+            for c in clean for s in range(3) for cond, v in (("clean", clean), ("noise-1px", noisy))]
+    checks, lines = k.memory_checks(rows, ["ellipse-t1", "not-run"])
+    assert [round(t.measured, 6) for t in checks] == [round(0.1 / 1.3, 6), 0.0, 0.5, round(0.6 / 1.3, 6)]
+    assert all(t.met for t in checks) and all(t.case == "1 curves" for t in checks)
+    assert "would be met on 0 of 1 curves: ellipse-t1 12x against 6x" in lines[0]
+    assert "would be met on 1 of 1 curves: ellipse-t1 12x against 13x" in lines[1]
+    assert "unequal: not counted" in lines[1]
+    same = [{**r, "track_median_mm": "1.2"} if r["controller"] == k.SUBJECT_FF
+            and r["condition"] == "noise-1px" else r for r in rows]
+    assert [t.met for t in k.memory_checks(same, ["ellipse-t1"])[0]] == [True, False, False, True]
+    assert k.memory_checks([r for r in rows if r["controller"] != k.DLS_FF], ["ellipse-t1"]) == ([], [])
+
+
 def _no_start(row):
     return {**row, **{k: "" for k in ("first_error_mm", "start_error_mm", "track_max_mm",
                                       "track_median_mm", "track_mean_mm", "track_p95_mm",

@@ -56,7 +56,14 @@ EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "rules"),
     "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM, None),
     "itg-plus-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "itg_plus_rules"),
+    "itg-plus-vision-ff": ("itg", "vision", 0.0, "itg_plus_rules"),
+    "jacobian-vision-ff": ("jacobian", "vision", 0.0, None),
 }
+#: Controllers with memory (``bench itg-plus``: is the eye's noise the floor of both trackers?):
+#: the set point's motion fed forward, this fraction of the measured error corrected per
+#: decision (``run --correction``; :func:`itg_vision.loop.aim_mm`). Every other controller: 1.
+FF_CORRECTION = 0.5
+CORRECTIONS = {"itg-plus-vision-ff": FF_CORRECTION, "jacobian-vision-ff": FF_CORRECTION}
 ALL_CONTROLLERS = {**CONTROLLERS, **EXTRA_CONTROLLERS}
 CONTROLLER_TITLES = {
     "itg-vision": "ITG (the paper's rules) fed by vision (no model)",
@@ -68,6 +75,9 @@ CONTROLLER_TITLES = {
     "itg-truth-noise": f"ITG fed by the simulator's LED positions + {TRUTH_NOISE_MM} mm noise",
     "jacobian-truth-noise": f"Jacobian tracker fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
     "itg-plus-truth-noise": f"ITG+ fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
+    "itg-plus-vision-ff": f"ITG+ fed by vision, with memory: correction {FF_CORRECTION} "
+                          "(run --correction)",
+    "jacobian-vision-ff": f"Jacobian tracker fed by vision, with memory: correction {FF_CORRECTION}",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
 #: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base`` (closed, two-link) and
@@ -105,8 +115,8 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 5  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
-#            5: inputs_sha, and the no_start column
+SCHEMA = 6  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
+#            5: inputs_sha, and the no_start column; 6: correction
 
 
 @dataclass(frozen=True)
@@ -179,7 +189,9 @@ SWEEPS = {
                   "trajectories": ("line-ab-reach",),
                   "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
     # issue 13's targets (bench itg-plus): two-link tracking under vision, clean and 1 px
-    "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision"),
+    # and both trackers with memory (the mechanism behind the 1 px target)
+    "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision",
+                                 "itg-plus-vision-ff", "jacobian-vision-ff"),
                  "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut", "limacon",
                                   "rose", "lemniscate", "ellipse-by-base"),
                  "conditions": ("clean", "noise-1px"), "seeds": 3},
@@ -217,6 +229,7 @@ class RunSpec:
     iterations: int
     max_step_deg: float | None
     laps: int
+    correction: float  # the loop's correction (1: aim at the set point; CORRECTIONS)
 
     @property
     def run_id(self) -> str:
@@ -329,7 +342,8 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         rig=cond.rig, rig_sha=sha, inputs_sha=inputs[fb == "vision"],
                         link_error=cond.link_error,
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
-                        max_step_deg=float(limits["max_step_deg"]), laps=laps))
+                        max_step_deg=float(limits["max_step_deg"]), laps=laps,
+                        correction=CORRECTIONS.get(ctrl, 1.0)))
     return specs
 
 
@@ -379,5 +393,6 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
                      rig=rig_path if vision else None, noise_px=spec.noise_px if vision else 0.0,
                      noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
                      dropout=spec.dropout if vision else 0.0, seed=spec.seed,
-                     true_links_mm=true_links, joint_offset_deg=offset)
+                     true_links_mm=true_links, joint_offset_deg=offset,
+                     correction=spec.correction)
 
