@@ -41,6 +41,7 @@ import numpy as np
 
 from .loop import Session
 from .contracts import Step
+from .errors import ConfigError
 from .runner import RunConfig, prepare, start_up_geometry
 from .world import World
 
@@ -69,6 +70,9 @@ class TrackingEnv(gym.Env):
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
+        if cfg.correction != 1:
+            raise ConfigError("correction", "aims a controller; in the environment you are the "
+                                            "controller")
         if cfg.max_step_deg is None:
             cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
         if images:

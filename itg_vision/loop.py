@@ -31,8 +31,11 @@ def aim_mm(desired_mm, previous_mm, gripper_mm, correction: float, planar: bool)
     ``e_k = (1 - correction) e_(k-1) - correction n_k`` (n: the eye's error): the eye's noise
     reaches the gripper scaled by ``correction`` (variance ``correction / (2 - correction)`` of
     the eye's), while an error of the controller's own step takes ``1 / correction`` steps to
-    correct. ``previous_mm`` None (the first decision) or an unmeasured gripper: the set point.
-    Planar arms: x and y only (z is the LED's stand-off, not an error).
+    correct. With several iterations per set point, its later iterations measure against the
+    set point itself. ``previous_mm`` None (the first decision) or an unmeasured gripper: the
+    set point. Planar arms: x and y only (z is the LED's stand-off, not an error).
+    :func:`simulate` judges reach on the set point, never on the aim: a rule base that finds
+    the aim out of reach is asked again with the set point itself.
     """
     desired = np.asarray(desired_mm, float)
     if previous_mm is None or correction == 1.0:
@@ -335,5 +338,7 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
         t0 = time.perf_counter()
         q_deg = world.q_deg if controller.uses_encoders else None
         step = controller.step(aim, estimate, q_deg)
+        if step.out_of_reach and not np.array_equal(aim, desired):
+            step = controller.step(desired, estimate, q_deg)  # reach is the set point's, not the aim's
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0))
     return session.trace

@@ -102,8 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "composition needs one, see README)")
     ap.add_argument("--correction", type=float, default=1.0, metavar="K",
                     help="itg, jacobian: feed the set point's motion forward and correct only K "
-                         "of the error measured against the previous set point (0 < K <= 1; "
-                         "default 1: aim at the set point). The eye's noise then reaches the "
+                         "of the error measured against the previous decision's set point (0 < K "
+                         "<= 1; default 1: aim at the set point). The eye's noise then reaches the "
                          "gripper scaled by K, and the controller's own step errors take 1/K "
                          "steps to correct (README, 'Noise and memory')")
     ap.add_argument("--laps", type=int, default=1,

@@ -86,3 +86,10 @@ def test_images_on_request_are_the_frames_the_estimate_came_from():
     with pytest.raises(ValueError, match="images: only vision feedback"):
         TrackingEnv(feedback="truth", images=True)
     env.close()
+
+
+def test_env_refuses_a_correction_it_would_not_apply():
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="in the environment you are the controller"):
+        TrackingEnv(feedback="truth", correction=0.5)

@@ -145,6 +145,14 @@ def test_memory_checks_test_the_explanation_by_changing_its_cause():
             and r["condition"] == "noise-1px" else r for r in rows]
     assert [t.met for t in k.memory_checks(same, ["ellipse-t1"])[0]] == [True, False, False, True]
     assert k.memory_checks([r for r in rows if r["controller"] != k.DLS_FF], ["ellipse-t1"]) == ([], [])
+    # a run that did not start, or a cell without a median, on one of two curves: the checks
+    # are taken over the other curve and are not met
+    rows2 = rows + [{**r, "trajectory": "rose"} for r in rows]
+    for bad, seeds in ((_no_start, ("0",)), (lambda r: {**r, "track_median_mm": ""}, ("0", "1", "2"))):
+        broken = [bad(r) if r["trajectory"] == "ellipse-t1" and r["controller"] == k.DLS
+                  and r["seed"] in seeds else r for r in rows2]
+        checks, _ = k.memory_checks(broken, ["ellipse-t1", "rose"])
+        assert [t.case for t in checks] == ["1 curves"] * 4 and not any(t.met for t in checks)
 
 
 def _no_start(row):
