@@ -44,8 +44,8 @@ class RunConfig:
     ``max_step_deg`` is the servo rate limit (deg per iteration), applied by the loop to every
     controller alike. ``correction`` < 1 feeds the set point's motion forward and corrects only
     that fraction of the measured error per decision (:func:`itg_vision.loop.aim_mm`), for the
-    closed-loop controllers (itg, jacobian). ``laps`` repeats a closed trajectory. ``noise_mm``: Gaussian noise (std
-    per axis, mm) added to ``truth`` feedback.
+    closed-loop controllers (itg, jacobian). ``laps`` repeats a closed trajectory.
+    ``noise_mm``: Gaussian noise (std per axis, mm) added to ``truth`` feedback.
 
     Every field is checked by :meth:`validate` (and :func:`prepare`); a bad one raises
     :class:`~itg_vision.errors.ConfigError` naming it.

@@ -93,6 +93,12 @@ def _runs(rows, **eq) -> tuple[list[dict], int]:
     return ran, len(every) - len(ran)
 
 
+def _swept(cells) -> bool:
+    """Whether every ``(ran, did not start)`` of ``cells`` (from :func:`_runs`) has a run: the
+    cells are in this sweep."""
+    return all(ran or gone for ran, gone in cells)
+
+
 def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
                      greedy: dict | None = None) -> list[Target]:
     """Two-link vision targets per trajectory, from the ``itg-plus`` sweep's rows; ``bounds``:
@@ -103,7 +109,7 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
     for t in trajectories:
         picked = {k: _runs(rows, trajectory=t, condition="clean", controller=k)
                   for k in (SUBJECT, DLS, TABLE2)}
-        if not all(ran or gone for ran, gone in picked.values()):
+        if not _swept(picked.values()):
             continue
         clean = {k: ran for k, (ran, _) in picked.items()}
         gone = {k: n for k, (_, n) in picked.items()}
@@ -126,7 +132,7 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
                               ref, "mm", f"{LABELS[other]} {ref:.3g}", gone[SUBJECT] + gone[other]))
         picked = {k: _runs(rows, trajectory=t, condition="noise-1px", controller=k)
                   for k in (SUBJECT, DLS)}
-        if all(ran or n for ran, n in picked.values()):
+        if _swept(picked.values()):
             noisy = {k: ran for k, (ran, _) in picked.items()}
             gone_noisy = sum(gone[k] + n for k, (_, n) in picked.items())
             ratio = {k: _degradation(clean[k], noisy[k]) for k in (SUBJECT, DLS)}
@@ -139,14 +145,23 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
     return out
 
 
-def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[str]]:
-    """The explanation of the 1 px target's misses, tested by changing its cause.
+#: targets.md's heading and paragraph above the checks of :func:`memory_checks`.
+MEMORY_INTRO = [
+    "## Why the 1 px target is missed, tested", "",
+    "The explanation: without memory a tracker lands each step where the eye says the set point "
+    "is, so under 1 px both trackers sit on the eye's error and land the same millimetres; "
+    "ITG+, better clean, shows the larger ratio. The test changes the cause: both trackers get "
+    f"the same memory (`--correction {FF_CORRECTION:g}`: the set point's motion fed forward, "
+    f"{FF_CORRECTION:g} of the measured error corrected per step; the eye's noise then reaches "
+    "the gripper scaled by it). If the explanation holds, memory lowers both alike and they "
+    "still land the same millimetres. Not targets: checks of the explanation, each verdict "
+    "computed from its threshold.", ""]
 
-    The explanation: a tracker without memory lands each step where the eye says the set point
-    is, so under noise both trackers sit on the eye's error and land the same millimetres; ITG+,
-    better clean, then shows the larger ratio. Memory (the loop's ``correction``, the same for
-    both: ``itg-plus-vision-ff``, ``jacobian-vision-ff``) should lower both alike, by
-    sqrt(K / (2 - K)) for white noise. Returns the checks (``measured`` is the worst curve's,
+
+def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[str]]:
+    """The explanation of the 1 px target's misses (:data:`MEMORY_INTRO`), tested by changing
+    its cause: memory (the loop's ``correction``, the same for both: ``itg-plus-vision-ff``,
+    ``jacobian-vision-ff``) should lower both alike, by sqrt(K / (2 - K)) for white noise. Returns the checks (``measured`` is the worst curve's,
     over the curves where every run started and has a tracking median; a run that did not start,
     or a cell without a median, makes every check not met, as for the targets) and two lines:
     the ratio target with memory for both, and with memory for ITG+ alone (an unequal
@@ -156,16 +171,15 @@ def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[st
     for t in trajectories:
         c = {(k, cond): _runs(rows, trajectory=t, condition=cond, controller=k)
              for k in ks for cond in ("clean", "noise-1px")}
-        if not all(ran or n for ran, n in c.values()):
-            continue  # not in this sweep
+        if not _swept(c.values()):
+            continue
         gone += sum(n for _, n in c.values())
         if any(n or not ran for ran, n in c.values()):
             continue
-        cell = {t: {"noisy": {k: _median(c[k, "noise-1px"][0], "track_median_mm") for k in ks},
-                    "ratio": {k: _degradation(c[k, "clean"][0], c[k, "noise-1px"][0]) for k in ks}}}
-        values = [v for d in cell[t].values() for v in d.values()]
-        if all(math.isfinite(v) and v > 0 for v in values):
-            per.update(cell)
+        noisy = {k: _median(c[k, "noise-1px"][0], "track_median_mm") for k in ks}
+        ratio = {k: _degradation(c[k, "clean"][0], c[k, "noise-1px"][0]) for k in ks}
+        if all(math.isfinite(v) and v > 0 for v in (*noisy.values(), *ratio.values())):
+            per[t] = {"noisy": noisy, "ratio": ratio}
         else:
             gone += 1  # a cell without a tracking median: the check cannot be met
     if not per:
@@ -332,7 +346,7 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
     for t in trajectories:
         (mine, gone), (dls, gone_dls) = (_runs(rows, trajectory=t, controller=k)
                                          for k in (SUBJECT_3, DLS_3))
-        if not (mine or gone) or not (dls or gone_dls):
+        if not _swept([(mine, gone), (dls, gone_dls)]):
             continue
         div = sum(r["diverged"] == "1" for r in mine)
         conds = sorted({r["condition"] for r in mine})
@@ -461,18 +475,7 @@ def main(argv: list[str] | None = None) -> int:
                                        "report.md name them)" if n_gone else "") + ".", ""]
         checks, lines = memory_checks(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"])
         if checks:
-            text += ["## Why the 1 px target is missed, tested", "",
-                     "The explanation: without memory a tracker lands each step where the eye "
-                     "says the set point is, so under 1 px both trackers sit on the eye's error "
-                     "and land the same millimetres; ITG+, better clean, shows the larger ratio. "
-                     "The test changes the cause: both trackers get the same memory "
-                     f"(`--correction {FF_CORRECTION:g}`: the set point's motion fed forward, "
-                     f"{FF_CORRECTION:g} of the measured error corrected per step; the eye's "
-                     "noise then reaches the gripper scaled by it). If the explanation holds, "
-                     "memory lowers both alike and they still land the same millimetres. "
-                     "Not targets: checks of the explanation, each verdict computed from its "
-                     "threshold.", ""]
-            text += table(checks, "check") + [""] + lines + [""]
+            text += MEMORY_INTRO + table(checks, "check") + [""] + lines + [""]
         outputs.write_text(out / "targets.md", "\n".join(text))
         print("\n".join(table(targets)))
         print(f"{sum(t.met for t in targets)} of {len(targets)} targets met; {out / 'targets.md'}")
