@@ -12,6 +12,7 @@ what the tests compare the simulator against. The vision loop never calls it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -125,12 +126,21 @@ class ArmSpec:
         return np.array([0.0, 0.0, 0.0 if self.planar else self.links_mm[0]])
 
     def reachable(self, p_mm: np.ndarray, tol_mm: float = 1e-9) -> bool:
-        """Whether the gripper can reach the point (planar arms: its x, y only)."""
+        """Whether the gripper LED can reach the point (planar arms: its x, y only; the LED sits
+        above the joint). The three-link arm's LED sits ``led_standoff_mm`` (h) beside the arm's
+        vertical plane, so it reaches a point at horizontal radius rho from the base axis when
+        rho >= h and the arm, in its plane, reaches the point's in-plane position: horizontal
+        sqrt(rho^2 - h^2), height z - L1 above the shoulder."""
         p = np.asarray(p_mm, float)
-        d = p[:2] if self.planar else p[:3]
-        s = self.shoulder_mm()[: d.size]
-        r = float(np.linalg.norm(d - s))
         lo, hi = self.reach_mm()
+        if self.planar:
+            r2 = float(p[0] ** 2 + p[1] ** 2)
+        else:
+            rho2, h2 = float(p[0] ** 2 + p[1] ** 2), self.led_standoff_mm ** 2
+            if rho2 < h2 - 2 * self.led_standoff_mm * tol_mm:
+                return False
+            r2 = max(rho2 - h2, 0.0) + float(p[2] - self.links_mm[0]) ** 2
+        r = math.sqrt(r2)
         return lo - tol_mm <= r <= hi + tol_mm
 
 

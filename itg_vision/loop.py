@@ -2,7 +2,11 @@
 
 E_i is the Euclidean distance between the desired point and the *true* gripper after the
 iterations of set point i (planar arms: in the x-y plane). E_av is their mean over the set
-points in reach (the paper's definition; out-of-reach points are counted and skipped).
+points in reach (the paper's definition; out-of-reach points are counted and skipped). A set
+point is in reach when the simulated arm (its true links) can reach it: the same set points for
+every controller, whatever a controller flags out of reach from the links it measured or was
+given (a rule base's RULE 0). A flagged set point that the arm can reach counts, with the error
+the controller left there.
 
 :class:`Session` is the one place where a run advances: it observes through the feedback,
 applies a joint step under the servo limit and records each finished set point in the
@@ -71,6 +75,7 @@ class SetPointRecord:
     fired : rules fired over the iterations (first firing order).
     flags : "out_of_reach", "missed:<marker>".
     out_of_reach : whether the controller flagged the set point out of reach.
+    in_reach : whether the simulated arm can reach the set point (the metrics count it).
     """
 
     desired_mm: np.ndarray
@@ -81,6 +86,7 @@ class SetPointRecord:
     fired: tuple[int, ...]
     flags: tuple[str, ...]
     out_of_reach: bool
+    in_reach: bool = True
 
 
 @dataclass
@@ -145,7 +151,14 @@ class Trace:
 
     @property
     def out_of_reach(self) -> np.ndarray:
+        """Whether the controller flagged each set point out of reach, shape (n,)."""
         return np.array([r.out_of_reach for r in self.records], bool)
+
+    @property
+    def in_reach(self) -> np.ndarray:
+        """Whether the simulated arm can reach each set point (the metrics count these),
+        shape (n,)."""
+        return np.array([r.in_reach for r in self.records], bool)
 
     def error_mm(self) -> np.ndarray:
         """E_i per set point, shape (n,)."""
@@ -154,13 +167,15 @@ class Trace:
     def tracking_errors_mm(self) -> np.ndarray:
         """E_i over the tracking phase (from ``tracking_start``), set points in reach only."""
         k = self.tracking_start
-        return self.error_mm()[k:][~self.out_of_reach[k:]]
+        return self.error_mm()[k:][self.in_reach[k:]]
 
     def metrics(self) -> dict:
         """E_av, E_max, E_rms over the set points in reach (the paper's metric, start transient
-        included), and the tracking phase's median, mean, 95th percentile and max."""
+        included), and the tracking phase's median, mean, 95th percentile and max.
+        ``n_out_of_reach``: set points the simulated arm cannot reach (left out of them all);
+        ``n_flagged``: set points the controller flagged out of reach."""
         e = self.error_mm()
-        ok = ~self.out_of_reach
+        ok = self.in_reach
         ein = e[ok]
         late = self.tracking_errors_mm()
 
@@ -183,6 +198,7 @@ class Trace:
             "track_max_mm": stat(np.max, late),
             "n_setpoints": int(len(e)),
             "n_out_of_reach": int((~ok).sum()),
+            "n_flagged": int(self.out_of_reach.sum()),
             "n_missed": int(self.n_missed),
             "est_gripper_rms_mm": rms(self.est_err_mm["gripper"]),
             "est_elbow_rms_mm": rms(self.est_err_mm["elbow"]),
@@ -252,6 +268,7 @@ class Session:
         n = len(self.points_mm)
         self.trace = Trace(planar, world.arm.n_joints,
                            n // 2 if tracking_start is None else int(tracking_start))
+        self._in_reach = [world.arm.reachable(p) for p in self.points_mm]
         self.k = 0
         self.last_error_mm = float("nan")
         self._iteration = 0
@@ -308,7 +325,8 @@ class Session:
             np.full(3, np.nan), np.full(3, np.nan), tuple(truth))
         self.trace.record(SetPointRecord(
             self.desired_mm.copy(), estimate, self._seen or truth, truth,
-            self.world.q_deg.copy(), tuple(self._fired), tuple(flags), self._oor))
+            self.world.q_deg.copy(), tuple(self._fired), tuple(flags), self._oor,
+            self._in_reach[self.k]))
         self.k += 1
         self._iteration = 0
         self._fired, self._flags, self._oor = [], [], False

@@ -275,7 +275,8 @@ def summary_table(s: dict, out: Path) -> str:
 
     rows = [("arm", f"{s['arm']} {s['links_mm']} mm"), ("trajectory", s["trajectory"]),
             ("controller / feedback", f"{s['controller']} / {s['feedback']}"),
-            ("set points (out of reach)", f"{s['n_setpoints']} ({s['n_out_of_reach']})"),
+            ("set points (out of reach / flagged)",
+             f"{s['n_setpoints']} ({s['n_out_of_reach']} / {s['n_flagged']})"),
             ("E_av", f(s["e_av_mm"], " mm")), ("E_max", f(s["e_max_mm"], " mm")),
             ("E_rms", f(s["e_rms_mm"], " mm")),
             (f"tracking from set point {s['tracking_from']}: median / mean / p95 / max",

@@ -49,9 +49,13 @@ def distance(arm, p, q):
 
 
 def reachable_target(arm, rng):
+    """A point the gripper LED reaches (a random pose's) that RULE 0 lets through too: on the
+    three-link arm RULE 0 tests the arm's reach from the shoulder, L2 + L3, while the LED, 12 mm
+    beside the arm's plane, reaches up to sqrt((L2 + L3)^2 + 12^2)."""
     while True:
         p = forward_kinematics(arm, rng.uniform(-180, 180, arm.n_joints))["gripper"]
-        if arm.reachable(p):
+        arm_reach = arm.planar or np.linalg.norm(p - arm.shoulder_mm()) <= arm.reach_mm()[1]
+        if arm.reachable(p) and arm_reach:
             return p
 
 

@@ -121,5 +121,54 @@ def test_reach_is_judged_on_the_set_point_not_on_the_aim(rules):
     for k in (1.0, 0.5):
         _, s = execute(prepare(RunConfig(arm="one-link", rules=rules, feedback="truth",
                                          noise_mm=0.5, correction=k, seed=3)))
-        counts.append(s["n_out_of_reach"])
+        counts.append(s["n_flagged"])
     assert counts == [0, 0]
+
+
+def test_metrics_count_the_set_points_the_arm_reaches_whatever_the_controller_flags():
+    """Table 2 told links of 40/40 mm (reach 80) drives the 100/100 mm arm along T1 (radius 24
+    to 101 mm from the base): its RULE 0 flags the set points beyond 80 mm, which the arm
+    reaches. They count, with the error the held arm left there."""
+    from itg_vision.runner import RunConfig, execute, prepare
+
+    trace, s = execute(prepare(RunConfig(feedback="model", links_mm=(40.0, 40.0),
+                                         true_links_mm=(100.0, 100.0), points=60)))
+    d = trace.desired_mm
+    beyond = np.hypot(d[:, 0], d[:, 1]) > 80.0
+    assert np.array_equal(trace.out_of_reach, beyond) and beyond.any()
+    assert s["n_flagged"] == beyond.sum() and s["n_out_of_reach"] == 0
+    assert s["e_av_mm"] == pytest.approx(trace.error_mm().mean())
+
+
+def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_reach():
+    """An arm of 60/30 mm reaches 30 to 90 mm from the base; T1 runs 24 to 101 mm. Table 2 told
+    the nominal 100/100 mm flags none; DLS flags nothing ever. Both leave out exactly the set
+    points the arm cannot reach, counted by hand from the annulus."""
+    from itg_vision.runner import RunConfig, execute, prepare
+
+    out = {}
+    for ctl in ("itg", "jacobian"):
+        trace, s = execute(prepare(RunConfig(controller=ctl, feedback="truth" if ctl == "jacobian"
+                                             else "model", true_links_mm=(60.0, 30.0),
+                                             points=60)))
+        r = np.hypot(trace.desired_mm[:, 0], trace.desired_mm[:, 1])
+        outside = (r < 30.0) | (r > 90.0)
+        assert outside.any() and not outside.all()
+        assert np.array_equal(~trace.in_reach, outside)
+        assert s["e_av_mm"] == pytest.approx(trace.error_mm()[~outside].mean())
+        out[ctl] = s["n_out_of_reach"]
+    assert out["itg"] == out["jacobian"] == outside.sum()
+
+
+def test_the_three_link_led_reaches_what_its_pose_puts_it_at_and_no_farther():
+    """The LED sits h = 12 mm beside the arm's plane: from the shoulder it reaches between
+    sqrt((L2 - L3)^2 + h^2) and sqrt((L2 + L3)^2 + h^2), and never within h of the base axis."""
+    from itg_vision.arm import forward_kinematics
+
+    arm = ArmSpec.from_args("three-link")
+    h, (L1, L2, L3) = arm.led_standoff_mm, arm.links_mm
+    q = np.random.default_rng(0).uniform(-180, 180, (500, 3))
+    assert all(arm.reachable(forward_kinematics(arm, p)["gripper"], 1e-6) for p in q)
+    far = np.hypot(L2 + L3, h)
+    assert arm.reachable([far - 1e-3, 0, L1]) and not arm.reachable([far + 1e-3, 0, L1])
+    assert arm.reachable([h + 1e-3, 0, L1 + 150]) and not arm.reachable([h - 1e-3, 0, L1 + 150])

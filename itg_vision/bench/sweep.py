@@ -115,8 +115,10 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 6  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
-#            5: inputs_sha, and the no_start column; 6: correction
+SCHEMA = 7  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
+#            5: inputs_sha, and the no_start column; 6: correction; 7: n_out_of_reach counts the
+#            set points the simulated arm cannot reach (was: those the controller flagged, now
+#            n_flagged), and the metrics leave out those, the same for every controller
 
 
 @dataclass(frozen=True)
