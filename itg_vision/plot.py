@@ -23,17 +23,27 @@ def _save(fig, path) -> None:
     outputs.write_bytes(path, buf.getvalue())
 
 
+def _reach_marks(trace) -> list[tuple[np.ndarray, str, str, str]]:
+    """(set points, marker, colour, label) for the set points the arm cannot reach (left out of
+    the metrics) and those the controller flagged out of reach that the arm can reach."""
+    gone = ~np.asarray(trace.in_reach, bool)
+    flagged = np.asarray(trace.out_of_reach, bool) & ~gone
+    return [(w, m, c, label) for w, m, c, label in (
+        (gone, "x", "C3", "out of reach"), (flagged, "+", "C1", "flagged out of reach, reachable"))
+        if w.any()]
+
+
 def path_figure(trace, title: str, path) -> None:
     """Desired against actual path (x-y for planar arms, 3-D for the three-link arm)."""
     d = np.asarray(trace.desired_mm)
     g = np.asarray(trace.gripper_mm)
-    oor = np.asarray(trace.out_of_reach, bool)
+    marks = _reach_marks(trace)
     if trace.planar:
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
         ax.plot(d[:, 0], d[:, 1], "-", color="0.6", lw=2, label="desired")
         ax.plot(g[:, 0], g[:, 1], ".", ms=3, color="C0", label="actual gripper")
-        if oor.any():
-            ax.plot(d[oor, 0], d[oor, 1], "x", color="C3", label="out of reach")
+        for which, marker, color, label in marks:
+            ax.plot(d[which, 0], d[which, 1], marker, color=color, label=label)
         ax.plot(0, 0, "k^", label="base")
         ax.set_aspect("equal")
         ax.set_xlabel("x (mm)")
@@ -43,8 +53,8 @@ def path_figure(trace, title: str, path) -> None:
         ax = fig.add_subplot(projection="3d")
         ax.plot(d[:, 0], d[:, 1], d[:, 2], "-", color="0.6", lw=2, label="desired")
         ax.plot(g[:, 0], g[:, 1], g[:, 2], ".", ms=3, color="C0", label="actual gripper")
-        if oor.any():
-            ax.plot(d[oor, 0], d[oor, 1], d[oor, 2], "x", color="C3", label="out of reach")
+        for which, marker, color, label in marks:
+            ax.plot(d[which, 0], d[which, 1], d[which, 2], marker, color=color, label=label)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
@@ -56,11 +66,12 @@ def path_figure(trace, title: str, path) -> None:
 def error_figure(trace, title: str, path) -> None:
     """E_i along the trajectory."""
     e = trace.error_mm()
-    oor = np.asarray(trace.out_of_reach, bool)
     fig, ax = plt.subplots(figsize=(7, 3.2))
-    ax.plot(np.where(oor, np.nan, e), "-", color="C0", lw=1)
-    if oor.any():
-        ax.plot(np.flatnonzero(oor), np.zeros(oor.sum()), "|", color="C3", label="out of reach")
+    ax.plot(np.where(np.asarray(trace.in_reach, bool), e, np.nan), "-", color="C0", lw=1)
+    marks = _reach_marks(trace)
+    for which, _, color, label in marks:
+        ax.plot(np.flatnonzero(which), np.zeros(which.sum()), "|", color=color, label=label)
+    if marks:
         ax.legend(fontsize=8)
     ax.set_xlabel("set point i")
     ax.set_ylabel("E_i (mm)")
