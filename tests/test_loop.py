@@ -143,7 +143,8 @@ def test_metrics_count_the_set_points_the_arm_reaches_whatever_the_controller_fl
 def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_reach():
     """An arm of 60/30 mm reaches 30 to 90 mm from the base; T1 runs 24 to 101 mm. Table 2 told
     the nominal 100/100 mm flags none; DLS flags nothing ever. Both leave out exactly the set
-    points the arm cannot reach, counted by hand from the annulus."""
+    points the arm cannot reach, counted by hand from the annulus (widened by REACH_TOL_MM)."""
+    from itg_vision.loop import REACH_TOL_MM
     from itg_vision.runner import RunConfig, execute, prepare
 
     out = {}
@@ -152,7 +153,7 @@ def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_re
                                              else "model", true_links_mm=(60.0, 30.0),
                                              points=60)))
         r = np.hypot(trace.desired_mm[:, 0], trace.desired_mm[:, 1])
-        outside = (r < 30.0) | (r > 90.0)
+        outside = (r < 30.0 - REACH_TOL_MM) | (r > 90.0 + REACH_TOL_MM)
         assert outside.any() and not outside.all()
         assert np.array_equal(~trace.in_reach, outside)
         assert s["e_av_mm"] == pytest.approx(trace.error_mm()[~outside].mean())
@@ -172,3 +173,21 @@ def test_the_three_link_led_reaches_what_its_pose_puts_it_at_and_no_farther():
     far = np.hypot(L2 + L3, h)
     assert arm.reachable([far - 1e-3, 0, L1]) and not arm.reachable([far + 1e-3, 0, L1])
     assert arm.reachable([h + 1e-3, 0, L1 + 150]) and not arm.reachable([h - 1e-3, 0, L1 + 150])
+
+
+def test_a_one_link_path_rounded_in_its_file_is_in_reach_and_one_a_mm_off_is_not(tmp_path):
+    """The one-link arm reaches only its 100 mm circle. A circle written with 2 decimals lies
+    off it by up to 0.007 mm: in reach (REACH_TOL_MM, the paper's w = 0.5 mm). A circle of
+    101 mm is 1 mm off: out of reach for every set point."""
+    from itg_vision.loop import REACH_TOL_MM
+    from itg_vision.runner import RunConfig, execute, prepare
+
+    a = np.radians(np.linspace(0.0, 90.0, 30))
+    counts = []
+    for radius in (100.0, 100.0 + 2 * REACH_TOL_MM):
+        path = tmp_path / f"circle-{radius:g}.csv"
+        path.write_text("x_mm,y_mm\n" + "".join(
+            f"{radius * np.cos(t):.2f},{radius * np.sin(t):.2f}\n" for t in a))
+        counts.append(execute(prepare(RunConfig(arm="one-link", feedback="model",
+                                                trajectory=str(path))))[1]["n_out_of_reach"])
+    assert counts == [0, len(a)]
