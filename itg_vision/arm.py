@@ -20,6 +20,12 @@ import numpy as np
 
 from .errors import UserError
 
+#: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
+#: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
+#: - L^2| within w, read on the radius). The one-link arm reaches a circle only, and a path
+#: written to a file lies off it by rounding.
+REACH_TOL_MM = 0.5
+
 #: The shipped arm files.
 ARMS_DIR = Path(__file__).resolve().parent.parent / "data" / "arms"
 #: Kinds of chain: joints all about world z, or a base yaw then two pitch joints (section 3.5).
@@ -113,7 +119,8 @@ class ArmSpec:
 
     # ------------------------------------------------------------------ workspace
     def reach_mm(self) -> tuple[float, float]:
-        """Inner and outer radius of the workspace about the shoulder (mm)."""
+        """Inner and outer radius of the arm's reach about the shoulder, in the plane of its last
+        two links (mm); where its LED reaches: :meth:`reachable`."""
         L = self.links_mm
         if self.n_joints == 1:
             return L[0], L[0]
@@ -125,22 +132,22 @@ class ArmSpec:
         base column (yaw-pitch-pitch), shape (3,)."""
         return np.array([0.0, 0.0, 0.0 if self.planar else self.links_mm[0]])
 
-    def reachable(self, p_mm: np.ndarray, tol_mm: float = 1e-9) -> bool:
-        """Whether the gripper LED can reach the point (planar arms: its x, y only; the LED sits
-        above the joint). The three-link arm's LED sits ``led_standoff_mm`` (h) beside the arm's
-        vertical plane, so it reaches a point at horizontal radius rho from the base axis when
-        rho >= h and the arm, in its plane, reaches the point's in-plane position: horizontal
-        sqrt(rho^2 - h^2), height z - L1 above the shoulder."""
+    def reachable(self, p_mm: np.ndarray, tol_mm: float = REACH_TOL_MM) -> bool:
+        """Whether the gripper LED can reach the point, within ``tol_mm`` on each radius below
+        (planar arms: its x, y only, the LED sits above the joint: the distance from the base).
+        The three-link arm's LED sits ``led_standoff_mm`` (h) beside the arm's vertical plane,
+        so it reaches a point at distance rho from the base axis when rho >= h and the arm, in
+        its plane, reaches the point's in-plane position: sqrt(rho^2 - h^2) out, z - L1 up."""
         p = np.asarray(p_mm, float)
         lo, hi = self.reach_mm()
+        rho = math.hypot(p[0], p[1])
         if self.planar:
-            r2 = float(p[0] ** 2 + p[1] ** 2)
+            r = rho
         else:
-            rho2, h2 = float(p[0] ** 2 + p[1] ** 2), self.led_standoff_mm ** 2
-            if rho2 < h2 - 2 * self.led_standoff_mm * tol_mm:
+            h = self.led_standoff_mm
+            if rho < h - tol_mm:
                 return False
-            r2 = max(rho2 - h2, 0.0) + float(p[2] - self.links_mm[0]) ** 2
-        r = math.sqrt(r2)
+            r = math.hypot(math.sqrt(max(rho * rho - h * h, 0.0)), p[2] - self.links_mm[0])
         return lo - tol_mm <= r <= hi + tol_mm
 
 
@@ -197,6 +204,8 @@ def load_arm(name_or_path: str) -> ArmSpec:
     if any(v <= 0 for v in links):
         fail("links_mm", "lengths must be > 0")
     standoff = float(numbers([get("led_standoff_mm")], "led_standoff_mm")[0])
+    if standoff < 0:
+        fail("led_standoff_mm", f"must be >= 0 (mm), got {standoff:g}")
     start = numbers(get("start_pose_deg"), "start_pose_deg", n)
     ranges = tuple(numbers(r, f"pose_ranges_deg[{i}]", 2) for i, r in enumerate(get("pose_ranges_deg")))
     if len(ranges) != n:

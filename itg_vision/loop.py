@@ -6,7 +6,8 @@ points in reach (the paper's definition; out-of-reach points are counted and ski
 point is in reach when the simulated arm (its true links) can reach it: the same set points for
 every controller, whatever a controller flags out of reach from the links it measured or was
 given (a rule base's RULE 0). A flagged set point that the arm can reach counts, with the error
-the controller left there. "Can reach" allows :data:`REACH_TOL_MM`, the paper's reach tolerance.
+the controller left there. "Can reach" allows :data:`itg_vision.arm.REACH_TOL_MM` on the radius,
+the paper's reach tolerance.
 
 :class:`Session` is the one place where a run advances: it observes through the feedback,
 applies a joint step under the servo limit and records each finished set point in the
@@ -23,12 +24,6 @@ from typing import Callable
 import numpy as np
 
 from .contracts import Controller, Markers, Step
-
-
-#: A set point within this of the arm's workspace counts as in reach (mm): the tolerance w of the
-#: paper's reach test (Table 1's RULE 0: |xd^2 + yd^2 - L^2| within w, read as mm on the radius).
-#: The one-link arm reaches a circle only, and a path written to a file lies off it by rounding.
-REACH_TOL_MM = 0.5
 
 
 def aim_mm(desired_mm, previous_mm, gripper_mm, correction: float, planar: bool) -> np.ndarray:
@@ -220,12 +215,12 @@ class Trace:
             groups += [(m, "_est", lambda r, n=name: r.estimate.get(n)),
                        (m, "_true", lambda r, n=name: r.true_at_estimate_mm[n]),
                        (m, "_after", lambda r, n=name: r.true_after_mm[n])]
-        cols = ["k", "tracking"] + [f"{a}{m}{s}_mm" for m, s, _ in groups for a in xyz] \
+        cols = ["k", "tracking", "in_reach"] + [f"{a}{m}{s}_mm" for m, s, _ in groups for a in xyz] \
             + qcols + ["e_mm", "rules_fired", "flags"]
         e = self.error_mm()
         out = []
         for k, r in enumerate(self.records):
-            vals = [k, int(k >= self.tracking_start)]
+            vals = [k, int(k >= self.tracking_start), int(r.in_reach)]
             for _, _, get in groups:
                 vals += [_fmt(v) for v in get(r)]
             vals += [_fmt(v) for v in r.q_deg]
@@ -274,7 +269,7 @@ class Session:
         n = len(self.points_mm)
         self.trace = Trace(planar, world.arm.n_joints,
                            n // 2 if tracking_start is None else int(tracking_start))
-        self._in_reach = [world.arm.reachable(p, REACH_TOL_MM) for p in self.points_mm]
+        self._in_reach = [world.arm.reachable(p) for p in self.points_mm]
         self.k = 0
         self.last_error_mm = float("nan")
         self._iteration = 0

@@ -144,7 +144,7 @@ def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_re
     """An arm of 60/30 mm reaches 30 to 90 mm from the base; T1 runs 24 to 101 mm. Table 2 told
     the nominal 100/100 mm flags none; DLS flags nothing ever. Both leave out exactly the set
     points the arm cannot reach, counted by hand from the annulus (widened by REACH_TOL_MM)."""
-    from itg_vision.loop import REACH_TOL_MM
+    from itg_vision.arm import REACH_TOL_MM
     from itg_vision.runner import RunConfig, execute, prepare
 
     out = {}
@@ -164,22 +164,25 @@ def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_re
 def test_the_three_link_led_reaches_what_its_pose_puts_it_at_and_no_farther():
     """The LED sits h = 12 mm beside the arm's plane: from the shoulder it reaches between
     sqrt((L2 - L3)^2 + h^2) and sqrt((L2 + L3)^2 + h^2), and never within h of the base axis."""
-    from itg_vision.arm import forward_kinematics
+    from itg_vision.arm import REACH_TOL_MM, forward_kinematics
 
     arm = ArmSpec.from_args("three-link")
     h, (L1, L2, L3) = arm.led_standoff_mm, arm.links_mm
     q = np.random.default_rng(0).uniform(-180, 180, (500, 3))
     assert all(arm.reachable(forward_kinematics(arm, p)["gripper"], 1e-6) for p in q)
     far = np.hypot(L2 + L3, h)
-    assert arm.reachable([far - 1e-3, 0, L1]) and not arm.reachable([far + 1e-3, 0, L1])
-    assert arm.reachable([h + 1e-3, 0, L1 + 150]) and not arm.reachable([h - 1e-3, 0, L1 + 150])
+    for tol in (0.0, REACH_TOL_MM):  # the tolerance widens each boundary by itself, on the radius
+        assert arm.reachable([far + tol - 1e-3, 0, L1], tol)
+        assert not arm.reachable([far + tol + 1e-3, 0, L1], tol)
+        assert arm.reachable([h - tol + 1e-3, 0, L1 + 150], tol)
+        assert not arm.reachable([h - tol - 1e-3, 0, L1 + 150], tol)
 
 
 def test_a_one_link_path_rounded_in_its_file_is_in_reach_and_one_a_mm_off_is_not(tmp_path):
     """The one-link arm reaches only its 100 mm circle. A circle written with 2 decimals lies
     off it by up to 0.007 mm: in reach (REACH_TOL_MM, the paper's w = 0.5 mm). A circle of
     101 mm is 1 mm off: out of reach for every set point."""
-    from itg_vision.loop import REACH_TOL_MM
+    from itg_vision.arm import REACH_TOL_MM
     from itg_vision.runner import RunConfig, execute, prepare
 
     a = np.radians(np.linspace(0.0, 90.0, 30))

@@ -24,13 +24,14 @@ def test_more_iterations_track_better():
 def test_out_of_reach_points_are_counted_skipped_and_tracking_resumes():
     trace, s = execute(prepare(RunConfig(arm="three-link", feedback="model", trajectory="line-ab")))
     e = trace.error_mm()
-    oor = np.asarray(trace.out_of_reach)
-    assert 0 < s["n_out_of_reach"] < s["n_setpoints"]
+    oor = np.asarray(trace.out_of_reach)  # RULE 0's flags, on the exact model's links
+    assert np.array_equal(oor, ~trace.in_reach)  # here the same set points as the arm's reach
+    assert 0 < s["n_out_of_reach"] == s["n_flagged"] < s["n_setpoints"]
     assert oor[-1] and not oor[0]
     q = np.asarray(trace.q_deg)
     held = np.flatnonzero(oor)
     assert np.allclose(q[held[1:]], q[held[:-1]])  # the arm holds while out of reach
-    assert np.isfinite(s["e_av_mm"]) and s["e_av_mm"] == pytest.approx(e[~oor].mean())
+    assert np.isfinite(s["e_av_mm"]) and s["e_av_mm"] == pytest.approx(e[trace.in_reach].mean())
 
 
 def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
@@ -51,7 +52,7 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
     assert s["controller_params"] == {"gain_deg_per_mm": 0.5} and s["feedback_params"] == {}
     assert s["n_setpoints"] == 40 and s["feedback"] == "model"
     lines = (out / "trace.csv").read_text().splitlines()
-    assert len(lines) == 41 and lines[0].startswith("k,tracking,xd_mm,yd_mm")
+    assert len(lines) == 41 and lines[0].startswith("k,tracking,in_reach,xd_mm,yd_mm")
     assert (out / "path.png").stat().st_size > 1000 and (out / "error.png").stat().st_size > 1000
     assert not list(tmp_path.glob(".*tmp"))
 
@@ -70,7 +71,8 @@ def test_trace_puts_estimate_and_truth_of_the_same_instant_side_by_side(tmp_path
     with open(tmp_path / "t.csv", newline="") as f:
         r = list(csv.DictReader(f))
     assert {"xg_est_mm", "xg_true_mm", "xg_after_mm", "xe_est_mm", "xe_true_mm", "q2_deg",
-            "e_mm", "tracking"} <= set(r[0])
+            "e_mm", "tracking", "in_reach"} <= set(r[0])
+    assert all(x["in_reach"] == "1" for x in r)  # T1 lies in the arm's reach
 
     def dist(a, b):
         return np.array([np.hypot(float(x[f"x{a}_mm"]) - float(x[f"x{b}_mm"]),
