@@ -4,11 +4,13 @@ option, no traceback, nothing touched. Table-driven, each command called in-proc
 import copy
 import os
 import random
+import re
 
 import pytest
 import yaml
 
 from itg_vision import calibrate, paper, run
+from itg_vision.arm import ARMS_DIR
 from itg_vision.bench import __main__ as bench
 from itg_vision.bench import noise
 from itg_vision.camera import CAMERAS_DIR
@@ -103,6 +105,8 @@ def make_inputs(tmp):
     f["binary.csv"] = tmp / "binary.csv"
     f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
     text("not-rig.yaml", "just: text\n")
+    text("negative-standoff.yaml", re.sub(r"(?m)^led_standoff_mm: .*$", "led_standoff_mm: -3",
+                                          (ARMS_DIR / "two-link.yaml").read_text()))
     f["folder"] = tmp / "a-folder"
     f["folder"].mkdir()
     (f["folder"] / "thesis.tex").write_text("keep me")
@@ -146,6 +150,7 @@ CASES = [
     ("rig-yaml-syntax", "run", ["--quiet", "--rig", "{syntax.yaml}"], "syntax.yaml:4:1: not valid YAML (expected ',' or ']'"),
     ("rig-5000-digit-int", "run", ["--quiet", "--rig", "{digits.yaml}"], "digits.yaml:2:10: not valid YAML (a number of more than 4300 digits)"),
     ("rig-nested", "run", ["--quiet", "--rig", "{nested.yaml}"], "nested.yaml: nested too deeply"),
+    ("arm-negative-standoff", "run", ["--quiet", "--arm", "{negative-standoff.yaml}"], "negative-standoff.yaml: led_standoff_mm: must be >= 0 (mm), got -3"),
     ("rig-not-a-rig", "run", ["--quiet", "--rig", "{not-rig.yaml}"], "not-rig.yaml: name: missing"),
     ("rig-dev-zero", "run", ["--quiet", "--rig", "/dev/zero"], "/dev/zero: rig file larger than"),
     ("rig-folder", "run", ["--quiet", "--rig", "{folder}"], "a-folder: is a folder, not a rig file"),
