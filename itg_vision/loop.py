@@ -87,7 +87,7 @@ class SetPointRecord:
     fired: tuple[int, ...]
     flags: tuple[str, ...]
     out_of_reach: bool
-    in_reach: bool = True
+    in_reach: bool
 
 
 @dataclass
@@ -215,8 +215,8 @@ class Trace:
             groups += [(m, "_est", lambda r, n=name: r.estimate.get(n)),
                        (m, "_true", lambda r, n=name: r.true_at_estimate_mm[n]),
                        (m, "_after", lambda r, n=name: r.true_after_mm[n])]
-        cols = ["k", "tracking", "in_reach"] + [f"{a}{m}{s}_mm" for m, s, _ in groups for a in xyz] \
-            + qcols + ["e_mm", "rules_fired", "flags"]
+        cols = (["k", "tracking", "in_reach"] + [f"{a}{m}{s}_mm" for m, s, _ in groups for a in xyz]
+                + qcols + ["e_mm", "rules_fired", "flags"])
         e = self.error_mm()
         out = []
         for k, r in enumerate(self.records):
@@ -269,7 +269,6 @@ class Session:
         n = len(self.points_mm)
         self.trace = Trace(planar, world.arm.n_joints,
                            n // 2 if tracking_start is None else int(tracking_start))
-        self._in_reach = [world.arm.reachable(p) for p in self.points_mm]
         self.k = 0
         self.last_error_mm = float("nan")
         self._iteration = 0
@@ -327,7 +326,7 @@ class Session:
         self.trace.record(SetPointRecord(
             self.desired_mm.copy(), estimate, self._seen or truth, truth,
             self.world.q_deg.copy(), tuple(self._fired), tuple(flags), self._oor,
-            self._in_reach[self.k]))
+            self.world.arm.reachable(self.desired_mm)))
         self.k += 1
         self._iteration = 0
         self._fired, self._flags, self._oor = [], [], False
@@ -358,6 +357,6 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
         q_deg = world.q_deg if controller.uses_encoders else None
         step = controller.step(aim, estimate, q_deg)
         if step.out_of_reach and not np.array_equal(aim, desired):
-            step = controller.step(desired, estimate, q_deg)  # reach is the set point's, not the aim's
+            step = controller.step(desired, estimate, q_deg)  # reach: the set point's, not the aim's
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0))
     return session.trace

@@ -26,8 +26,8 @@ def _save(fig, path) -> None:
 def _reach_marks(trace) -> list[tuple[np.ndarray, str, str, str]]:
     """(set points, marker, colour, label) for the set points the arm cannot reach (left out of
     the metrics) and those the controller flagged out of reach that the arm can reach."""
-    gone = ~np.asarray(trace.in_reach, bool)
-    flagged = np.asarray(trace.out_of_reach, bool) & ~gone
+    gone = ~trace.in_reach
+    flagged = trace.out_of_reach & ~gone
     return [(w, m, c, label) for w, m, c, label in (
         (gone, "x", "C3", "out of reach"), (flagged, "+", "C1", "flagged out of reach, reachable"))
         if w.any()]
@@ -67,7 +67,7 @@ def error_figure(trace, title: str, path) -> None:
     """E_i along the trajectory."""
     e = trace.error_mm()
     fig, ax = plt.subplots(figsize=(7, 3.2))
-    ax.plot(np.where(np.asarray(trace.in_reach, bool), e, np.nan), "-", color="C0", lw=1)
+    ax.plot(np.where(trace.in_reach, e, np.nan), "-", color="C0", lw=1)
     marks = _reach_marks(trace)
     for which, _, color, label in marks:
         ax.plot(np.flatnonzero(which), np.zeros(which.sum()), "|", color=color, label=label)

@@ -161,9 +161,10 @@ MEMORY_INTRO = [
 def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[str]]:
     """The explanation of the 1 px target's misses (:data:`MEMORY_INTRO`), tested by changing
     its cause: memory (the loop's ``correction``, the same for both: ``itg-plus-vision-ff``,
-    ``jacobian-vision-ff``) should lower both alike, by sqrt(K / (2 - K)) for white noise. Returns the checks (``measured`` is the worst curve's,
-    over the curves where every run started and has a tracking median; a run that did not start,
-    or a cell without a median, makes every check not met, as for the targets) and two lines:
+    ``jacobian-vision-ff``) should lower both alike, by sqrt(K / (2 - K)) for white noise.
+    Returns the checks (``measured`` is the worst curve's, over the curves where every run
+    started and has a tracking median; a run that did not start, or a cell without a median,
+    makes every check not met, as for the targets) and two lines:
     the ratio target with memory for both, and with memory for ITG+ alone (an unequal
     comparison, never counted)."""
     ks = (SUBJECT, DLS, SUBJECT_FF, DLS_FF)
@@ -207,7 +208,8 @@ def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[st
         met = [t for t, v in per.items() if v["ratio"][a] <= v["ratio"][b]]
         return (f"- {what}: the 1 px ratio target ({LABELS[a]} degrades no more than {LABELS[b]}) "
                 f"would be met on {len(met)} of {n} curves: " + ", ".join(
-                    f"{t} {v['ratio'][a]:.3g}x against {v['ratio'][b]:.3g}x" for t, v in per.items()))
+                    f"{t} {v['ratio'][a]:.3g}x against {v['ratio'][b]:.3g}x"
+                    for t, v in per.items()))
 
     checks = [same(SUBJECT, DLS), same(SUBJECT_FF, DLS_FF), lowered(SUBJECT, SUBJECT_FF),
               lowered(DLS, DLS_FF)]
@@ -384,7 +386,8 @@ def speed_target(costs: dict) -> Target:
 
 
 def table(targets: list[Target], what: str = "target") -> list[str]:
-    lines = [f"| {what} | case | measured | threshold | verdict | note |", "|---|---|---|---|---|---|"]
+    lines = [f"| {what} | case | measured | threshold | verdict | note |",
+             "|---|---|---|---|---|---|"]
     for t in targets:
         lines.append(f"| {t.what} | {t.case} | {t.measured:.3g} {t.unit} | {t.op} "
                      f"{t.threshold:.3g} {t.unit} | {'met' if t.met else '**missed**'} | {t.full_note} |")

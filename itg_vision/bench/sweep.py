@@ -49,21 +49,23 @@ CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "itg-plus-vision": ("itg", "vision", 0.0, "itg_plus_rules"),
     "itg-plus-model": ("itg", "model", 0.0, "itg_plus_rules"),
 }
-#: Controllers only named sweeps use (``start-tie``; any sweep given ``--controllers``): ideal
-#: LED positions plus Gaussian noise of about vision's size, many seeds cheaply.
+#: Controllers with memory (``bench itg-plus``: is the eye's noise the floor of both trackers?):
+#: the controller named, with the set point's motion fed forward and this fraction of the
+#: measured error corrected per decision (``run --correction``; :func:`itg_vision.loop.aim_mm`).
+#: Every other controller: 1.
+FF_CORRECTION = 0.5
+WITH_MEMORY = {"itg-plus-vision-ff": "itg-plus-vision", "jacobian-vision-ff": "jacobian-vision"}
+CORRECTIONS = dict.fromkeys(WITH_MEMORY, FF_CORRECTION)
+#: Controllers only named sweeps use (``start-tie``, ``itg-plus``; any sweep given
+#: ``--controllers``): ideal LED positions plus Gaussian noise of about vision's size, many seeds
+#: cheaply; and those with memory.
 TRUTH_NOISE_MM = 0.25
 EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "rules"),
     "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM, None),
     "itg-plus-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "itg_plus_rules"),
-    "itg-plus-vision-ff": ("itg", "vision", 0.0, "itg_plus_rules"),
-    "jacobian-vision-ff": ("jacobian", "vision", 0.0, None),
+    **{ff: CONTROLLERS[base] for ff, base in WITH_MEMORY.items()},
 }
-#: Controllers with memory (``bench itg-plus``: is the eye's noise the floor of both trackers?):
-#: the set point's motion fed forward, this fraction of the measured error corrected per
-#: decision (``run --correction``; :func:`itg_vision.loop.aim_mm`). Every other controller: 1.
-FF_CORRECTION = 0.5
-CORRECTIONS = {"itg-plus-vision-ff": FF_CORRECTION, "jacobian-vision-ff": FF_CORRECTION}
 ALL_CONTROLLERS = {**CONTROLLERS, **EXTRA_CONTROLLERS}
 CONTROLLER_TITLES = {
     "itg-vision": "ITG (the paper's rules) fed by vision (no model)",
@@ -77,7 +79,8 @@ CONTROLLER_TITLES = {
     "itg-plus-truth-noise": f"ITG+ fed by the LED positions + {TRUTH_NOISE_MM} mm noise",
     "itg-plus-vision-ff": f"ITG+ fed by vision, with memory: correction {FF_CORRECTION} "
                           "(run --correction)",
-    "jacobian-vision-ff": f"Jacobian tracker fed by vision, with memory: correction {FF_CORRECTION}",
+    "jacobian-vision-ff": f"Jacobian tracker fed by vision, with memory: correction "
+                          f"{FF_CORRECTION}",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
 #: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base`` (closed, two-link) and
