@@ -70,9 +70,10 @@ class TrackingEnv(gym.Env):
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
-        if cfg.correction != 1:
-            raise ConfigError("correction", "aims a controller; in the environment you are the "
-                                            "controller")
+        for name, default in (("correction", 1.0), ("preview", False)):
+            if getattr(cfg, name) != default:
+                raise ConfigError(name, "aims a controller; in the environment you are the "
+                                        "controller")
         if cfg.max_step_deg is None:
             cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
         if images:

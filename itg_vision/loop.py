@@ -337,22 +337,27 @@ class Session:
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
              tracking_start: int | None = None, correction: float = 1.0,
+             aims_mm: np.ndarray | None = None,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) with ``controller`` and return the trace.
 
-    See :class:`Session` for the parameters, :func:`aim_mm` for ``correction``. The loop, top to
-    bottom: observe through the feedback, aim, let the controller decide, apply the step under
-    the servo limit.
+    See :class:`Session` for the parameters, :func:`aim_mm` for ``correction``. ``aims_mm``
+    (shape (n, 3), one per set point; None: the set points): where the controller is asked to go
+    instead of the set point (a preview's plan, :mod:`itg_vision.preview`), before the
+    correction. E_i is measured from the set point whatever the aim. The loop, top to bottom:
+    observe through the feedback, aim, let the controller decide, apply the step under the
+    servo limit.
     """
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)
-    previous = None  # the set point of the previous decision
+    previous = None  # the set point (or planned aim) of the previous decision
     while not session.done:
         estimate = session.observe()
         desired = session.desired_mm
-        aim = aim_mm(desired, previous, estimate.gripper_mm, correction, planar)
-        previous = desired
+        target = desired if aims_mm is None else aims_mm[session.k]
+        aim = aim_mm(target, previous, estimate.gripper_mm, correction, planar)
+        previous = target
         t0 = time.perf_counter()
         q_deg = world.q_deg if controller.uses_encoders else None
         step = controller.step(aim, estimate, q_deg)

@@ -35,7 +35,7 @@ _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"
           ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
           ("strobe", "strobe"), ("supersample", "ss"), ("full_frame", "fullframe"),
           ("true_links", "truelinks"), ("joint_offset", "offset"),
-          ("correction", "corr"), ("seed", "seed"))
+          ("correction", "corr"), ("preview", "preview"), ("seed", "seed"))
 #: RunConfig field -> the option that sets it (errors name the option).
 OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
            "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
@@ -44,7 +44,7 @@ OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", 
            "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
            "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",
            "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset",
-           "correction": "--correction"}
+           "correction": "--correction", "preview": "--preview"}
 
 
 def _links(text: str) -> tuple[float, ...]:
@@ -106,6 +106,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "<= 1; default 1: aim at the set point). The eye's noise then reaches the "
                          "gripper scaled by K, and the controller's own step errors take 1/K "
                          "steps to correct (README, 'Noise and memory')")
+    ap.add_argument("--preview", action="store_true",
+                    help="two-link arm: near the base, aim where a plan of the whole path puts "
+                         "the gripper, the line through the base turning at most the servo "
+                         "limit per iteration (needs --max-step, or an ITG+ rule base, which "
+                         "takes the arm file's limit). E_i is still measured from the set point "
+                         "(README, 'Preview')")
     ap.add_argument("--laps", type=int, default=1,
                     help="run a closed trajectory this many times (default %(default)s); the "
                          "tracking-phase metrics then cover the laps after the first")
@@ -228,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
                         full_frame=args.full_frame or (args.video and args.feedback == "vision"),
                         seed=args.seed, true_links_mm=args.true_links,
                         joint_offset_deg=args.joint_offset, allow_unseen=args.allow_unseen,
-                        correction=args.correction)
+                        correction=args.correction, preview=args.preview)
         try:
             prep = prepare(cfg)
         except ConfigError as exc:
@@ -285,6 +291,8 @@ def summary_table(s: dict, out: Path) -> str:
             ("servo limit", "none" if s["max_step_deg"] is None else f"{s['max_step_deg']:g} deg/iteration"),
             ("controller parameters", ", ".join(f"{k} {v}" for k, v in s["controller_params"].items())
              or "none"),
+            *([("preview: aims moved / largest move", "{moved} / {largest_move_mm:.3f} mm".format(
+                **s["preview"]))] if s.get("preview") else []),
             ("lengths the controller used", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",

@@ -8,6 +8,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 
 from . import trajectory as traj
 from .arm import ArmSpec
@@ -44,7 +45,10 @@ class RunConfig:
     ``max_step_deg`` is the servo rate limit (deg per iteration), applied by the loop to every
     controller alike. ``correction`` < 1 feeds the set point's motion forward and corrects only
     that fraction of the measured error per decision (:func:`itg_vision.loop.aim_mm`), for the
-    closed-loop controllers (itg, jacobian). ``laps`` repeats a closed trajectory.
+    closed-loop controllers (itg, jacobian). ``preview`` asks the controller, near the base of
+    a planar two-link arm, to go where a plan of the whole path under the servo limit puts the
+    gripper (:mod:`itg_vision.preview`); it needs a servo limit. ``laps`` repeats a closed
+    trajectory.
     ``noise_mm``: Gaussian noise (std per axis, mm) added to ``truth`` feedback.
 
     Every field is checked by :meth:`validate` (and :func:`prepare`); a bad one raises
@@ -76,6 +80,7 @@ class RunConfig:
     joint_offset_deg: tuple[float, ...] | None = None
     allow_unseen: bool = False  # skip the start-up check that the cameras can see the arm
     correction: float = 1.0  # fraction of the measured error corrected per decision (loop.aim_mm)
+    preview: bool = False  # aim near the base by a plan of the whole path (itg_vision.preview)
 
     def validate(self) -> None:
         """Check every field's range; raises `ConfigError` naming the first bad one."""
@@ -127,6 +132,7 @@ class RunConfig:
              f"must be in (0, 1], got {self.correction}"),
             ("correction", self.correction == 1 or self.controller != "ik",
              "applies to the closed-loop controllers (itg, jacobian); ik is open loop"),
+            ("preview", isinstance(self.preview, bool), f"must be true or false, got {self.preview!r}"),
         ]
         for name, ok, msg in checks:
             if not ok:
@@ -159,6 +165,7 @@ class Prepared:
     controller: object
     feedback_factory: object
     info: dict = field(default_factory=dict)
+    aims_mm: np.ndarray | None = None  # the preview's aims, one per set point (None: no preview)
 
 
 def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
@@ -211,6 +218,9 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
                                  "(a rule base's parameter)")
         controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step_deg)
         info["controller_params"] = controller.params()
+    aims = None
+    if cfg.preview:
+        aims = _preview(cfg, model, trajectory, info)
 
     if cfg.feedback == "model":
         def feedback_factory():
@@ -239,7 +249,25 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
             return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,
                                   dropout=cfg.dropout, strobe=cfg.strobe,
                                   supersample=supersample, full_frame=cfg.full_frame)
-    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info)
+    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, aims)
+
+
+def _preview(cfg: RunConfig, model: ArmSpec, trajectory, info: dict) -> np.ndarray:
+    """The preview's aims (:mod:`itg_vision.preview`), the line through the base turning at
+    most q1's servo limit per iteration; records the plan in ``info``."""
+    from .preview import plan
+
+    if not (model.planar and model.n_joints == 2):
+        raise ConfigError("preview", f"plans for a planar two-link arm (its gripper slides "
+                                     f"along a line through the base); arm {model.name} is not")
+    if cfg.max_step_deg is None:
+        raise ConfigError("preview", "plans under the servo limit: set max_step_deg "
+                                     "(--max-step)")
+    turn = cfg.max_step_deg * cfg.iterations
+    p = plan(trajectory.points_mm, turn)
+    info["preview"] = {"turn_deg_per_set_point": turn, "moved": p.moved,
+                       "largest_move_mm": round(p.largest_move_mm, 4)}
+    return p.aims_mm
 
 
 def supersample_of(cfg: RunConfig, rig) -> int:
@@ -290,7 +318,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          iterations=cfg.iterations, planar=prep.model.planar,
                          max_step_deg=cfg.max_step_deg,
                          tracking_start=prep.trajectory.tracking_start,
-                         correction=cfg.correction, progress=progress, recorder=recorder)
+                         correction=cfg.correction, aims_mm=prep.aims_mm,
+                         progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {
         **trace.metrics(),
@@ -309,6 +338,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "iterations": cfg.iterations,
         "max_step_deg": cfg.max_step_deg,
         "correction": cfg.correction,
+        "preview": cfg.preview,
         "laps": prep.trajectory.laps,
         "geometry": geometry.record(),
         "feedback_params": feedback_params(

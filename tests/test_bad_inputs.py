@@ -140,6 +140,8 @@ CASES = [
     ("correction-0", "run", RUN + ["--correction", "0"], "--correction: must be in (0, 1], got 0.0"),
     ("correction-nan", "run", RUN + ["--correction", "nan"], "--correction: must be in (0, 1], got nan"),
     ("correction-with-ik", "run", RUN + ["--controller", "ik", "--correction", "0.5"], "--correction: applies to the closed-loop controllers (itg, jacobian); ik is open loop"),
+    ("preview-no-servo-limit", "run", RUN + ["--controller", "jacobian", "--preview"], "--preview: plans under the servo limit: set max_step_deg (--max-step)"),
+    ("preview-three-link", "run", RUN + ["--arm", "three-link", "--preview"], "--preview: plans for a planar two-link arm (its gripper slides along a line through the base); arm three-link is not"),
     ("gain-with-ik", "run", RUN + ["--controller", "ik", "--gain", "0.3"], "--gain: the ik controller takes no f"),
     ("step-unused", "run", RUN + ["--step", "3"], "table2.rules never uses S"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves q2 of this 2-joint arm"),

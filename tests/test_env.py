@@ -88,8 +88,10 @@ def test_images_on_request_are_the_frames_the_estimate_came_from():
     env.close()
 
 
-def test_env_refuses_a_correction_it_would_not_apply():
+@pytest.mark.parametrize("aim", [{"correction": 0.5}, {"preview": True}])
+def test_env_refuses_an_aim_it_would_not_apply(aim):
     from itg_vision.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="in the environment you are the controller"):
-        TrackingEnv(feedback="truth", correction=0.5)
+    with pytest.raises(ConfigError, match=f"{next(iter(aim))}: aims a controller; in the "
+                                          "environment you are the controller"):
+        TrackingEnv(feedback="truth", max_step_deg=20, **aim)
