@@ -4,11 +4,12 @@ Runs two sweeps of the noise benchmark (same definition, store, executors and re
 own folder under ``--out``, resumable):
 
 - ``tracking/``: sweep ``itg-plus``: the two-link arm under vision feedback on T1, T2, ``abcd``
-  and the closed curves ``peanut``, ``limacon``, ``rose``, ``lemniscate`` and
-  ``ellipse-by-base`` (2 laps; each passes within 1.6 mm of the base), clean and with 1 px
-  centroid noise, ITG+ against the DLS Jacobian tracker and the paper's Table 2, same seeds,
-  same servo limit; and ITG+ and DLS with the same memory (``run --correction 0.5``), whose
-  runs test the explanation of the 1 px target's misses (:func:`memory_checks`) and enter no
+  and the closed curves ``peanut``, ``limacon``, ``rose``, ``lemniscate``,
+  ``ellipse-by-base`` and ``trefoil`` (2 laps; each passes within 1.6 mm of the base), clean
+  and with 1 px centroid noise, ITG+ against the DLS Jacobian tracker and the paper's Table 2,
+  same seeds, same servo limit; ITG+ and DLS with the same memory (``run --correction 0.5``),
+  whose runs test the explanation of the 1 px target's misses (:func:`memory_checks`); and
+  ITG+ and DLS with preview (``run --preview``, :func:`preview_checks`). Neither enters a
   target;
 - ``three-link/``: sweep ``itg-plus-three-link``: the three-link arm from its straight-up start
   on ``line-ab-reach`` and the held-out ``helix``, links -5/0/+5 % x joint offset 0/1 deg,
@@ -44,8 +45,12 @@ MEDIAN_FACTOR = 2.0  # tracking median within this factor of the DLS tracker's
 SUBJECT, DLS, TABLE2 = "itg-plus-vision", "jacobian-vision", "itg-vision"
 SUBJECT_3, DLS_3 = SUBJECT, DLS
 SUBJECT_FF, DLS_FF = "itg-plus-vision-ff", "jacobian-vision-ff"  # the same, with memory
+SUBJECT_PV, DLS_PV = "itg-plus-vision-preview", "jacobian-vision-preview"  # with preview
 LABELS = {SUBJECT: "ITG+", DLS: "DLS", TABLE2: "Table 2", SUBJECT_FF: "ITG+ with memory",
-          DLS_FF: "DLS with memory"}
+          DLS_FF: "DLS with memory", SUBJECT_PV: "ITG+ with preview", DLS_PV: "DLS with preview"}
+#: Metric columns that must be identical between a run with preview and without when the plan
+#: moves no aim (the preview acts through its moved aims alone).
+SAME_COLUMNS = ("e_av_mm", "e_max_mm", "track_median_mm", "track_max_mm", "first_error_mm")
 SAME_MM = 0.15  # two 1 px tracking medians "land the same millimetres": within this fraction
 COMMAND = "bench itg-plus"
 
@@ -216,6 +221,61 @@ def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[st
     lines = [ratio_line(SUBJECT_FF, DLS_FF, "Memory for both"),
              ratio_line(SUBJECT_FF, DLS, "Memory for ITG+ alone (unequal: not counted)")]
     return checks, lines
+
+
+#: targets.md's heading and paragraph above the checks of :func:`preview_checks`.
+PREVIEW_INTRO = [
+    "## Preview: the line through the base planned ahead (not counted among the targets)", "",
+    "Near the base the two-link arm is folded: the gripper lies on a line through the base that "
+    "q1 turns at most the servo limit per step. A path passing the base at c mm with v mm per "
+    "set point turns about it by up to v / c rad per set point, faster than that, so a one-step "
+    "tracker chases it round the base and is left behind. With preview (`run --preview`, "
+    "`itg_vision/preview.py`) the loop plans the line's direction over the whole path, turning "
+    "at most the servo limit per set point, for the least largest distance of a set point from "
+    "its line, and asks the controller for the set point's projection on it; E_i is measured "
+    "from the set point. Vision feedback, the same servo limit and seeds as above; `trefoil` "
+    "was made after the preview was built, to test it. Each verdict is computed from its "
+    "threshold.", ""]
+
+
+def preview_checks(rows: list[dict], trajectories, plans: dict) -> list[Target]:
+    """ITG+ and DLS with preview (``itg-plus-vision-preview``, ``jacobian-vision-preview``)
+    against themselves without, per trajectory: the tracking max target with preview, its 1 px
+    tail beside it, and, over the paths where the plan (``plans[t]``, a
+    :class:`itg_vision.preview.Preview`) moves no aim, how many runs with preview differ from
+    the same run without (the preview acts through its moved aims alone: 0)."""
+    out, differ, unmoved, gone_unmoved = [], 0, [], 0
+    ks = (SUBJECT, DLS, SUBJECT_PV, DLS_PV)
+    for t in trajectories:
+        c = {(k, cond): _runs(rows, trajectory=t, condition=cond, controller=k)
+             for k in ks for cond in ("clean", "noise-1px")}
+        if t not in plans or not _swept(c.values()):
+            continue
+        gone = sum(n for _, n in c.values())
+        mx = {(k, cond): worst(c[k, cond][0]) for k in ks for cond in ("clean", "noise-1px")}
+        p = plans[t]
+        out.append(Target("tracking-phase max E_i with preview (worst seed)", t,
+                          mx[SUBJECT_PV, "clean"], "<", TRACK_MAX_MM, "mm",
+                          f"without preview {mx[SUBJECT, 'clean']:.3g}; DLS with / without "
+                          f"{mx[DLS_PV, 'clean']:.3g} / {mx[DLS, 'clean']:.3g}; 1 px, ITG+ with "
+                          f"/ without {mx[SUBJECT_PV, 'noise-1px']:.3g} / "
+                          f"{mx[SUBJECT, 'noise-1px']:.3g}, DLS {mx[DLS_PV, 'noise-1px']:.3g} / "
+                          f"{mx[DLS, 'noise-1px']:.3g}; the plan moves {p.moved} aims per run, "
+                          f"the largest by {p.largest_move_mm:.3g} mm", gone))
+        if p.moved == 0:
+            unmoved.append(t)
+            gone_unmoved += gone
+            for base, pv in ((SUBJECT, SUBJECT_PV), (DLS, DLS_PV)):
+                for cond in ("clean", "noise-1px"):
+                    by_seed = {r["seed"]: r for r in c[base, cond][0]}
+                    differ += sum(any(r[col] != by_seed.get(r["seed"], {}).get(col)
+                                      for col in SAME_COLUMNS) for r in c[pv, cond][0])
+    if unmoved:
+        out.append(Target("runs with preview that differ from the same run without, where the "
+                          "plan moves no aim", ", ".join(unmoved), float(differ), "==", 0.0,
+                          "runs", "ITG+ and DLS, clean and 1 px, every seed: " + ", ".join(
+                              SAME_COLUMNS), gone_unmoved))
+    return out
 
 
 #: Grid of the servo-bound search: joint increments every BOUND_GRID_DEG within +-max_step.
@@ -420,6 +480,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
 
     def body() -> int:
+        from .. import preview
         from ..arm import ArmSpec
         from . import noise
         from .sweep import SWEEPS, build_sweep, load_trajectory
@@ -441,12 +502,13 @@ def main(argv: list[str] | None = None) -> int:
                                                 workers=args.workers, quiet=args.quiet)
             status = max(status, done)
         arm = ArmSpec.from_args("two-link")
-        bounds, greedy = {}, {}
+        bounds, greedy, plans = {}, {}, {}
         for t, spec in paths.items():  # the paths the runs followed
             servo = spec.max_step_deg
             path = load_trajectory(t, spec.points)
             bounds[t] = servo_bound_mm(path.points_mm, arm.links_mm, servo, path.closed)
             run = path.repeated(spec.laps)
+            plans[t] = preview.plan(run.points_mm, servo * spec.iterations)
             e = greedy_tracking_mm(run.points_mm, arm.links_mm, servo, arm.start_pose_deg)
             greedy[t] = float(e[run.tracking_start:].max())
         targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], bounds,
@@ -479,6 +541,9 @@ def main(argv: list[str] | None = None) -> int:
         checks, lines = memory_checks(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"])
         if checks:
             text += MEMORY_INTRO + table(checks, "check") + [""] + lines + [""]
+        checks = preview_checks(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], plans)
+        if checks:
+            text += PREVIEW_INTRO + table(checks, "check") + [""]
         outputs.write_text(out / "targets.md", "\n".join(text))
         print("\n".join(table(targets)))
         print(f"{sum(t.met for t in targets)} of {len(targets)} targets met; {out / 'targets.md'}")

@@ -36,8 +36,8 @@ RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
             "inputs_sha", "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
-            "measured_links_mm", "iterations", "max_step_deg", "correction", "rules", "rules_sha",
-            "controller_params"]
+            "measured_links_mm", "iterations", "max_step_deg", "correction", "preview", "rules",
+            "rules_sha", "controller_params"]
            + RUN_METRICS
            + ["diverged", "no_start", "code"])
 

@@ -56,6 +56,10 @@ CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
 FF_CORRECTION = 0.5
 WITH_MEMORY = {"itg-plus-vision-ff": "itg-plus-vision", "jacobian-vision-ff": "jacobian-vision"}
 CORRECTIONS = dict.fromkeys(WITH_MEMORY, FF_CORRECTION)
+#: Controllers with preview (``bench itg-plus``): the controller named, aiming near the base
+#: where a plan of the whole path puts the gripper (``run --preview``; :mod:`itg_vision.preview`).
+WITH_PREVIEW = {"itg-plus-vision-preview": "itg-plus-vision",
+                "jacobian-vision-preview": "jacobian-vision"}
 #: Controllers only named sweeps use (``start-tie``, ``itg-plus``; any sweep given
 #: ``--controllers``): ideal LED positions plus Gaussian noise of about vision's size, many seeds
 #: cheaply; and those with memory.
@@ -65,6 +69,7 @@ EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "jacobian-truth-noise": ("jacobian", "truth", TRUTH_NOISE_MM, None),
     "itg-plus-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "itg_plus_rules"),
     **{ff: CONTROLLERS[base] for ff, base in WITH_MEMORY.items()},
+    **{pv: CONTROLLERS[base] for pv, base in WITH_PREVIEW.items()},
 }
 ALL_CONTROLLERS = {**CONTROLLERS, **EXTRA_CONTROLLERS}
 CONTROLLER_TITLES = {
@@ -81,9 +86,12 @@ CONTROLLER_TITLES = {
                           "(run --correction)",
     "jacobian-vision-ff": f"Jacobian tracker fed by vision, with memory: correction "
                           f"{FF_CORRECTION}",
+    "itg-plus-vision-preview": "ITG+ fed by vision, with preview (run --preview)",
+    "jacobian-vision-preview": "Jacobian tracker fed by vision, with preview",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
-#: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base`` (closed, two-link) and
+#: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base``, ``trefoil`` (closed,
+#: two-link) and
 #: ``helix`` (three-link) are files in data/trajectories; the README says which of them each
 #: ITG+ form was measured on unseen.
 TRAJECTORIES: dict[str, str] = {
@@ -97,10 +105,11 @@ TRAJECTORIES: dict[str, str] = {
     "rose": "two-link",
     "lemniscate": "two-link",
     "ellipse-by-base": "two-link",
+    "trefoil": "two-link",
 }
 TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv", "limacon": "limacon.csv",
                     "rose": "rose.csv", "lemniscate": "lemniscate.csv",
-                    "ellipse-by-base": "ellipse-by-base.csv"}
+                    "ellipse-by-base": "ellipse-by-base.csv", "trefoil": "trefoil.csv"}
 NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
 DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
@@ -118,10 +127,11 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 7  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
+SCHEMA = 8  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
 #            5: inputs_sha, and the no_start column; 6: correction; 7: n_out_of_reach counts the
 #            set points the simulated arm cannot reach (was: those the controller flagged, now
-#            n_flagged), and the metrics leave out those, the same for every controller
+#            n_flagged), and the metrics leave out those, the same for every controller;
+#            8: preview
 
 
 @dataclass(frozen=True)
@@ -194,11 +204,12 @@ SWEEPS = {
                   "trajectories": ("line-ab-reach",),
                   "conditions": ("clean", "links+2%", "links+5%"), "seeds": 40},
     # issue 13's targets (bench itg-plus): two-link tracking under vision, clean and 1 px
-    # and both trackers with memory (the mechanism behind the 1 px target)
+    # and both trackers with memory (the mechanism behind the 1 px target) and with preview
     "itg-plus": {"controllers": ("itg-plus-vision", "jacobian-vision", "itg-vision",
-                                 "itg-plus-vision-ff", "jacobian-vision-ff"),
+                                 "itg-plus-vision-ff", "jacobian-vision-ff",
+                                 *WITH_PREVIEW),
                  "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut", "limacon",
-                                  "rose", "lemniscate", "ellipse-by-base"),
+                                  "rose", "lemniscate", "ellipse-by-base", "trefoil"),
                  "conditions": ("clean", "noise-1px"), "seeds": 3},
     # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
     "itg-plus-three-link": {"controllers": ("itg-plus-vision", "jacobian-vision"),
@@ -235,6 +246,7 @@ class RunSpec:
     max_step_deg: float | None
     laps: int
     correction: float  # the loop's correction (1: aim at the set point; CORRECTIONS)
+    preview: bool  # the loop aims by a plan of the path (WITH_PREVIEW)
 
     @property
     def run_id(self) -> str:
@@ -348,7 +360,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         link_error=cond.link_error,
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
                         max_step_deg=float(limits["max_step_deg"]), laps=laps,
-                        correction=CORRECTIONS.get(ctrl, 1.0)))
+                        correction=CORRECTIONS.get(ctrl, 1.0), preview=ctrl in WITH_PREVIEW))
     return specs
 
 
@@ -399,5 +411,5 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
                      noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
                      dropout=spec.dropout if vision else 0.0, seed=spec.seed,
                      true_links_mm=true_links, joint_offset_deg=offset,
-                     correction=spec.correction)
+                     correction=spec.correction, preview=spec.preview)
 
