@@ -57,7 +57,8 @@ def plan(points_mm, turn_deg: float, grid_deg: float = GRID_DEG) -> Preview:
     r, psi = np.hypot(x, y), np.arctan2(y, x)
     off = np.abs((psi - theta + np.pi / 2) % np.pi - np.pi / 2)  # angle set point - line
     cost = r * np.sin(np.maximum(0.0, off - np.radians(grid_deg) / 2))  # (n, lines), mm
-    reach = int(np.floor(turn_deg / grid_deg + 1e-9))  # cells the line may turn per set point
+    # cells the line may turn per set point (half the circle of lines: any line)
+    reach = min(int(np.floor(turn_deg / grid_deg + 1e-9)), len(theta) // 2)
 
     def best_before(v):  # for each line, the best of the lines one set point can turn from
         wrapped = np.concatenate([v[-reach:], v, v[:reach]]) if reach else v

@@ -4,6 +4,7 @@ the targets table's verdicts come from its thresholds."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from itg_vision.arm import ArmSpec
@@ -153,6 +154,33 @@ def test_memory_checks_test_the_explanation_by_changing_its_cause():
                   and r["seed"] in seeds else r for r in rows2]
         checks, _ = k.memory_checks(broken, ["ellipse-t1", "rose"])
         assert [t.case for t in checks] == ["1 curves"] * 4 and not any(t.met for t in checks)
+
+
+def test_preview_checks_compare_each_tracker_with_itself():
+    """The tracking max with preview per curve (ITG+'s worst seed, against 3 mm), its twins
+    beside it; where the plan moves no aim, runs with preview must equal those without: one
+    differing metric makes that check fail."""
+    from itg_vision.preview import Preview
+
+    k = itg_plus
+    ks = (k.SUBJECT, k.DLS, k.SUBJECT_PV, k.DLS_PV)
+    maxima = {k.SUBJECT: 3.1, k.DLS: 2.7, k.SUBJECT_PV: 2.1, k.DLS_PV: 2.2}
+    rows = [_row(c, s, trajectory=t, condition=cond, e_max_mm=5,
+                 track_max_mm=maxima[c] if t == "lemniscate" and s == 1 else 1)
+            for t in ("ellipse-t1", "lemniscate") for c in ks for s in range(3)
+            for cond in ("clean", "noise-1px")]
+    plans = {"ellipse-t1": Preview(np.zeros((4, 3)), 0, 0.0),
+             "lemniscate": Preview(np.zeros((4, 3)), 12, 1.26)}
+    checks = k.preview_checks(rows, ["ellipse-t1", "lemniscate", "not-run"], plans)
+    assert [(t.case, t.measured, t.met) for t in checks] == [
+        ("ellipse-t1", 1.0, True), ("lemniscate", 2.1, True), ("ellipse-t1", 0.0, True)]
+    assert "without preview 3.1; DLS with / without 2.2 / 2.7" in checks[1].note
+    assert "the plan moves 12 aims per run, the largest by 1.26 mm" in checks[1].note
+    moved = [{**r, "e_av_mm": "1.5"} if r["controller"] == k.DLS_PV and r["seed"] == "2"
+             and r["trajectory"] == "ellipse-t1" and r["condition"] == "noise-1px" else r
+             for r in rows]
+    last = k.preview_checks(moved, ["ellipse-t1"], plans)[-1]
+    assert last.measured == 1.0 and not last.met
 
 
 def _no_start(row):

@@ -80,6 +80,15 @@ def test_plan_on_a_line_past_the_base(c, v):
     assert turns.max() <= TURN + GRID_DEG + 1e-9
 
 
+@pytest.mark.parametrize("turn", [90.0, 200.0, 1e6])
+def test_a_servo_that_turns_the_line_anywhere_moves_no_aim(turn):
+    """From 90 deg per set point on, every line is one set point from every other."""
+    points = line_past_base(0.5, 4.0)
+    p = plan(points, turn)
+    assert p.moved == 0
+    np.testing.assert_array_equal(p.aims_mm, points)
+
+
 def test_plan_keeps_z_and_the_unmoved_set_points():
     points = line_past_base(2.0, 2.0)
     points[:, 2] = 12.0
