@@ -1,5 +1,8 @@
 """Preview (itg_vision/preview.py): the plan of the line through the base, checked against an
-independent search and against the physics of a line passing the base; and in the loop."""
+independent search and brute force, and against the physics of a line passing the base; and in
+the loop."""
+
+import itertools
 
 import numpy as np
 import pytest
@@ -21,15 +24,22 @@ def directions(aims):
     return np.degrees(np.arctan2(aims[:, 1], aims[:, 0])) % 180
 
 
-def least_bound_by_bisection(points, turn_deg, grid_deg=GRID_DEG):
-    """The least largest distance of a set point from its line, found another way: bisection on
-    the distance, each tried by carrying forward the set of line directions (the same grid and
-    the same half-cell allowance as the plan) that keep every set point so far within it."""
-    theta = np.radians(np.arange(0.0, 180.0, grid_deg))
+def cell_distances(points, grid_deg):
+    """(n, cells): a set point's distance from the nearest line of each cell of directions
+    (cells grid_deg wide from 0 deg, mod 180): 0 when its own direction lies in the cell."""
+    centre = np.radians(np.arange(0.0, 180.0, grid_deg) + grid_deg / 2)
     r = np.hypot(points[:, 0], points[:, 1])[:, None]
     psi = np.arctan2(points[:, 1], points[:, 0])[:, None]
-    off = np.abs((psi - theta + np.pi / 2) % np.pi - np.pi / 2)
-    dist = r * np.sin(np.maximum(0.0, off - np.radians(grid_deg) / 2))
+    off = np.abs((psi - centre + np.pi / 2) % np.pi - np.pi / 2)
+    return r * np.sin(np.maximum(0.0, off - np.radians(grid_deg) / 2))
+
+
+def least_bound_by_bisection(points, turn_deg, grid_deg=GRID_DEG):
+    """The least largest distance of a set point from its line, found another way: bisection on
+    the distance, each tried by carrying forward the set of cells of directions that keep every
+    set point so far within it, consecutive cells at most turn_deg apart."""
+    dist = cell_distances(points, grid_deg)
+    r = np.hypot(points[:, 0], points[:, 1])
     reach = int(np.floor(turn_deg / grid_deg + 1e-9))
 
     def feasible(m):
@@ -64,20 +74,57 @@ def test_plan_on_a_line_past_the_base(c, v):
     """A line c mm from the base, v mm per set point. The set point turns about the base by up
     to v / c rad per step, above 20 deg in every case here, so the plan must move aims. Holding
     the line parallel to the path is always possible and costs c: the plan never costs more.
-    Its bound is the least an independent search finds; its lines turn at most 20 deg per set
-    point; each aim is the set point's projection on a line through the base."""
+    Its bound is the least an independent search finds, and the largest move; its lines turn
+    at most 20 deg per set point plus one cell of its grid (documented); each aim is the set
+    point's projection on a line through the base."""
     points = line_past_base(c, v)
     p = plan(points, TURN)
     assert np.degrees(v / c) > TURN and p.moved > 0
     assert p.largest_move_mm <= c + 1e-9
-    grid_err = 60.0 * np.sin(np.radians(GRID_DEG))  # a set point's distance from its cell's edge
-    assert abs(p.largest_move_mm - least_bound_by_bisection(points, TURN)) <= grid_err
-    moved = np.linalg.norm(p.aims_mm - points, axis=1) > 0
+    assert abs(p.largest_move_mm - least_bound_by_bisection(points, TURN)) <= 1e-9
+    moves = np.linalg.norm(p.aims_mm - points, axis=1)
+    assert moves.max() == pytest.approx(p.largest_move_mm, abs=1e-12)
+    moved = moves > 0
+    assert moved.sum() == p.moved
     aim = p.aims_mm[moved, :2]
     np.testing.assert_allclose(np.sum(aim * (points[moved, :2] - aim), axis=1), 0, atol=1e-9)
     lines = directions(p.aims_mm)
     turns = np.abs((np.diff(lines) + 90) % 180 - 90)
     assert turns.max() <= TURN + GRID_DEG + 1e-9
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_plan_is_the_best_plan_by_brute_force(seed):
+    """Up to 3 set points near the base, a servo of 40 or 80 deg per set point (cells of 5 or
+    10 deg: an eighth of it): every sequence of cells whose consecutive cells are at most the
+    servo apart, enumerated; the plan has the least largest move, and among those the least sum
+    of squared moves."""
+    rng = np.random.default_rng(seed)
+    turn = float(rng.choice([40.0, 80.0]))
+    grid = turn / 8
+    n = int(rng.integers(1, 4))
+    points = np.c_[rng.normal(size=(n, 2)) * 5, np.zeros(n)]
+    if seed % 4 == 0:
+        points[0, :2] = 0.0  # at the base: every line is as good
+    dist = cell_distances(points, grid)
+    m, reach = dist.shape[1], int(turn / grid)
+    best = min((dist[np.arange(n), seq].max(), np.sum(dist[np.arange(n), seq] ** 2))
+               for seq in itertools.product(range(m), repeat=n)
+               if all(min((a - b) % m, (b - a) % m) <= reach for a, b in zip(seq, seq[1:])))
+    p = plan(points, turn, grid_deg=grid)
+    moves = np.linalg.norm(p.aims_mm - points, axis=1)
+    assert p.largest_move_mm == pytest.approx(best[0], abs=1e-9)
+    assert np.sum(moves ** 2) == pytest.approx(best[1], abs=1e-9)
+
+
+def test_a_line_through_the_base_is_left_as_it_is():
+    """A straight path through the base, slanted 40 deg: one line holds every set point (the
+    gripper slides through the base), whichever side of it the set point is."""
+    s = np.arange(-60.0, 60.0 + 1e-9, 4.0)
+    points = np.c_[s * np.cos(0.7), s * np.sin(0.7), np.zeros_like(s)]
+    p = plan(points, TURN)
+    assert p.moved == 0
+    np.testing.assert_array_equal(p.aims_mm, points)
 
 
 @pytest.mark.parametrize("turn", [90.0, 200.0, 1e6])
@@ -98,24 +145,45 @@ def test_plan_keeps_z_and_the_unmoved_set_points():
     np.testing.assert_array_equal(p.aims_mm[far], points[far])
 
 
-def test_preview_in_the_loop_on_a_line_past_the_base(tmp_path):
+def test_a_servo_below_a_grid_cell_still_follows_a_slow_path():
+    """A servo of 0.15 deg per set point (below the 0.25 deg grid) on a 50 mm circle turning
+    0.12 deg per set point: the grid is refined, the line follows, no aim moves."""
+    t = np.linspace(0, 2 * np.pi, 3000, endpoint=False)
+    points = np.c_[50 * np.cos(t), 50 * np.sin(t), np.zeros_like(t)]
+    assert plan(points, 0.15).moved == 0
+
+
+def test_plan_of_nothing_and_bad_turns():
+    assert plan(np.zeros((0, 3)), TURN).moved == 0
+    for bad in (0.0, -1.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="turn_deg must be finite and > 0"):
+            plan(line_past_base(2.0, 2.0), bad)
+
+
+@pytest.mark.parametrize("iterations, correction", [(1, 1.0), (2, 1.0), (1, 0.5)])
+def test_preview_in_the_loop_on_a_line_past_the_base(tmp_path, iterations, correction):
     """ITG+ on a line 2 mm from the base at 2 mm per set point, fed the simulator's truth. The
-    set point turns up to 57 deg per step about the base, the servo 20: without preview ITG+
-    chases it round the base. With preview the rules hold within w = 0.5 mm of an aim they can
-    reach in one step, and the aim is within the plan's bound of the set point, so every E_i
-    is within bound + w; E_i is measured from the set point, never from the aim."""
+    set point turns up to 57 deg per step about the base, the servo 20 per iteration: without
+    preview ITG+ chases it round the base. With preview, one iteration, the rules hold within
+    w = 0.5 mm of an aim they can reach in one step, and the aim is within the plan's bound of
+    the set point, so every E_i is within bound + w. With two iterations (the line turns 40 deg
+    per set point) and with memory (correction 0.5) preview still lowers the tracking max.
+    E_i is measured from the set point, never from the aim."""
     path = tmp_path / "line.csv"
     pts = np.r_[np.repeat(line_past_base(2.0, 2.0)[:1], 60, axis=0), line_past_base(2.0, 2.0)]
     np.savetxt(path, pts[:, :2], delimiter=",", header="x_mm,y_mm", comments="", fmt="%.6f")
     runs = {}
     for preview in (False, True):
         prep = prepare(RunConfig(trajectory=str(path), rules="itg-plus-two-link", feedback="truth",
-                                 max_step_deg=TURN, preview=preview))
+                                 max_step_deg=TURN, iterations=iterations,
+                                 correction=correction, preview=preview))
         trace, summary = execute(prep)
         runs[preview] = (trace, summary)
         np.testing.assert_array_equal(trace.desired_mm, prep.trajectory.points_mm)
-    bound = runs[True][1]["preview"]["largest_move_mm"]
+    plan_info = runs[True][1]["preview"]
+    assert plan_info["turn_deg_per_set_point"] == TURN * iterations
     e_on, e_off = (runs[k][0].error_mm()[60:] for k in (True, False))
-    assert runs[True][1]["preview"]["moved"] > 0 and bound <= 2.0
-    assert e_on.max() <= bound + 0.5
+    assert plan_info["moved"] > 0 and plan_info["largest_move_mm"] <= 2.0
+    if iterations == 1 and correction == 1.0:
+        assert e_on.max() <= plan_info["largest_move_mm"] + 0.5
     assert e_on.max() < e_off.max()
