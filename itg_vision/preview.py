@@ -42,11 +42,18 @@ GRID_DEG = 0.25
 class Preview:
     """A plan: ``aims_mm`` (n, 3), where the controller is asked to go at each set point;
     ``moved``: the set points whose aim is not the set point; ``largest_move_mm``: the largest
-    distance between a set point and its aim (the plan's bound, under its model of the arm)."""
+    distance between a set point and its aim (the plan's bound, under its model of the arm);
+    ``turn_deg``: the line's largest turn per set point it was planned for."""
 
     aims_mm: np.ndarray
     moved: int
     largest_move_mm: float
+    turn_deg: float
+
+    def record(self) -> dict:
+        """What a run's summary says of the plan."""
+        return {"turn_deg_per_set_point": self.turn_deg, "moved": self.moved,
+                "largest_move_mm": round(self.largest_move_mm, 4)}
 
 
 def plan(points_mm, turn_deg: float, grid_deg: float = GRID_DEG) -> Preview:
@@ -63,7 +70,7 @@ def plan(points_mm, turn_deg: float, grid_deg: float = GRID_DEG) -> Preview:
     if not (math.isfinite(turn_deg) and turn_deg > 0):
         raise ValueError(f"turn_deg must be finite and > 0, got {turn_deg}")
     if len(points) == 0:
-        return Preview(points, 0, 0.0)
+        return Preview(points, 0, 0.0, turn_deg)
     grid = min(grid_deg, turn_deg / 8)
     theta = np.radians(np.arange(0.0, 180.0, grid) + grid / 2)  # cell centres, mod 180 deg
     half = np.radians(grid) / 2
@@ -99,4 +106,4 @@ def plan(points_mm, turn_deg: float, grid_deg: float = GRID_DEG) -> Preview:
     unit = np.stack([np.cos(line), np.sin(line)], axis=1)[moved]
     aims = points.copy()
     aims[moved, :2] = np.sum(points[moved, :2] * unit, axis=1, keepdims=True) * unit
-    return Preview(aims, int(moved.sum()), float(cost[k, idx][moved].max(initial=0.0)))
+    return Preview(aims, int(moved.sum()), float(cost[k, idx][moved].max(initial=0.0)), turn_deg)

@@ -8,8 +8,6 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from . import trajectory as traj
 from .arm import ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
@@ -18,6 +16,7 @@ from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
 from .loop import Trace, distance_mm, simulate
+from .preview import Preview, plan
 from .rules import PARAM_FIELDS, load_rules
 from .world import World
 
@@ -165,7 +164,7 @@ class Prepared:
     controller: object
     feedback_factory: object
     info: dict = field(default_factory=dict)
-    aims_mm: np.ndarray | None = None  # the preview's aims, one per set point (None: no preview)
+    preview: Preview | None = None  # the preview's plan (None: no preview)
 
 
 def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
@@ -218,9 +217,7 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
                                  "(a rule base's parameter)")
         controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step_deg)
         info["controller_params"] = controller.params()
-    aims = None
-    if cfg.preview:
-        aims = _preview(cfg, model, trajectory, info)
+    planned = _preview(cfg, model, trajectory) if cfg.preview else None
 
     if cfg.feedback == "model":
         def feedback_factory():
@@ -249,25 +246,19 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
             return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,
                                   dropout=cfg.dropout, strobe=cfg.strobe,
                                   supersample=supersample, full_frame=cfg.full_frame)
-    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, aims)
+    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, planned)
 
 
-def _preview(cfg: RunConfig, model: ArmSpec, trajectory, info: dict) -> np.ndarray:
-    """The preview's aims (:mod:`itg_vision.preview`), the line through the base turning at
-    most q1's servo limit per iteration; records the plan in ``info``."""
-    from .preview import plan
-
+def _preview(cfg: RunConfig, model: ArmSpec, trajectory) -> Preview:
+    """The preview's plan (:mod:`itg_vision.preview`), the line through the base turning at
+    most q1's servo limit per iteration."""
     if not (model.planar and model.n_joints == 2):
         raise ConfigError("preview", f"plans for a planar two-link arm (its gripper slides "
                                      f"along a line through the base); arm {model.name} is not")
     if cfg.max_step_deg is None:
         raise ConfigError("preview", "plans under the servo limit: set max_step_deg "
                                      "(--max-step)")
-    turn = cfg.max_step_deg * cfg.iterations
-    p = plan(trajectory.points_mm, turn)
-    info["preview"] = {"turn_deg_per_set_point": turn, "moved": p.moved,
-                       "largest_move_mm": round(p.largest_move_mm, 4)}
-    return p.aims_mm
+    return plan(trajectory.points_mm, cfg.max_step_deg * cfg.iterations)
 
 
 def supersample_of(cfg: RunConfig, rig) -> int:
@@ -318,7 +309,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          iterations=cfg.iterations, planar=prep.model.planar,
                          max_step_deg=cfg.max_step_deg,
                          tracking_start=prep.trajectory.tracking_start,
-                         correction=cfg.correction, aims_mm=prep.aims_mm,
+                         correction=cfg.correction,
+                         aims_mm=None if prep.preview is None else prep.preview.aims_mm,
                          progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {
@@ -338,7 +330,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "iterations": cfg.iterations,
         "max_step_deg": cfg.max_step_deg,
         "correction": cfg.correction,
-        "preview": cfg.preview,
+        "preview": False if prep.preview is None else prep.preview.record(),  # as the config: off
         "laps": prep.trajectory.laps,
         "geometry": geometry.record(),
         "feedback_params": feedback_params(

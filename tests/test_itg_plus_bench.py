@@ -169,8 +169,8 @@ def test_preview_checks_compare_each_tracker_with_itself():
                  track_max_mm=maxima[c] if t == "lemniscate" and s == 1 else 1)
             for t in ("ellipse-t1", "lemniscate") for c in ks for s in range(3)
             for cond in ("clean", "noise-1px")]
-    plans = {"ellipse-t1": Preview(np.zeros((4, 3)), 0, 0.0),
-             "lemniscate": Preview(np.zeros((4, 3)), 12, 1.26)}
+    plans = {"ellipse-t1": Preview(np.zeros((4, 3)), 0, 0.0, 20.0),
+             "lemniscate": Preview(np.zeros((4, 3)), 12, 1.26, 20.0)}
     checks = k.preview_checks(rows, ["ellipse-t1", "lemniscate", "not-run"], plans)
     assert [(t.case, t.measured, t.met) for t in checks] == [
         ("ellipse-t1", 1.0, True), ("lemniscate", 2.1, True), ("ellipse-t1", 0.0, True)]

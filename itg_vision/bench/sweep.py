@@ -62,7 +62,7 @@ WITH_PREVIEW = {"itg-plus-vision-preview": "itg-plus-vision",
                 "jacobian-vision-preview": "jacobian-vision"}
 #: Controllers only named sweeps use (``start-tie``, ``itg-plus``; any sweep given
 #: ``--controllers``): ideal LED positions plus Gaussian noise of about vision's size, many seeds
-#: cheaply; and those with memory.
+#: cheaply; and those with memory or preview.
 TRUTH_NOISE_MM = 0.25
 EXTRA_CONTROLLERS: dict[str, tuple[str, str, float, str | None]] = {
     "itg-truth-noise": ("itg", "truth", TRUTH_NOISE_MM, "rules"),
