@@ -261,7 +261,10 @@ def preview_checks(rows: list[dict], trajectories, plans: dict) -> list[Target]:
                           f"/ without {mx[SUBJECT_PV, 'noise-1px']:.3g} / "
                           f"{mx[SUBJECT, 'noise-1px']:.3g}, DLS {mx[DLS_PV, 'noise-1px']:.3g} / "
                           f"{mx[DLS, 'noise-1px']:.3g}; the plan moves {p.moved} aims per run, "
-                          f"the largest by {p.largest_move_mm:.3g} mm", gone))
+                          f"the largest by {p.largest_move_mm:.3g} mm; clean tracking median "
+                          f"{_median(c[SUBJECT_PV, 'clean'][0], 'track_median_mm'):.3g} with "
+                          f"preview, {_median(c[SUBJECT, 'clean'][0], 'track_median_mm'):.3g} "
+                          "without; " + _tails(c[SUBJECT_PV, "clean"][0], SUBJECT_PV), gone))
         if p.moved == 0:
             unmoved.append(t)
             gone_unmoved += gone
