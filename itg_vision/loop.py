@@ -68,18 +68,22 @@ class SetPointRecord:
     Attributes
     ----------
     desired_mm : (3,) the set point.
+    aim_mm : (3,) where the controller was asked to go at the set point's last iteration: the set
+        point, unless a correction or a preview moved it (see :func:`simulate`).
     estimate : the marker estimates the controller used at the set point's last iteration.
     true_at_estimate_mm : {"gripper", "elbow"} -> (3,): the simulator's truth at that instant.
     true_after_mm : {"gripper", "elbow"} -> (3,): the truth after the set point's iterations
         (E_i uses it).
     q_deg : (n_joints,) commanded joint angles after the iterations.
     fired : rules fired over the iterations (first firing order).
-    flags : "out_of_reach", "missed:<marker>".
+    flags : "out_of_reach", "aim_out_of_reach" (the controller flagged the aim out of reach and
+        was asked again with the set point), "missed:<marker>".
     out_of_reach : whether the controller flagged the set point out of reach.
     in_reach : whether the simulated arm can reach the set point (the metrics count it).
     """
 
     desired_mm: np.ndarray
+    aim_mm: np.ndarray
     estimate: Markers
     true_at_estimate_mm: dict
     true_after_mm: dict
@@ -161,6 +165,11 @@ class Trace:
         shape (n,)."""
         return np.array([r.in_reach for r in self.records], bool)
 
+    @property
+    def aim_mm(self) -> np.ndarray:
+        """Where the controller was asked to go at each set point's last iteration, shape (n, 3)."""
+        return np.array([r.aim_mm for r in self.records]).reshape(-1, 3)
+
     def error_mm(self) -> np.ndarray:
         """E_i per set point, shape (n,)."""
         return distance_mm(self.desired_mm, self.gripper_mm, self.planar)
@@ -174,7 +183,9 @@ class Trace:
         """E_av, E_max, E_rms over the set points in reach (the paper's metric, start transient
         included), and the tracking phase's median, mean, 95th percentile and max.
         ``n_out_of_reach``: set points the simulated arm cannot reach (left out of them all);
-        ``n_flagged``: set points the controller flagged out of reach."""
+        ``n_flagged``: set points the controller flagged out of reach; ``n_aim_out_of_reach``:
+        set points whose aim (moved by a correction or a preview) the controller flagged, and
+        was asked again with the set point."""
         e = self.error_mm()
         ok = self.in_reach
         ein = e[ok]
@@ -200,6 +211,7 @@ class Trace:
             "n_setpoints": int(len(e)),
             "n_out_of_reach": int((~ok).sum()),
             "n_flagged": int(self.out_of_reach.sum()),
+            "n_aim_out_of_reach": sum("aim_out_of_reach" in r.flags for r in self.records),
             "n_missed": int(self.n_missed),
             "est_gripper_rms_mm": rms(self.est_err_mm["gripper"]),
             "est_elbow_rms_mm": rms(self.est_err_mm["elbow"]),
@@ -210,7 +222,7 @@ class Trace:
         """The trace as CSV columns and rows (units in the column names)."""
         qcols = [f"q{i}_deg" for i in range(1, self.n_joints + 1)]
         xyz = ("x", "y", "z")
-        groups = [("d", "", lambda r: r.desired_mm)]
+        groups = [("d", "", lambda r: r.desired_mm), ("a", "", lambda r: r.aim_mm)]
         for m, name in (("g", "gripper"), ("e", "elbow")):
             groups += [(m, "_est", lambda r, n=name: r.estimate.get(n)),
                        (m, "_true", lambda r, n=name: r.true_at_estimate_mm[n]),
@@ -273,6 +285,7 @@ class Session:
         self.last_error_mm = float("nan")
         self._iteration = 0
         self._estimate: Markers | None = None
+        self._aim: np.ndarray | None = None
         self._seen: dict | None = None
         self._fired: list[int] = []
         self._flags: list[str] = []
@@ -293,13 +306,19 @@ class Session:
         self._estimate = self.feedback.observe(self.world)
         self.trace.observed(self._estimate, self._seen)
         for m in self._estimate.missed:
-            if f"missed:{m}" not in self._flags:
-                self._flags.append(f"missed:{m}")
+            self.flag(f"missed:{m}")
         return self._estimate
 
-    def apply(self, step: Step, decide_ms: float | None = None) -> float:
+    def flag(self, name: str) -> None:
+        """Add ``name`` to the current set point's flags (once)."""
+        if name not in self._flags:
+            self._flags.append(name)
+
+    def apply(self, step: Step, decide_ms: float | None = None,
+              aim_mm: np.ndarray | None = None) -> float:
         """Move the joints by ``step.dq_deg`` (clipped to the servo limit); return E_i (mm)
-        after the move. Records the set point after its last iteration."""
+        after the move. Records the set point after its last iteration. ``aim_mm``: where the
+        controller was asked to go (None: the set point), for the trace."""
         if self.done:
             raise RuntimeError("the trajectory is finished")
         if decide_ms is not None:
@@ -308,6 +327,7 @@ class Session:
         if self.max_step_deg:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
         self.world.move(dq)
+        self._aim = self.desired_mm.copy() if aim_mm is None else np.asarray(aim_mm, float).copy()
         self._fired += [r for r in step.fired if r not in self._fired]
         self._oor |= bool(step.out_of_reach)
         truth = self.world.true_markers()
@@ -324,7 +344,7 @@ class Session:
         estimate = self._estimate if self._estimate is not None else Markers(
             np.full(3, np.nan), np.full(3, np.nan), tuple(truth))
         self.trace.record(SetPointRecord(
-            self.desired_mm.copy(), estimate, self._seen or truth, truth,
+            self.desired_mm.copy(), self._aim, estimate, self._seen or truth, truth,
             self.world.q_deg.copy(), tuple(self._fired), tuple(flags), self._oor,
             self.world.arm.reachable(self.desired_mm)))
         self.k += 1
@@ -362,6 +382,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
         q_deg = world.q_deg if controller.uses_encoders else None
         step = controller.step(aim, estimate, q_deg)
         if step.out_of_reach and not np.array_equal(aim, desired):
-            step = controller.step(desired, estimate, q_deg)  # reach: the set point's, not the aim's
-        session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0))
+            session.flag("aim_out_of_reach")  # reach is the set point's, not the aim's: ask again
+            aim = desired
+            step = controller.step(aim, estimate, q_deg)
+        session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0), aim_mm=aim)
     return session.trace

@@ -293,6 +293,8 @@ def summary_table(s: dict, out: Path) -> str:
              or "none"),
             *([("preview: aims moved / largest move", "{moved} / {largest_move_mm:.3f} mm".format(
                 **s["preview"]))] if s.get("preview") else []),
+            *([("aims flagged out of reach, asked again with the set point",
+                f(s["n_aim_out_of_reach"]))] if s.get("n_aim_out_of_reach") else []),
             ("lengths the controller used", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",

@@ -121,8 +121,52 @@ def test_reach_is_judged_on_the_set_point_not_on_the_aim(rules):
     for k in (1.0, 0.5):
         _, s = execute(prepare(RunConfig(arm="one-link", rules=rules, feedback="truth",
                                          noise_mm=0.5, correction=k, seed=3)))
-        counts.append(s["n_flagged"])
-    assert counts == [0, 0]
+        counts.append((s["n_flagged"], s["n_aim_out_of_reach"]))
+    assert counts[0] == (0, 0) and counts[1][0] == 0
+    assert counts[1][1] > 0  # the aims the rules refused are counted, and asked again
+
+
+class ReachTest:
+    """A controller with a reach test: it flags (and holds) any target farther than 150 mm from
+    the base; otherwise it turns q1 by a tenth of the target's x (deg per mm). It records the
+    targets it was asked for."""
+
+    uses_encoders = False
+
+    def __init__(self):
+        self.asked = []
+
+    def params(self):
+        return {}
+
+    def step(self, desired_mm, markers, q_deg):
+        self.asked.append(np.array(desired_mm, float))
+        far = float(np.linalg.norm(desired_mm[:2])) > 150.0
+        return Step(np.array([0.0 if far else 0.1 * desired_mm[0], 0.0]), (1,), far)
+
+
+def test_an_aim_out_of_reach_is_asked_again_with_the_set_point_and_recorded():
+    """Aims 4x the set points (all out of this controller's reach, the set points in it): every
+    decision is asked again with the set point, so the run is the run without aims, and the
+    trace records the set point as the aim and the flag on every set point. Aims in reach are
+    recorded as they were asked."""
+    arm = ArmSpec.from_args("two-link")
+    pts = np.array([[40.0, 30.0, 0.0], [-20.0, 60.0, 0.0], [10.0, -50.0, 0.0]])
+    runs = []
+    for aims in (None, 4 * pts, 1.5 * pts):
+        with World(arm) as world:
+            ctrl = ReachTest()
+            runs.append((simulate(world, ctrl, TruthFeedback(), pts, aims_mm=aims), ctrl.asked))
+    (plain, _), (far, asked), (near, _) = runs
+    np.testing.assert_array_equal(far.q_deg, plain.q_deg)
+    np.testing.assert_array_equal(far.aim_mm, pts)
+    np.testing.assert_array_equal(plain.aim_mm, pts)
+    np.testing.assert_array_equal(np.array(asked), np.repeat(pts, 2, axis=0) * np.tile([[4.0], [1.0]], (3, 1)))
+    assert [r.flags for r in far.records] == [("aim_out_of_reach",)] * 3
+    assert far.metrics()["n_aim_out_of_reach"] == 3 and far.metrics()["n_flagged"] == 0
+    np.testing.assert_array_equal(near.aim_mm, 1.5 * pts)
+    assert near.metrics()["n_aim_out_of_reach"] == 0
+    assert not np.array_equal(near.q_deg, plain.q_deg)
 
 
 def test_metrics_count_the_set_points_the_arm_reaches_whatever_the_controller_flags():

@@ -179,6 +179,18 @@ def test_preview_in_the_loop_on_a_line_past_the_base(tmp_path, iterations, corre
         trace, summary = execute(prep)
         runs[preview] = (trace, summary)
         np.testing.assert_array_equal(trace.desired_mm, prep.trajectory.points_mm)
+    # the trace records what the controller was asked: the plan's aims, moved by the memory
+    trace_on, prep_on = runs[True][0], prep
+    aims, est = trace_on.aim_mm, np.array([r.estimate.gripper_mm for r in trace_on.records])
+    asked = prep_on.preview.aims_mm.copy()
+    if correction != 1.0 and iterations == 1:
+        asked[1:, :2] -= (1 - correction) * (prep_on.preview.aims_mm[:-1, :2] - est[1:, :2])
+    refused = np.array(["aim_out_of_reach" in r.flags for r in trace_on.records])
+    asked[refused] = trace_on.desired_mm[refused]
+    if iterations == 1:
+        np.testing.assert_allclose(aims, asked, atol=1e-9)
+    else:  # later iterations measure against the aim itself: the last one asks for the plan's
+        np.testing.assert_array_equal(aims[~refused], prep_on.preview.aims_mm[~refused])
     plan_info = runs[True][1]["preview"]
     assert plan_info["turn_deg_per_set_point"] == TURN * iterations
     e_on, e_off = (runs[k][0].error_mm()[60:] for k in (True, False))
