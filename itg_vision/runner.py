@@ -258,7 +258,11 @@ def _preview(cfg: RunConfig, model: ArmSpec, trajectory) -> Preview:
     if cfg.max_step_deg is None:
         raise ConfigError("preview", "plans under the servo limit: set max_step_deg "
                                      "(--max-step)")
-    return plan(trajectory.points_mm, cfg.max_step_deg * cfg.iterations)
+    try:
+        return plan(trajectory.points_mm, cfg.max_step_deg * cfg.iterations)
+    except ValueError as exc:  # a turn too fine, or too many set points, for the plan's grid
+        raise ConfigError("preview", f"with max_step_deg {cfg.max_step_deg:g} x iterations "
+                                     f"{cfg.iterations}: {exc}") from None
 
 
 def supersample_of(cfg: RunConfig, rig) -> int:

@@ -157,6 +157,20 @@ def test_plan_of_nothing_and_bad_turns():
     for bad in (0.0, -1.0, float("inf"), float("nan")):
         with pytest.raises(ValueError, match="turn_deg must be finite and > 0"):
             plan(line_past_base(2.0, 2.0), bad)
+    # the finest grid is 0.01 deg, 8 cells per turn: a finer turn would freeze the line (or, on
+    # a finer grid, take gigabytes); so would too many set points x cells
+    with pytest.raises(ValueError, match="below the plan's finest grid"):
+        plan(line_past_base(2.0, 2.0), 0.079)
+    assert plan(line_past_base(2.0, 2.0), 0.08).turn_deg == 0.08
+    with pytest.raises(ValueError, match="exceed the plan's"):
+        plan(np.ones((2800, 3)), 0.08)  # 2800 x 18000 cells
+
+
+def test_a_run_whose_servo_is_too_fine_for_the_plan_is_refused_naming_it():
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="preview.*max_step_deg 0.0001 x iterations 1"):
+        prepare(RunConfig(preview=True, max_step_deg=0.0001, feedback="truth"))
 
 
 @pytest.mark.parametrize("iterations, correction", [(1, 1.0), (2, 1.0), (1, 0.5)])
