@@ -176,6 +176,10 @@ def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
     return Trajectory(name, pts, None, None, True)
 
 
+#: The largest coordinate a trajectory file may give (mm): a kilometre, far beyond any arm here.
+MAX_COORD_MM = 1e6
+
+
 def read_csv(path: str | Path) -> Trajectory:
     """A user trajectory: header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm``, optional ``t_s`` column.
 
@@ -185,7 +189,7 @@ def read_csv(path: str | Path) -> Trajectory:
     path = Path(path)
     text = read_text(path, "trajectory CSV")
     try:
-        rows = list(csv.reader(text.split("\n")))
+        rows = list(csv.reader(text.splitlines()))  # \n, \r\n or a lone \r
     except csv.Error as exc:  # e.g. a field larger than csv's limit (128 KiB)
         raise UserError(f"{path}: not a CSV file ({exc})") from None
     if not rows or not any(cell.strip() for cell in rows[0]):
@@ -196,7 +200,7 @@ def read_csv(path: str | Path) -> Trajectory:
     if header not in allowed:
         raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got "
                         f"{clip(','.join(header), 60)!r}")
-    values = []
+    values, linenos = [], []
     for lineno, row in enumerate(rows[1:], 2):
         if not any(cell.strip() for cell in row):
             continue
@@ -212,8 +216,12 @@ def read_csv(path: str | Path) -> Trajectory:
             if not math.isfinite(v):
                 raise UserError(f"{path}:{lineno}: field {col}: must be finite, got "
                                 f"{clip(cell.strip())}")
+            if col != "t_s" and abs(v) > MAX_COORD_MM:
+                raise UserError(f"{path}:{lineno}: field {col}: {clip(cell.strip())} is beyond "
+                                f"+-{MAX_COORD_MM:.0e} mm")
             vals.append(v)
         values.append(vals)
+        linenos.append(lineno)
     if not values:
         raise UserError(f"{path}: no set points after the header")
     arr = np.array(values)
@@ -222,7 +230,7 @@ def read_csv(path: str | Path) -> Trajectory:
     pts = np.column_stack([cols["x_mm"], cols["y_mm"], cols.get("z_mm", np.zeros(len(arr)))])
     t = cols.get("t_s")
     if t is not None and np.any(np.diff(t) < 0):
-        bad = int(np.argmax(np.diff(t) < 0)) + 3
+        bad = linenos[int(np.argmax(np.diff(t) < 0)) + 1]
         raise UserError(f"{path}:{bad}: field t_s: times must not decrease")
     return Trajectory(str(path), pts, t, None, planar, closed=is_closed(pts))
 

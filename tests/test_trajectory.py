@@ -76,6 +76,9 @@ def test_csv_reader_good(tmp_path):
     assert t.t_s.tolist() == [0, 0.5]
     f.write_text("x_mm,y_mm\n1,2\n")
     assert T.read_csv(f).planar
+    for newline in ("\r\n", "\r"):  # Windows' and old Macs' line ends read alike
+        f.write_bytes(newline.join(["x_mm,y_mm", "1,2", "3,4", ""]).encode())
+        assert T.read_csv(f).points_mm[:, :2].tolist() == [[1, 2], [3, 4]]
 
 
 @pytest.mark.parametrize("text, expect", [
@@ -86,6 +89,10 @@ def test_csv_reader_good(tmp_path):
     ("x_mm,y_mm\n1,2,3\n", ":2: expected 2 fields, got 3"),
     ("x_mm,y_mm\n", "no set points"),
     ("x_mm,y_mm,t_s\n1,2,1\n1,2,0\n", ":3: field t_s: times must not decrease"),
+    # blank lines before it: still the line of the time that decreases
+    ("x_mm,y_mm,t_s\n50,50,0\n\n60,60,1\n70,70,0.5\n", ":5: field t_s: times must not decrease"),
+    ("x_mm,y_mm\n1,2\n1e308,0\n", ":3: field x_mm: 1e308 is beyond +-1e+06 mm"),
+    ("x_mm,y_mm\n1,2\n1,-1000001\n", ":3: field y_mm: -1000001 is beyond"),
 ])
 def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
     f = tmp_path / "bad.csv"
