@@ -16,7 +16,8 @@ A rule may span lines; each starts with ``RULE <n>:``. ``LET name = expr`` names
 Conditions combine comparisons
 (``< <= > >= == !=``) with ``AND``, ``OR``, ``NOT`` and parentheses; expressions use numbers,
 names, ``+ - * / ^``, ``|expr|`` and parentheses. Actions: ``qN += expr``, ``qN -= expr``,
-``qN HOLD`` (also written ``qN = qN``), ``OUT_OF_REACH``; several separated by commas.
+``qN HOLD`` (also written ``qN = qN``), ``OUT_OF_REACH``; several separated by commas, one per
+joint.
 
 Semantics (the paper leaves these open; we choose):
 
@@ -309,7 +310,11 @@ class _Parser:
         self.expect("kw", "THEN", "'THEN' or a logical operator")
         actions = [self.action()]
         while self.accept("op", ","):
+            tok = self.tok
             actions.append(self.action())
+            joint = actions[-1].joint
+            if actions[-1].kind != "out" and any(a.joint == joint for a in actions[:-1]):
+                raise self.error(f"q{joint} has two actions in one rule", tok)
         if not self._at_statement_end():
             raise self.error("expected ',' or the next 'RULE'")
         return Rule(int(num.text), cond, tuple(actions), start.line)
@@ -577,8 +582,8 @@ def _py_level(node: Node, temps, local) -> tuple[str, int]:
 
 
 def _moves(rule: Rule) -> dict[int, Action]:
-    """Joint -> the action that sets its step: the rule's last ``+=`` or ``-=`` on it (a joint
-    it only holds keeps 0.0)."""
+    """Joint -> the action that sets its step: the rule's ``+=`` or ``-=`` on it (one action per
+    joint, checked when parsed; a joint it holds keeps 0.0)."""
     return {a.joint: a for a in rule.actions if a.kind in ("inc", "dec")}
 
 

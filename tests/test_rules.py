@@ -35,6 +35,8 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q1 += S\nRULE 1: IF xd < xg THEN q1 -= S", ":2", "defined twice"),
     ("# only a comment\n", "", "no rules found"),
     ("RULE 1: IF xd > xg THEN q1 = q2", ":1:30", "only 'q1 = q1'"),
+    ("RULE 1: IF xd > xg THEN q1 += 1, q1 -= 2", ":1:34", "q1 has two actions in one rule"),
+    ("RULE 1: IF xd > xg THEN q2 HOLD, q1 += 1, q2 += 1", ":1:43", "q2 has two actions"),
 ])
 def test_syntax_and_name_errors_name_file_line_column(text, where, what):
     with pytest.raises(UserError) as exc:
@@ -499,7 +501,7 @@ def _random_condition(pick, pool, depth):
 
 def random_rule_base(pick) -> RuleBase:
     """A random rule base (definitions between rules, shared subexpressions, rules moving one
-    or several joints, a joint named twice, HOLD, OUT_OF_REACH) for 1 to 3 joints."""
+    or several joints, HOLD, OUT_OF_REACH) for 1 to 3 joints."""
     n = pick([1, 2, 3])
     names = ["xd", "yd", "xg", "yg", "xe", "ye", "rd2", "f", "S", "w", "L1"]
     lines, numbers = [], iter(range(1, 100))
@@ -516,9 +518,9 @@ def random_rule_base(pick) -> RuleBase:
         if statement == "OUT":
             lines.append(f"RULE {next(numbers)}: IF {cond} THEN OUT_OF_REACH")
             continue
-        actions = []
-        for _ in range(pick([1, 2, 3])):
-            j = pick(range(1, n + 1))
+        actions, free = [], list(range(1, n + 1))
+        for _ in range(pick(range(1, n + 1))):  # one action per joint
+            j = free.pop(pick(range(len(free))))
             kind = pick(["+=", "-=", "HOLD"])
             actions.append(f"q{j} HOLD" if kind == "HOLD" else f"q{j} {kind} {pick(pool)}")
         lines.append(f"RULE {next(numbers)}: IF {cond} THEN {', '.join(actions)}")
