@@ -1,7 +1,8 @@
 """Rule bases compiled to C: the step a microcontroller port would run, timed from Python.
 
 :func:`c_function` writes a checked rule base (its parsed tree, never the file's text) as one C
-function of doubles, with the semantics of the module docstring of :mod:`itg_vision.rules`:
+function of doubles (:func:`c_source`: with the two small helpers it calls, a whole C99 file),
+with the semantics of the module docstring of :mod:`itg_vision.rules`:
 
     static int itg_rules(const double *in, double *dq, int *fired, int *n_fired)
 
@@ -94,6 +95,12 @@ static double itg_pow(double a, double b) {
 
 static inline double itg_square(double a) { return a * a; }
 """
+
+
+def c_source(rb: RuleBase, name: str = "itg_rules") -> str:
+    """The rule base as a C99 translation unit: :func:`c_function` after the two helpers it
+    calls (``itg_square``, ``itg_pow``) and ``<math.h>``; what a port copies."""
+    return _PRELUDE + "\n" + c_function(rb, name)
 
 
 def c_function(rb: RuleBase, name: str = "itg_rules") -> str:

@@ -3,6 +3,7 @@ against the independent tree-walking evaluator of test_rules."""
 
 import math
 import os
+import subprocess
 
 import numpy as np
 import pytest
@@ -144,6 +145,18 @@ def test_the_c_function_is_plain_c99_of_doubles():
     text = native.c_function(rb)
     assert text.startswith("static int itg_rules(const double *in, double *dq, int *fired, int *n_fired)")
     assert "Py" not in text and "sqrt" not in text and "atan" not in text and "sin(" not in text
+
+
+def test_the_c_source_compiles_alone_as_c99(tmp_path):
+    """c_source is a whole C99 file: the function and the helpers it calls, nothing implicit."""
+    arm = ArmSpec.from_args("two-link")
+    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm)
+    (tmp_path / "rules.c").write_text(native.c_source(rb))
+    res = subprocess.run([*native.compiler(), "-std=c99", "-pedantic-errors",
+                          "-Werror=implicit-function-declaration", "-c", "rules.c", "-o", "rules.o"],
+                         cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert native.c_source(rb).endswith(native.c_function(rb))
 
 
 def test_bad_arguments_are_refused_like_a_python_function():
