@@ -119,7 +119,7 @@ def exp3(base, out) -> dict:
         ns, np.exp(np.mean(np.log(np.asarray(res[f"{EXP3_GAINS[0]:g}"]["e_av_mm"]) * ns))) / ns)}
     plot.lines_figure({**series, **fit}, "n_t (set points)", "E_av (mm)",
                       "Fig. 4.3: E_av against n_t", out / "exp3_eav_vs_nt.png", logx=True, logy=True)
-    return {"n_t": ns.tolist(), "by_gain": res}
+    return {"n_t": ns.tolist(), "by_gain_deg_per_mm": res}
 
 
 def exp4(base, out) -> dict:
@@ -129,8 +129,8 @@ def exp4(base, out) -> dict:
         eav = np.array([_run(base, arm="two-link", trajectory=name, gain_deg_per_mm=float(f))[1]["e_av_mm"] for f in fs])
         best = float(fs[int(np.argmin(eav))])
         good = fs[eav <= GOOD_F_FACTOR * eav.min()]
-        res[name] = {"f": fs.tolist(), "e_av_mm": eav.tolist(), "best_f": best,
-                     "good_range": [float(good.min()), float(good.max())], "min_e_av_mm": float(eav.min())}
+        res[name] = {"f_deg_per_mm": fs.tolist(), "e_av_mm": eav.tolist(), "best_f_deg_per_mm": best,
+                     "good_f_range_deg_per_mm": [float(good.min()), float(good.max())], "min_e_av_mm": float(eav.min())}
         series[name.replace("ellipse-", "").upper()] = (fs, eav)
     # the paper's f = 0.001 read as rad/mm, with a few iterations per set point (its 3.2(i))
     res["paper_f_as_rad_per_mm_e_av_t1_mm"] = {
@@ -287,7 +287,7 @@ def report(r: dict, base: RunConfig) -> str:
         f"{PAPER_F_AS_DEG_PER_MM:.4f} deg/mm, with one iteration per set point E_av on T1 is "
         f"{_fmt(pf['1'], 1)} mm; with the few iterations per set point of its section 3.2(i), 10 and 20 "
         f"iterations give {_fmt(pf['10'], 1)} and {_fmt(pf['20'], 1)} mm; (b) deg/mm with one iteration, "
-        f"tuned: the measured optimum is near {t1['best_f']:.2f} deg/mm and the loop turns unstable above "
+        f"tuned: the measured optimum is near {t1['best_f_deg_per_mm']:.2f} deg/mm and the loop turns unstable above "
         "about 0.8 deg/mm (the q1 loop gain is f |y_g| pi/180 per step). We use f in deg/mm, default 0.5.",
         "",
         "| exp. | the paper's claim | measured here | threshold (ours) | verdict |",
@@ -308,7 +308,7 @@ def report(r: dict, base: RunConfig) -> str:
         f"E_av {e2['e_av_after_settling_mm']:.2f} mm, E_max {e2['e_max_after_settling_mm']:.1f} mm | agrees if settled "
         f"E_av <= {FOLLOWS_CLOSELY_MM:g} mm and settled E_max <= {ACCEPTABLE_MM:g} mm; partly if only the E_av holds | "
         f"{verdict(e2['e_av_after_settling_mm'] <= FOLLOWS_CLOSELY_MM and e2['e_max_after_settling_mm'] <= ACCEPTABLE_MM, e2['e_av_after_settling_mm'] <= FOLLOWS_CLOSELY_MM)} |")
-    slopes = {f: v["loglog_slope"] for f, v in e3["by_gain"].items()}
+    slopes = {f: v["loglog_slope"] for f, v in e3["by_gain_deg_per_mm"].items()}
     ok3 = {f: SLOPE_RANGE[0] <= s <= SLOPE_RANGE[1] for f, s in slopes.items()}
     L.append(
         "| 3 | E_av is inversely proportional to n_t (Fig. 4.3) | log-log slope over n_t = 100..1000: "
@@ -316,11 +316,12 @@ def report(r: dict, base: RunConfig) -> str:
         + f" | slope in [{SLOPE_RANGE[0]}, {SLOPE_RANGE[1]}], per f | "
         + "; ".join(f"f = {f}: {verdict(ok)}" for f, ok in ok3.items())
         + ": the slope depends on f, so the claim holds at most for some gains |")
-    overlap = min(t1["good_range"][1], t2["good_range"][1]) >= max(t1["good_range"][0], t2["good_range"][0])
+    g1, g2 = t1["good_f_range_deg_per_mm"], t2["good_f_range_deg_per_mm"]
+    overlap = min(g1[1], g2[1]) >= max(g1[0], g2[0])
     L.append(
-        f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f']:.3f}, T2 "
-        f"{t2['best_f']:.3f} deg/mm; good f [{t1['good_range'][0]:.3f}, {t1['good_range'][1]:.3f}] (T1), "
-        f"[{t2['good_range'][0]:.3f}, {t2['good_range'][1]:.3f}] (T2) | good f: E_av within {GOOD_F_FACTOR}x of the "
+        f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f_deg_per_mm']:.3f}, T2 "
+        f"{t2['best_f_deg_per_mm']:.3f} deg/mm; good f [{g1[0]:.3f}, {g1[1]:.3f}] (T1), "
+        f"[{g2[0]:.3f}, {g2[1]:.3f}] (T2) | good f: E_av within {GOOD_F_FACTOR}x of the "
         f"minimum; agrees if the two ranges overlap | {verdict(overlap)} |")
     # experiment 5
     firsts = ", ".join(f"{v['first_lap_max_at_deg']:.0f}" for v in e5.values())

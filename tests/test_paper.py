@@ -53,7 +53,7 @@ def test_verdicts_follow_their_numbers(paper_run):
     good["exp6"]["servo limit 2 deg/iteration, 5 iterations"]["e_av_mm"] = 0.5
     for v in good["exp5"].values():
         v["second_lap_e_max_mm"] = 5.0
-    for v in good["exp3"]["by_gain"].values():
+    for v in good["exp3"]["by_gain_deg_per_mm"].values():
         v["loglog_slope"] = -1.0
     text = paper.report(good, base)
     assert _row(text, 6).endswith("| agrees as given |")
