@@ -24,6 +24,7 @@ from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrat
                           picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
 from .errors import UserError, run_main
+from .outputs import check_path
 from .progress import progress
 
 # ---------------------------------------------------------------------------- command line
@@ -46,11 +47,13 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
     """Refuse, before any work, an ``--out`` the calibration must not write (`UserError`).
 
     ``out`` must name a ``.yaml``/``.yml`` file (not a folder) in a folder that can be written,
-    and not the true rig. An existing file there is replaced only if it is a calibration of
-    this rig (its ``true_rig`` names ``rig_path``), or with ``force``; the same holds for the
-    corner picture beside it.
+    with a name the file system takes (:func:`itg_vision.outputs.check_path`), and not the true
+    rig. An existing file there is replaced only if it is a calibration of this rig (its
+    ``true_rig`` names ``rig_path``), or with ``force``; the same holds for the corner picture
+    beside it. A folder where either file goes is refused, even with ``force`` (it is never
+    replaced: the write would fail after all the work).
     """
-    from .outputs import check_path, probe_folder
+    from .outputs import probe_folder
     from .runner import resolve_relative
 
     check_path(out, what="file")
@@ -59,6 +62,10 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
                         f"{out / default_out(rig_path).name}")
     if out.suffix not in (".yaml", ".yml"):
         raise UserError(f"--out {out}: must name a .yaml file (the calibrated rig)")
+    pic = picture_path(out)
+    if pic.is_dir():
+        raise UserError(f"--out {out}: {pic} is a folder, where the corner picture goes; choose "
+                        "another --out")
     if out.resolve() == Path(rig_path).resolve():
         raise UserError(f"--out: {out} would overwrite the true rig")
     ours = False
@@ -77,7 +84,6 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
                         else f"the rig file {old.name!r}, not a calibration of {rig_path}")
                 raise UserError(f"--out {out}: is {what}; choose another --out, or add --force "
                                 "to replace it")
-    pic = picture_path(out)
     if pic.exists() and not ours and not force:
         raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "
                         "picture; choose another --out, or add --force")
@@ -225,7 +231,8 @@ class Job:
                 true_arm = ArmSpec.from_args(arm.name, links)
             except UserError as exc:
                 raise UserError(str(exc).replace("--links", "--true-links")) from None
-        out = Path(args.out) if args.out else default_out(rig_path)
+        # '' is the empty-path error (check_path), not the default
+        out = check_path(args.out, what="file") if args.out is not None else default_out(rig_path)
         return cls(rig_path, true_rig, arm, true_arm, out, args.views, args.seed, args.tilt,
                    args.check_poses, args.force, args.quiet)
 
@@ -253,7 +260,11 @@ def main(argv: list[str] | None = None) -> int:
                                progress=lambda stage: bar.update())
         finally:
             bar.close()
-        picture = write_result(result, job.out, job.rig_path)
+        try:
+            picture = write_result(result, job.out, job.rig_path)
+        except OSError as exc:  # changed since check_out, a full disk: one line, the old files kept
+            raise UserError(f"--out {job.out}: cannot write {exc.filename or job.out} "
+                            f"({exc.strerror or exc})") from None
         if not job.quiet:
             print(report(result, job.out, picture))
         return 0

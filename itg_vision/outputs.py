@@ -7,17 +7,23 @@ Rules (what every command follows):
   picture, with :func:`write_files`: all written, then all renamed): a reader sees the old file
   or the new one, never a mix, and a failed or killed run leaves the old file.
 - **Output folders** are built in a staging folder beside ``--out`` and swapped in whole when
-  the command has finished (:func:`staged_dir`). A command replaces only a folder that it made
-  itself: every output folder carries a small manifest, :data:`MANIFEST`, naming the command
-  that made it. An existing folder without it (or made by another command), or an existing
-  file, is refused with one line (:class:`~itg_vision.errors.UserError`, exit 2) and left
-  untouched; ``force=True`` (``--force``) replaces a foreign *folder* (never a file).
-  An empty folder holds nothing to lose and is replaced.
+  the command has finished (:func:`staged_dir`). A command replaces only what it made itself:
+  every output folder carries a small manifest, :data:`MANIFEST`, naming the command that made
+  it and listing the entries it wrote. An existing folder without it (or made by another
+  command), one that holds anything else (a user's notes or analysis put in beside the
+  results), or an existing file, is refused with one line
+  (:class:`~itg_vision.errors.UserError`, exit 2) and left untouched; ``force=True``
+  (``--force``) replaces a foreign *folder* (never a file). An empty folder holds nothing to
+  lose and is replaced.
 - ``--out .``, ``--out a/b/..``, the current folder or one of its ancestors, the root: refused
   (a folder cannot be swapped over itself or over where the user stands).
-- A run killed with SIGKILL leaves a staging folder ``.<name>.staging-<pid>-*``; the next run
-  into the same place removes those whose process is gone. If it was killed between the two
-  renames of the swap, the old folder (``.<name>.old-<pid>``) is put back first.
+- ``--out`` names that the file system cannot take with our temporary suffixes are refused
+  before any work (:func:`check_path`).
+- A run killed with SIGKILL leaves a staging folder ``.<name>.staging-<pid>-<8 characters>``;
+  the next run into the same place removes those whose process is gone. If it was killed
+  between the two renames of the swap, the old folder (``.<name>.old-<pid>``) is put back first.
+  Only folders named exactly so *and* carrying our manifest are touched: a user's folder that
+  happens to look alike is left alone.
 - JSON is strict (:func:`write_json`): non-finite floats are written as ``null``, never as the
   bare ``NaN`` / ``Infinity`` that strict readers reject.
 """
@@ -49,8 +55,12 @@ def write_files(files: dict[str | Path, bytes]) -> None:
     If anything fails before the renames (a full disk, Ctrl-C), every temporary file is removed
     and no file is replaced. This is the one place outputs are written; :func:`write_bytes`,
     :func:`write_text` and :func:`write_json` are its one-file forms.
+
+    An `OSError` names the file that could not be written (its ``filename``), not the
+    temporary name, so that a command can report it in one line.
     """
     temps: list[tuple[str, Path]] = []
+    path = None
     try:
         for path, data in files.items():
             path = Path(path)
@@ -64,10 +74,12 @@ def write_files(files: dict[str | Path, bytes]) -> None:
             tmp, path = temps[0]
             os.replace(tmp, path)
             temps.pop(0)
-    except BaseException:
+    except BaseException as exc:
         for tmp, _ in temps:
             if os.path.exists(tmp):
                 os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.errno is not None and path is not None:
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc  # same subclass by errno
         raise
 
 
@@ -123,19 +135,73 @@ def read_manifest(folder: str | Path) -> dict | None:
     return doc if isinstance(doc, dict) and doc.get("made_by") == "itg_vision" else None
 
 
-def manifest(command: str, key=None) -> dict:
+def manifest(command: str, key=None, entries: list[str] | None = None) -> dict:
     """The manifest a command writes into its output folder (no time stamp: the same run gives
-    the same bytes). ``key``: what identifies the result (e.g. a run's settings)."""
+    the same bytes). ``key``: what identifies the result (e.g. a run's settings). ``entries``:
+    what the command wrote there (:func:`listing`), the only things a later run of it may
+    replace; :func:`staged_dir` fills it in."""
     from . import __version__
 
     doc = {"made_by": "itg_vision", "command": command, "version": __version__}
     if key is not None:
         doc["key"] = key
+    if entries is not None:
+        doc["entries"] = list(entries)
     return doc
+
+
+def listing(folder: str | Path) -> list[str]:
+    """Every entry below ``folder`` but its manifest, sorted: paths relative to ``folder`` with
+    ``/`` between parts, a folder's ending in ``/`` (symbolic links are entries, not followed)."""
+    out = []
+
+    def walk(d: str, prefix: str) -> None:
+        for e in sorted(os.scandir(d), key=lambda e: e.name):
+            rel = prefix + e.name
+            if rel == MANIFEST:
+                continue
+            if e.is_dir(follow_symlinks=False):
+                out.append(rel + "/")
+                walk(e.path, rel + "/")
+            else:
+                out.append(rel)
+
+    walk(str(folder), "")
+    return out
+
+
+def _foreign(folder: Path, own: set[str]) -> list[str]:
+    """The entries below ``folder`` that are not in ``own`` (see :func:`listing`), sorted; a
+    foreign folder counts as one entry (its contents are not listed)."""
+    found: list[str] = []
+    folders: list[str] = []  # the foreign folders found so far
+    for rel in listing(folder):  # a folder comes before what it holds
+        if rel not in own and not any(rel.startswith(f) for f in folders):
+            found.append(rel)
+            if rel.endswith("/"):
+                folders.append(rel)
+    return found
 
 
 def _last_component(text: str) -> str:
     return text.rstrip("/" + os.sep).rsplit("/", 1)[-1].rsplit(os.sep, 1)[-1]
+
+
+#: Bytes our temporary names add to an output's name: a folder's staging name
+#: ``.<name>.staging-<pid>-<8 characters>`` (a pid has at most 7 digits on Linux), a file's
+#: temporary name ``.<name>.<8 characters>.tmp``.
+_NAME_RESERVE = {"folder": len("..staging--") + 7 + 8, "file": len("...tmp") + 8}
+
+
+def _name_max(path: Path) -> int:
+    """The longest file name (bytes) the file system under ``path`` takes (255 if unknown)."""
+    for p in (path, *path.parents):
+        if os.path.isdir(p):  # False, not OSError, for a name too long
+            try:
+                return int(os.pathconf(p, "PC_NAME_MAX"))
+            except (OSError, ValueError, AttributeError):  # AttributeError: no pathconf (Windows)
+                break
+    return 255
 
 
 def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> Path:
@@ -143,7 +209,8 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
     writes).
 
     Empty, ``.``, ``..`` or ending in ``/..`` or ``/.``, the root, the current folder or one
-    of its ancestors, or below an existing file.
+    of its ancestors, below an existing file, or a name too long for the file system once our
+    temporary suffix (staging folder, temporary file) is added.
     """
     text = str(out)
     if not text.strip():
@@ -151,6 +218,15 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
     if _last_component(text) in ("", ".", ".."):
         raise UserError(f"{option} {text}: name a {what} (not '.', '..' or the root)")
     path = Path(text)
+    limit = _name_max(path)
+    for part in path.parts:
+        if len(os.fsencode(part)) > limit:
+            raise UserError(f"{option} {text}: a name in it is too long ({len(os.fsencode(part))}"
+                            f" bytes; the file system takes at most {limit})")
+    room = limit - _NAME_RESERVE.get(what, _NAME_RESERVE["folder"])
+    if len(os.fsencode(path.name)) > room:
+        raise UserError(f"{option} {text}: the {what} name is too long "
+                        f"({len(os.fsencode(path.name))} bytes; at most {room} here)")
     resolved = path.resolve()
     cwd = Path.cwd().resolve()
     if resolved == cwd or resolved in cwd.parents:
@@ -165,12 +241,18 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
 
 
 def check_out_dir(out: str | Path, command: str, *, force: bool = False,
-                  option: str = "--out") -> Path:
+                  option: str = "--out", own: list[str] | None = None) -> Path:
     """Check that ``command`` may replace ``out`` with a new output folder; raise `UserError`
     (one line naming ``option``) if not. Writes nothing.
 
     Allowed: a path that does not exist, an empty folder, a folder whose manifest names
-    ``command``, or any folder with ``force``. Never a file.
+    ``command`` and that holds nothing but the entries that manifest lists (what an earlier run
+    of ``command`` wrote) and ``own`` (what this run writes, once known; see
+    :func:`listing`), or any folder with ``force``. Never a file.
+
+    A manifest written before manifests listed their entries proves nothing about the rest of
+    the folder: such a folder passes while ``own`` is None (the check before the work) and is
+    then held to ``own`` alone (the check before the swap).
     """
     path = check_path(out, option)
     if not (path.exists() or path.is_symlink()):
@@ -185,7 +267,21 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
         return path
     made = read_manifest(path)
     if made is not None and made.get("command") == command:
-        return path
+        recorded = made.get("entries")
+        if not (isinstance(recorded, list) and all(isinstance(e, str) for e in recorded)):
+            if own is None:
+                return path
+            recorded = []
+        try:
+            foreign = _foreign(path, set(recorded) | set(own or ()))
+        except OSError as exc:
+            raise UserError(f"{option} {out}: cannot read the folder ({exc.strerror})") from None
+        if not foreign:
+            return path
+        n = f"{len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'}"
+        raise UserError(f"{option} {out}: holds {n} that {command} did not write (first: "
+                        f"{foreign[0]}); move {'it' if len(foreign) == 1 else 'them'} out or "
+                        f"choose another {option}, or add --force to replace the folder anyway")
     if made is not None:
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
                         f"`{command}`; choose another {option}, or add --force to replace it")
@@ -202,30 +298,75 @@ def _pid_alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:  # someone else's process
+    except (PermissionError, OverflowError):  # someone else's process; a pid beyond the range
         return True
     return True
+
+
+def _remove_ours(folder: Path) -> None:
+    """Remove a folder of ours (a staging folder, an old output folder), its manifest last: a
+    removal cut short leaves the folder still marked as ours, so the next run finishes it."""
+    for e in os.scandir(folder):
+        if e.name == MANIFEST:
+            continue
+        if e.is_dir(follow_symlinks=False):
+            shutil.rmtree(e.path, ignore_errors=True)
+        else:
+            try:
+                os.unlink(e.path)
+            except OSError:
+                pass
+    try:
+        os.unlink(folder / MANIFEST)
+    except OSError:
+        pass
+    try:
+        os.rmdir(folder)
+    except OSError:
+        pass
+
+
+def _stale_pattern(name: str) -> re.Pattern:
+    """The names :func:`staged_dir` gives its staging folder (``mkdtemp``'s 8 characters) and the
+    old folder of a swap, beside an output called ``name``."""
+    return re.compile(rf"^\.{re.escape(name)}\.(?:staging-(?P<spid>\d+)-[a-z0-9_]{{8}}"
+                      rf"|old-(?P<opid>\d+))$")
 
 
 def clean_stale(out: str | Path) -> list[Path]:
     """Remove staging folders left beside ``out`` by killed runs (their process is gone); put
     back an old folder left by a run killed between the two renames of the swap. Returns the
-    paths removed or restored."""
+    paths removed or restored.
+
+    Only folders named exactly as :func:`staged_dir` names them and carrying our manifest are
+    touched (an empty staging folder, left by a run killed as it began, is removed too):
+    anything else, however alike its name, is the user's and left alone."""
     out = Path(out)
     parent = out.parent
     if not parent.is_dir():
         return []
-    pat = re.compile(rf"^\.{re.escape(out.name)}\.(staging|old)-(\d+)(-.*)?$")
+    pat = _stale_pattern(out.name)
     done = []
     for entry in sorted(os.scandir(parent), key=lambda e: e.name):
         m = pat.match(entry.name)
-        if not m or _pid_alive(int(m.group(2))):
+        if not m or not entry.is_dir(follow_symlinks=False):
+            continue
+        staging = m.group("spid") is not None
+        if _pid_alive(int(m.group("spid") or m.group("opid"))):
             continue
         p = Path(entry.path)
-        if m.group(1) == "old" and not (out.exists() or out.is_symlink()):
+        if read_manifest(p) is None:
+            if staging:  # nothing in it yet: nothing to lose
+                try:
+                    os.rmdir(p)
+                except OSError:
+                    continue
+                done.append(p)
+            continue
+        if not staging and not (out.exists() or out.is_symlink()):
             os.replace(p, out)  # killed mid-swap: the old results come back
         else:
-            shutil.rmtree(p, ignore_errors=True)
+            _remove_ours(p)
         done.append(p)
     return done
 
@@ -277,12 +418,13 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
                key=None, option: str = "--out"):
     """Yield a fresh staging folder; on success it replaces ``out`` whole, on error it goes.
 
-    ``out`` is checked first (:func:`check_out_dir`: only a folder ``command`` made, an empty
-    one, or any folder with ``force``); the staging folder is marked with the manifest of
-    ``command`` (and ``key``), so the result can be replaced by a later run of the same command.
-    Readers of ``out`` see either the old results or the new ones, never a mix. Whatever goes
-    wrong before the swap (a bad input, an error, Ctrl-C) leaves ``out`` as it was and no staging
-    folder behind.
+    ``out`` is checked first (:func:`check_out_dir`: only a folder ``command`` made that holds
+    nothing else, an empty one, or any folder with ``force``); the staging folder is marked with
+    the manifest of ``command`` (and ``key``), which lists, once the command has written its
+    results, every entry it wrote: a later run of the same command may replace those, and
+    nothing else. Readers of ``out`` see either the old results or the new ones, never a mix.
+    Whatever goes wrong before the swap (a bad input, an error, Ctrl-C, a file the user put
+    into ``out`` meanwhile) leaves ``out`` as it was and no staging folder behind.
     """
     clean_stale(check_path(out, option))  # first: a killed swap's old folder comes back
     out = check_out_dir(out, command, force=force, option=option)
@@ -296,9 +438,11 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         raise UserError(f"{option} {out}: cannot create a folder there ({exc.strerror or exc})") \
             from None
     try:
-        write_json(tmp / MANIFEST, manifest(command, key))
+        write_json(tmp / MANIFEST, manifest(command, key))  # marks the staging folder as ours
         yield tmp
-        check_out_dir(out, command, force=force, option=option)  # changed while we worked?
+        entries = listing(tmp)
+        write_json(tmp / MANIFEST, manifest(command, key, entries))
+        check_out_dir(out, command, force=force, option=option, own=entries)  # changed meanwhile?
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_dirs(created)
@@ -309,7 +453,9 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         os.replace(out, old)
     os.replace(tmp, out)
     if old is not None:
-        if old.is_dir() and not old.is_symlink():
-            shutil.rmtree(old, ignore_errors=True)
-        else:
+        if old.is_symlink() or not old.is_dir():
             old.unlink()
+        elif read_manifest(old) is not None:
+            _remove_ours(old)
+        else:  # a foreign folder replaced with force
+            shutil.rmtree(old, ignore_errors=True)

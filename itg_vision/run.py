@@ -242,8 +242,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")
         key = run_key(prep)
-        out = Path(args.out) if args.out else default_out(args, prep)
-        if not args.out:
+        if args.out is not None:  # '' is check_path's empty-path error, not the default folder
+            out = outputs.check_path(args.out)
+        else:
+            out = default_out(args, prep)
             _check_default_out(out, key, args.force)
         with outputs.staged_dir(out, "run", force=args.force, key=key) as tmp:
             bar = progress(len(prep.trajectory), f"run {out.name}", quiet=args.quiet, unit="pt")

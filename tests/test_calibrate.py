@@ -12,6 +12,7 @@ from itg_vision import calibration as cal
 from itg_vision.calibrate import summary_table
 from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig
+from itg_vision.errors import UserError
 from itg_vision.world import World
 
 from conftest import ROOT, random_rotation
@@ -227,3 +228,70 @@ def test_failures_exit_2_with_one_line_and_keep_the_old_file(cli, tmp_path, args
 def test_calibrate_help(cli):
     proc = cli("itg_vision.calibrate", "--help")
     assert proc.returncode == 0 and "--views" in proc.stdout and "--rig" in proc.stdout
+
+
+# ---------------------------------------------------------------------------- --out, checked first
+def _this_rigs_calibration(path):
+    """A calibration of planar.yaml at ``path`` (its true_rig names it absolutely)."""
+    text = (ROOT / "cameras" / "planar.calib.yaml").read_text()
+    doc = yaml.safe_load(text)
+    doc["true_rig"] = str(PLANAR)
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+@pytest.mark.parametrize("force, existing", [(True, False), (False, True)])
+def test_a_folder_where_the_picture_goes_is_refused_before_any_work(tmp_path, force, existing):
+    """The corner picture x.calib.png beside x.calib.yaml cannot replace a folder: refused by
+    check_out, even with --force and when x.calib.yaml is this rig's calibration (it failed
+    with IsADirectoryError, exit 1, after all the work)."""
+    from itg_vision.calibrate import check_out
+
+    out = tmp_path / "cal" / "x.calib.yaml"
+    (tmp_path / "cal" / "x.calib.png").mkdir(parents=True)
+    if existing:
+        _this_rigs_calibration(out)
+    with pytest.raises(UserError) as exc:
+        check_out(out, PLANAR, force=force)
+    assert str(exc.value) == (f"--out {out}: {out.parent / 'x.calib.png'} is a folder, where the "
+                              "corner picture goes; choose another --out")
+
+
+def test_a_name_too_long_for_the_temporary_file_is_refused_before_any_work(tmp_path):
+    from itg_vision.calibrate import check_out
+
+    with pytest.raises(UserError, match=r"the file name is too long \(245 bytes; at most 241"):
+        check_out(tmp_path / ("c" * 240 + ".yaml"), PLANAR)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_write_that_fails_after_the_work_is_one_line_and_keeps_the_old_files(
+        tmp_path, monkeypatch, main_in_process):
+    """What check_out cannot foresee (the picture's place made a folder meanwhile, a full disk)
+    is still one line naming the file, exit 2, with the old rig kept and no temporary file."""
+    from types import SimpleNamespace
+
+    from itg_vision import calibrate as command
+
+    out = _this_rigs_calibration(tmp_path / "x.calib.yaml")
+    old = out.read_text()
+    pic = tmp_path / "x.calib.png"
+
+    def fake_calibrate(true_rig, *a, **k):
+        pic.mkdir()  # after check_out
+        return SimpleNamespace(picture=np.zeros((4, 4, 3), np.uint8), rig=true_rig,
+                               record={}, timing_s={"total_s": 0.0})
+
+    monkeypatch.setattr(command, "calibrate", fake_calibrate)
+    proc = main_in_process("itg_vision.calibrate", "--quiet", "--out", out)
+    assert proc.returncode == 2
+    assert proc.stderr == f"error: --out {out}: cannot write {pic} (Is a directory)\n"
+    assert out.read_text() == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.calib.png", "x.calib.yaml"]
+
+
+def test_out_empty_is_an_error_not_the_default_file(tmp_path, monkeypatch, main_in_process):
+    monkeypatch.chdir(tmp_path)
+    proc = main_in_process("itg_vision.calibrate", "--quiet", "--out", "")
+    assert (proc.returncode, proc.stderr) == (2, "error: --out: empty path\n")
+    assert list(tmp_path.iterdir()) == []

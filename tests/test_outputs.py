@@ -70,6 +70,91 @@ def test_foreign_things_are_refused_and_untouched(tmp_path, setup, expect):
     assert _tree(tmp_path) == before
 
 
+def test_a_rerun_keeps_what_the_user_put_into_its_folder(tmp_path):
+    """The manifest lists what the command wrote; a folder that holds anything else (notes, an
+    analysis folder, a file inside one of the command's own folders) is not replaced: the
+    refusal names the first such entry and how many there are. --force replaces it anyway."""
+    out = tmp_path / "res1"
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "result.txt").write_text("one")
+        (tmp / "video").mkdir()
+        (tmp / "video" / "v.mp4").write_bytes(b"mp4")
+    assert outputs.read_manifest(out)["entries"] == ["result.txt", "video/", "video/v.mp4"]
+    _make(out, text="two")  # only its own entries there: replaced
+    assert (out / "result.txt").read_text() == "two" and not (out / "video").exists()
+    (out / "notes.txt").write_text("my notes")
+    (out / "analysis").mkdir()
+    (out / "analysis" / "fit.py").write_text("x")
+    before = _tree(tmp_path)
+    with pytest.raises(UserError) as exc:
+        _make(out, text="three")
+    assert str(exc.value) == ("--out {}: holds 2 entries that run did not write (first: "
+                              "analysis/); move them out or choose another --out, or add --force "
+                              "to replace the folder anyway").format(out)
+    assert _tree(tmp_path) == before
+    with outputs.staged_dir(out, "run", force=True) as tmp:  # --force: as before, replaced
+        (tmp / "result.txt").write_text("forced")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res1"]
+    assert sorted(p.name for p in out.iterdir()) == [outputs.MANIFEST, "result.txt"]
+
+
+def test_a_file_put_inside_a_folder_the_command_wrote_is_the_users(tmp_path):
+    out = tmp_path / "r"
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "video").mkdir()
+    (out / "video" / "cut.mp4").write_bytes(b"the user's edit")
+    with pytest.raises(UserError, match=r"holds 1 entry that run did not write \(first: "
+                                        r"video/cut.mp4\); move it out"):
+        _make(out)
+    assert (out / "video" / "cut.mp4").read_bytes() == b"the user's edit"
+
+
+def test_what_an_earlier_run_wrote_counts_as_the_commands_own(tmp_path):
+    """An earlier run of the same command may have written entries this one does not (a video,
+    another version's files): they are the command's own and replaced; the new manifest lists
+    only what this run wrote."""
+    out = tmp_path / "r"
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "result.txt").write_text("one")
+        (tmp / "video").mkdir()
+        (tmp / "video" / "v.mp4").write_bytes(b"mp4")
+    outputs.check_out_dir(out, "run")  # before the work: nothing foreign
+    _make(out, text="two")
+    assert sorted(p.name for p in out.iterdir()) == [outputs.MANIFEST, "result.txt"]
+    assert outputs.read_manifest(out)["entries"] == ["result.txt"]
+
+
+def test_a_folder_from_before_manifests_listed_entries(tmp_path):
+    """A manifest without ``entries`` (written by an earlier version) proves nothing about the
+    rest of the folder: the run goes ahead, and the swap replaces the folder only if it holds
+    nothing but what this run wrote; otherwise the folder is kept and no staging is left."""
+    out = tmp_path / "r"
+    out.mkdir()
+    outputs.write_json(out / outputs.MANIFEST, outputs.manifest("run"))
+    (out / "result.txt").write_text("old")
+    _make(out, text="new")
+    assert (out / "result.txt").read_text() == "new"
+    outputs.write_json(out / outputs.MANIFEST, outputs.manifest("run"))
+    (out / "notes.txt").write_text("my notes")
+    before = _tree(tmp_path)
+    with pytest.raises(UserError, match=r"holds 1 entry that run did not write \(first: "
+                                        r"notes.txt\)"):
+        _make(out, text="newer")
+    assert _tree(tmp_path) == before
+
+
+def test_a_file_the_user_puts_in_while_the_command_works_is_kept(tmp_path):
+    out = tmp_path / "r"
+    _make(out, text="old")
+    with pytest.raises(UserError, match="first: notes.txt"):
+        with outputs.staged_dir(out, "run") as tmp:
+            (tmp / "result.txt").write_text("new")
+            (out / "notes.txt").write_text("written meanwhile")
+    assert (out / "notes.txt").read_text() == "written meanwhile"
+    assert (out / "result.txt").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
 def test_force_replaces_a_foreign_folder_but_never_a_file(tmp_path):
     folder, file = tmp_path / "f", tmp_path / "notes.txt"
     folder.mkdir()
@@ -98,6 +183,21 @@ def test_paths_that_cannot_be_swapped_in_are_refused(tmp_path, monkeypatch, out)
     with pytest.raises(UserError, match="--out"):
         _make(out)
     assert _tree(tmp_path) == before
+
+
+@pytest.mark.parametrize("what, n, limit", [("folder", 240, 229), ("file", 245, 241)])
+def test_names_too_long_with_our_temporary_suffix_are_refused(tmp_path, what, n, limit):
+    """A staging folder is ``.<name>.staging-<pid>-<8>``, a temporary file ``.<name>.<8>.tmp``:
+    a name the file system takes alone can be too long with them (it failed with OSError after
+    all the work). On a file system taking 255 bytes a name."""
+    name = "c" * n
+    with pytest.raises(UserError, match=f"the {what} name is too long \\({n} bytes; at most "
+                                        f"{limit} here\\)"):
+        outputs.check_path(tmp_path / name, what=what)
+    outputs.check_path(tmp_path / name[:limit], what=what)
+    with pytest.raises(UserError, match="a name in it is too long \\(300 bytes"):
+        outputs.check_path(tmp_path / ("d" * 300) / "x")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_the_current_folder_and_its_parents_are_refused(tmp_path, monkeypatch):
@@ -139,26 +239,56 @@ def test_missing_parents_made_for_a_failed_run_are_removed(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def _ours(folder, command="run", **files):
+    """A folder as staged_dir leaves it: our manifest and ``files`` (name=text)."""
+    folder.mkdir()
+    outputs.write_json(folder / outputs.MANIFEST, outputs.manifest(command))
+    for name, text in files.items():
+        (folder / name.replace("_", ".")).write_text(text)
+    return folder
+
+
 def test_staging_of_a_killed_run_is_cleaned_by_the_next_run(tmp_path):
     dead = _dead_pid()
-    stale = tmp_path / f".r.staging-{dead}-abc123"
-    stale.mkdir()
-    (stale / "half.csv").write_text("1,2")
-    live = tmp_path / f".r.staging-{os.getpid()}-live"  # a run still going: left alone
-    live.mkdir()
-    other = tmp_path / f".rr.staging-{dead}-x"  # another output's staging: left alone
-    other.mkdir()
+    stale = _ours(tmp_path / f".r.staging-{dead}-abc12_yz", half_csv="1,2")
+    begun = tmp_path / f".r.staging-{dead}-0123abcd"  # killed before its manifest: empty
+    begun.mkdir()
+    live = _ours(tmp_path / f".r.staging-{os.getpid()}-livelive")  # a run still going: left alone
+    other = _ours(tmp_path / f".rr.staging-{dead}-xxxxxxxx")  # another output's staging: left alone
     _make(tmp_path / "r")
-    assert not stale.exists() and live.exists() and other.exists()
+    assert not stale.exists() and not begun.exists() and live.exists() and other.exists()
 
 
 def test_a_run_killed_between_the_two_renames_gets_its_old_folder_back(tmp_path):
     dead = _dead_pid()
-    old = tmp_path / f".r.old-{dead}"
-    old.mkdir()
-    (old / "result.txt").write_text("old")
+    old = _ours(tmp_path / f".r.old-{dead}", result_txt="old")
     assert outputs.clean_stale(tmp_path / "r") == [old]
     assert (tmp_path / "r" / "result.txt").read_text() == "old"
+    # killed after the swap, while removing the old folder: the rest of it goes
+    old = _ours(tmp_path / f".r.old-{dead}", result_txt="older")
+    assert outputs.clean_stale(tmp_path / "r") == [old] and not old.exists()
+    assert (tmp_path / "r" / "result.txt").read_text() == "old"
+
+
+def test_user_folders_that_look_like_staging_or_old_folders_are_left_alone(tmp_path):
+    """Only a folder named exactly as staged_dir names it and carrying our manifest is a stale
+    staging or old folder: a user's folder whose name matches the pattern is neither removed
+    nor moved to ``--out`` (it was, and then the run refused the folder it had made)."""
+    dead = _dead_pid()
+    mine = tmp_path / f".r.staging-{dead}-mine"  # not mkdtemp's 8 characters
+    exact = tmp_path / f".r.staging-{dead}-abcdefgh"  # the exact name, but no manifest
+    old = tmp_path / f".r.old-{dead}"  # no manifest: not ours to put back
+    older = tmp_path / f".r.old-{dead}-2"
+    for folder in (mine, exact, old, older):
+        folder.mkdir()
+        (folder / "keep.txt").write_text("the user's")
+    link = tmp_path / f".r.staging-{dead}-linklink"  # a link to the user's folder: not followed
+    link.symlink_to(_ours(tmp_path / "elsewhere", result_txt="x"))
+    before = _tree(tmp_path)
+    assert outputs.clean_stale(tmp_path / "r") == []
+    assert _tree(tmp_path) == before
+    _make(tmp_path / "r")
+    assert {k: v for k, v in _tree(tmp_path).items() if not k.startswith("r")} == before
 
 
 def test_probe_folder_leaves_nothing(tmp_path):
@@ -192,6 +322,14 @@ def test_write_bytes_keeps_the_old_file_when_writing_fails(tmp_path, monkeypatch
     with pytest.raises(OSError):
         outputs.write_text(p, "new")
     assert p.read_text() == "old" and sorted(x.name for x in tmp_path.iterdir()) == ["f.txt"]
+
+
+def test_a_failed_write_names_the_file_not_its_temporary_name(tmp_path):
+    (tmp_path / "x.calib.png").mkdir()
+    with pytest.raises(IsADirectoryError) as exc:
+        outputs.write_files({tmp_path / "x.calib.png": b"png", tmp_path / "x.yaml": b"rig"})
+    assert exc.value.filename == str(tmp_path / "x.calib.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.calib.png"]
 
 
 def test_write_files_replaces_none_when_one_cannot_be_written(tmp_path):
@@ -276,6 +414,15 @@ def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     assert _tree(folder) == kept
     assert run.main(base + ["--rules", str(rules), "--force"]) == 0
     assert _tree(folder) != kept
+
+
+def test_run_out_empty_is_an_error_not_the_default_folder(tmp_path, monkeypatch, capsys):
+    from itg_vision import run
+
+    monkeypatch.chdir(tmp_path)
+    assert run.main(["--quiet", "--feedback", "model", "--points", "3", "--out", ""]) == 2
+    assert capsys.readouterr().err == "error: --out: empty path\n"
+    assert list(tmp_path.iterdir()) == []  # no runs/ folder
 
 
 def test_calibrate_output_checks(tmp_path):
