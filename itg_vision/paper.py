@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
@@ -423,7 +422,7 @@ def main(argv: list[str] | None = None) -> int:
         except ConfigError as exc:
             raise exc.as_option({"gain_deg_per_mm": "--gain", "seed": "--seed"}) from None
         results = {}
-        with outputs.staged_dir(Path(args.out), "paper", force=args.force) as tmp:
+        with outputs.staged_dir(args.out, "paper", force=args.force) as tmp:  # text: "" is an error
             for name, fn in (("exp1", exp1), ("exp2", exp2), ("exp3", exp3), ("exp4", exp4),
                              ("exp5", exp5), ("exp6", exp6)):
                 if not args.quiet:

@@ -425,6 +425,15 @@ def test_run_out_empty_is_an_error_not_the_default_folder(tmp_path, monkeypatch,
     assert list(tmp_path.iterdir()) == []  # no runs/ folder
 
 
+def test_paper_out_empty_is_an_error_not_the_current_folder(tmp_path, monkeypatch, capsys):
+    from itg_vision import paper
+
+    monkeypatch.chdir(tmp_path)
+    assert paper.main(["--quiet", "--out", ""]) == 2
+    assert capsys.readouterr().err == "error: --out: empty path\n"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_calibrate_output_checks(tmp_path):
     from itg_vision.calibrate import check_out, default_out
     from itg_vision.camera import CAMERAS_DIR
