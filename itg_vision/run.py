@@ -159,9 +159,13 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+#: File types a default folder's name leaves out of a file's name.
+_FILE_TYPES = (".yaml", ".yml", ".csv", ".rules")
+
+
 def default_out(args: argparse.Namespace, prep) -> Path:
     """``runs/<arm>-<trajectory>-<controller>-<feedback>[-<option><value>...]`` for the options
-    that differ from their default (file names by their stem)."""
+    that differ from their default (file names less their type)."""
     cfg, defaults = prep.config, build_parser()
     parts = [cfg.arm, Path(prep.trajectory.name).stem, cfg.controller, cfg.feedback]
     for dest, label in _NAMED:
@@ -174,8 +178,9 @@ def default_out(args: argparse.Namespace, prep) -> Path:
             parts.append(label + "x".join(f"{x:g}" for x in v))
         elif isinstance(v, float):
             parts.append(f"{label}{v:g}")
-        elif isinstance(v, str):
-            parts.append(label + Path(v).name.split(".")[0])
+        elif isinstance(v, str):  # a file by its name less its type: planar.calib.yaml -> planar.calib
+            name = Path(v).name
+            parts.append(label + (Path(name).stem if Path(name).suffix in _FILE_TYPES else name))
         else:
             parts.append(f"{label}{v}")
     name = re.sub(r"[^A-Za-z0-9._+=-]", "_", "-".join(parts))

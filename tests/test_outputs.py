@@ -374,6 +374,25 @@ def test_progress_in_a_log_is_plain_lines(capsys):
 
 
 # ----------------------------------------------------------------------------- run's folders
+def test_default_run_folders_tell_rigs_and_files_apart_by_their_whole_names():
+    """A calibrated rig is not its true rig: planar.calib.yaml names its folder rigplanar.calib,
+    not rigplanar (which took the name up to its first dot); a file's type is left out."""
+    from types import SimpleNamespace
+
+    from itg_vision import run
+
+    def folder(*argv):
+        args = run.build_parser().parse_args(list(argv))
+        prep = SimpleNamespace(config=SimpleNamespace(arm="two-link", controller="itg",
+                                                      feedback="vision"),
+                               trajectory=SimpleNamespace(name="ellipse-t1"))
+        return run.default_out(args, prep).name
+
+    assert folder("--rig", "planar") == "two-link-ellipse-t1-itg-vision-rigplanar"
+    assert folder("--rig", "cameras/planar.calib.yaml") == "two-link-ellipse-t1-itg-vision-rigplanar.calib"
+    assert folder("--rules", "my/v1.2.rules") == "two-link-ellipse-t1-itg-vision-rulesv1.2"
+
+
 def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     from itg_vision import run
     from itg_vision.rules import RULES_DIR
