@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
+from .inputs import Fields, clip, count, read_yaml, show
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -30,6 +31,19 @@ REACH_TOL_MM = 0.5
 ARMS_DIR = Path(__file__).resolve().parent.parent / "data" / "arms"
 #: Kinds of chain: joints all about world z, or a base yaw then two pitch joints (section 3.5).
 KINDS = ("planar", "yaw-pitch-pitch")
+#: The fields of an arm file, every one required.
+FIELDS = ("name", "kind", "links_mm", "led_standoff_mm", "start_pose_deg", "defaults",
+          "pose_ranges_deg", "benchmark", "calibration")
+#: An arm's name (the URDF's robot name, a folder name's part): letters, digits, . _ + -.
+NAME_PATTERN = r"[A-Za-z0-9._+-]{1,64}"
+#: Longest link an arm file or ``--links`` may give (mm).
+MAX_LINK_MM = 5000.0
+#: Largest joint angle (and servo step per iteration) an arm file may give (deg).
+MAX_ANGLE_DEG = 360.0
+#: Most iterations per set point (``benchmark.iterations``; as ``run --iterations``).
+MAX_ITERATIONS = 10_000
+#: Most poses of a calibration sweep (each is rendered by both cameras).
+MAX_SWEEP_POSES = 1000
 
 
 def arm_names() -> list[str]:
@@ -55,6 +69,7 @@ class ArmSpec:
     pose_ranges_deg : per joint (lo, hi): random poses the arm's rig sees.
     benchmark : {"max_step_deg", "iterations"}: the limits of the noise benchmark.
     calibration : {"board_target_mm", "axis_sweeps"}: see itg_vision/calibration.py.
+    source : the arm file read (its path as given, or the shipped file's).
     """
 
     name: str
@@ -67,6 +82,7 @@ class ArmSpec:
     pose_ranges_deg: tuple[tuple[float, float], ...] = ()
     benchmark: dict = field(default_factory=dict, compare=False, hash=False)
     calibration: dict = field(default_factory=dict, compare=False, hash=False)
+    source: str = field(default="", compare=False)
 
     @classmethod
     def from_args(cls, name: str, links_mm: tuple[float, ...] | None = None) -> "ArmSpec":
@@ -79,8 +95,9 @@ class ArmSpec:
             raise UserError(f"--links: arm {arm.name!r} needs {arm.n_joints} link lengths in mm, "
                             f"got {len(links)}")
         for i, v in enumerate(links, 1):
-            if not np.isfinite(v) or v <= 0 or v > 5000:
-                raise UserError(f"--links: link {i} must be a length in mm in (0, 5000], got {v}")
+            if not np.isfinite(v) or v <= 0 or v > MAX_LINK_MM:
+                raise UserError(f"--links: link {i} must be a length in mm in "
+                                f"(0, {MAX_LINK_MM:g}], got {v}")
         return arm.with_links(links)
 
     # ------------------------------------------------------------------ structure
@@ -165,66 +182,108 @@ def arm_path(name_or_path: str) -> Path:
 
 
 def load_arm(name_or_path: str) -> ArmSpec:
-    """Read and check an arm file (see ``data/arms/two-link.yaml``); a bad field raises
-    `UserError` naming the file and the field."""
-    import yaml
-
-    from .inputs import read_text
-
+    """Read and check an arm file (see ``data/arms/two-link.yaml``): every field, so code
+    using the spec can trust it; a bad one raises `UserError` ``<file>: <field>: <problem>``."""
     path = arm_path(name_or_path)
-    try:
-        doc = yaml.safe_load(read_text(path, "arm file"))
-    except yaml.YAMLError as exc:
-        raise UserError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    return arm_from_dict(read_yaml(path, "arm file"), str(path))
 
-    def fail(where, msg):
-        raise UserError(f"{path}: {where}: {msg}")
 
-    if not isinstance(doc, dict):
-        fail("(top level)", "must be a mapping")
-
-    def get(key, kind=None):
-        if key not in doc:
-            fail(key, "missing")
-        return doc[key]
-
-    def numbers(v, where, n=None):
-        if not isinstance(v, list) or (n is not None and len(v) != n) or not all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v):
-            fail(where, f"must be a list of {n or 'some'} finite numbers, got {v!r}")
-        return tuple(float(x) for x in v)
-
-    kind = get("kind")
+def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
+    """Check a parsed arm file, every field, and build the `ArmSpec` (see :func:`load_arm`)."""
+    F = Fields(path)
+    F.mapping(doc, "(top level)", FIELDS)
+    name = F.text(doc["name"], "name", NAME_PATTERN,
+                  "a name of at most 64 letters, digits, '.', '_', '+' or '-'")
+    kind = doc["kind"]
     if kind not in KINDS:
-        fail("kind", f"must be one of {', '.join(KINDS)}, got {kind!r}")
-    links = numbers(get("links_mm"), "links_mm")
+        F.fail("kind", f"must be one of {', '.join(KINDS)}, got {show(kind)}")
+    planar = kind == "planar"
+    links = F.numbers(doc["links_mm"], None, "links_mm", "lengths in mm", lo=0.0,
+                      hi=MAX_LINK_MM, lo_open=True, unit=" (mm)")
     n = len(links)
-    if not (1 <= n <= 2 if kind == "planar" else n == 3):
-        fail("links_mm", f"a {kind} arm has {'1 or 2' if kind == 'planar' else '3'} links, got {n}")
-    if any(v <= 0 for v in links):
-        fail("links_mm", "lengths must be > 0")
-    standoff = float(numbers([get("led_standoff_mm")], "led_standoff_mm")[0])
-    if standoff < 0:
-        fail("led_standoff_mm", f"must be >= 0 (mm), got {standoff:g}")
-    start = numbers(get("start_pose_deg"), "start_pose_deg", n)
-    ranges = tuple(numbers(r, f"pose_ranges_deg[{i}]", 2) for i, r in enumerate(get("pose_ranges_deg")))
-    if len(ranges) != n:
-        fail("pose_ranges_deg", f"needs one [lo, hi] per joint ({n})")
-    defaults = get("defaults")
-    if not isinstance(defaults, dict) or not (
-            {"rules", "rig", "trajectory"} <= set(defaults) <= {"rules", "rig", "trajectory",
-                                                                 "itg_plus_rules"}):
-        fail("defaults", "must name the default rules, rig and trajectory (and may name the "
-                         "itg_plus_rules)")
-    bench = get("benchmark")
-    if not isinstance(bench, dict) or set(bench) != {"max_step_deg", "iterations"}:
-        fail("benchmark", "must give max_step_deg and iterations")
-    calib = get("calibration")
-    if not isinstance(calib, dict) or "axis_sweeps" not in calib or "board_target_mm" not in calib:
-        fail("calibration", "must give board_target_mm and axis_sweeps")
-    numbers(calib["board_target_mm"], "calibration.board_target_mm", 3)
-    return ArmSpec(str(get("name")), kind, links, standoff, start, (0.0,) * n, dict(defaults),
-                   ranges, dict(bench), dict(calib))
+    if not (1 <= n <= 2 if planar else n == 3):
+        F.fail("links_mm", f"a {kind} arm has {'1 or 2' if planar else '3'} links, got {n}")
+    standoff = F.number(doc["led_standoff_mm"], "led_standoff_mm", 0.0, unit=" (mm)")
+    angle = dict(lo=-MAX_ANGLE_DEG, hi=MAX_ANGLE_DEG, unit=" (deg)")
+    start = F.numbers(doc["start_pose_deg"], n, "start_pose_deg", "angles in deg (one per joint)",
+                      **angle)
+    ranges = doc["pose_ranges_deg"]
+    if not isinstance(ranges, list) or len(ranges) != n:
+        got = count(ranges, "range") if isinstance(ranges, list) else show(ranges)
+        F.fail("pose_ranges_deg", f"must be a list of {n} [lo, hi] ranges in deg (one per "
+                                  f"joint), got {got}")
+    ranges = tuple(F.numbers(r, 2, f"pose_ranges_deg[{i}]", "angles in deg, [lo, hi]", **angle)
+                   for i, r in enumerate(ranges))
+    for i, (lo, hi) in enumerate(ranges):
+        if lo > hi:
+            F.fail(f"pose_ranges_deg[{i}]", f"lo must be <= hi, got [{lo:g}, {hi:g}]")
+    defaults = F.mapping(doc["defaults"], "defaults", ("rules", "rig", "trajectory"),
+                         ("itg_plus_rules",))
+    defaults = {k: F.text(v, f"defaults.{k}") for k, v in defaults.items()}
+    bench = F.mapping(doc["benchmark"], "benchmark", ("max_step_deg", "iterations"))
+    bench = {"max_step_deg": F.number(bench["max_step_deg"], "benchmark.max_step_deg", 0.0,
+                                      MAX_ANGLE_DEG, lo_open=True, unit=" (deg per iteration)"),
+             "iterations": F.integer(bench["iterations"], "benchmark.iterations", 1,
+                                     MAX_ITERATIONS)}
+    calib = _calibration(F, doc["calibration"], n, planar)
+    return ArmSpec(name, kind, links, standoff, start, (0.0,) * n, defaults, ranges, bench, calib,
+                   source=path)
+
+
+def _calibration(F: Fields, calib, n: int, planar: bool) -> dict:
+    """The arm file's ``calibration``, checked: the board's target and one sweep per joint
+    swept (joint 1 always; the three-link arm's shoulder, q2, too), each moving its LEDs."""
+    calib = F.mapping(calib, "calibration", ("board_target_mm", "axis_sweeps"))
+    target = F.numbers(calib["board_target_mm"], 3, "calibration.board_target_mm",
+                       "coordinates in mm", lo=-1e5, hi=1e5, unit=" (mm)")
+    sweeps = calib["axis_sweeps"]
+    if not isinstance(sweeps, list) or not sweeps:
+        F.fail("calibration.axis_sweeps", f"must be a list of joint sweeps, got {show(sweeps)}")
+    markers = ("gripper",) if n == 1 else ("elbow", "gripper")
+    out = []
+    for i, sw in enumerate(sweeps):
+        where = f"calibration.axis_sweeps[{i}]"
+        F.mapping(sw, where, ("joint", "from_deg", "to_deg", "poses", "pose_deg", "markers"))
+        joint = F.integer(sw["joint"], f"{where}.joint", 1, n)
+        if any(s["joint"] == joint for s in out):
+            F.fail(f"{where}.joint", f"joint {joint} is swept twice")
+        lo = F.number(sw["from_deg"], f"{where}.from_deg", -MAX_ANGLE_DEG, MAX_ANGLE_DEG,
+                      unit=" (deg)")
+        hi = F.number(sw["to_deg"], f"{where}.to_deg", -MAX_ANGLE_DEG, MAX_ANGLE_DEG,
+                      unit=" (deg)")
+        if hi <= lo:
+            F.fail(f"{where}.to_deg", f"must be above from_deg ({lo:g}), got {hi:g}")
+        poses = F.integer(sw["poses"], f"{where}.poses", 3, MAX_SWEEP_POSES)
+        pose = sw["pose_deg"]
+        if not isinstance(pose, list) or len(pose) != n:
+            got = count(pose, "value") if isinstance(pose, list) else show(pose)
+            F.fail(f"{where}.pose_deg", f"must be a list of {n} angles in deg (null for the swept "
+                                        f"joint), got {got}")
+        for j, v in enumerate(pose, 1):
+            if j == joint and v is not None:
+                F.fail(f"{where}.pose_deg[{j - 1}]", f"must be null: joint {joint} is swept, got "
+                                                     f"{show(v)}")
+        pose = [None if j == joint else F.number(v, f"{where}.pose_deg[{j - 1}]", -MAX_ANGLE_DEG,
+                                                 MAX_ANGLE_DEG, unit=" (deg)")
+                for j, v in enumerate(pose, 1)]
+        names = sw["markers"]
+        if not isinstance(names, list) or not names or len(set(map(repr, names))) != len(names) \
+                or not all(isinstance(m, str) and m in markers for m in names):
+            F.fail(f"{where}.markers", f"must be a list of distinct LEDs of {', '.join(markers)}, "
+                                       f"got {show(names)}")
+        if "elbow" in names and joint == n:
+            F.fail(f"{where}.markers", f"the elbow LED does not move when joint {joint} turns")
+        out.append({"joint": joint, "from_deg": lo, "to_deg": hi, "poses": poses,
+                    "pose_deg": pose, "markers": list(names)})
+    swept = {s["joint"]: s for s in out}
+    if 1 not in swept:
+        F.fail("calibration.axis_sweeps", "must sweep joint 1 (the base: the world's z axis)")
+    if not planar and (2 not in swept or set(swept[2]["markers"]) != {"elbow", "gripper"}):
+        F.fail("calibration.axis_sweeps", "must sweep joint 2 (the shoulder) with markers "
+                                          "[elbow, gripper]")
+    if planar and 2 in swept and "gripper" not in swept[2]["markers"]:
+        F.fail("calibration.axis_sweeps", "joint 2's sweep must watch the gripper LED")
+    return {"board_target_mm": list(target), "axis_sweeps": out}
 
 
 def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]:

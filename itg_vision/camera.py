@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -43,7 +42,7 @@ import numpy as np
 import yaml
 
 from .errors import UserError
-from .inputs import clip, position, read_text
+from .inputs import Fields, read_yaml
 
 _MM = 1e-3
 #: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
@@ -351,24 +350,7 @@ class Rig:
     def from_yaml(cls, path) -> "Rig":
         """Read and validate a rig file; any bad field raises `UserError` naming it."""
         path = str(path)
-        text = read_text(path, "rig file")
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-            where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else path
-            what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-            context, cmark = getattr(exc, "context", None), getattr(exc, "context_mark", None)
-            if context and cmark is not None and cmark is not mark:
-                what += f", {context} at {cmark.line + 1}:{cmark.column + 1}"
-            raise UserError(f"{where}: not valid YAML ({what})") from None
-        except ValueError:  # an integer of more than 4300 digits (int's str limit)
-            m = re.search(r"\d{4300,}", text)
-            where = f"{path}:{':'.join(map(str, position(text, m.start())))}" if m else path
-            raise UserError(f"{where}: not valid YAML (a number of more than 4300 digits)") \
-                from None
-        except RecursionError:
-            raise UserError(f"{path}: nested too deeply to be a rig file") from None
+        doc = read_yaml(path, "rig file")
         return rig_from_dict(doc, path)
 
     def yaml_text(self) -> str:
@@ -410,50 +392,9 @@ def _camera_to_dict(c: Camera) -> dict:
 
 
 # ---------------------------------------------------------------------------- validation
-class _Fields:
-    """Field readers that raise `UserError` with ``file: where.field: problem``."""
-
-    def __init__(self, path: str):
-        self.path = path
-
-    def fail(self, where: str, msg: str):
-        raise UserError(f"{self.path}: {where}: {msg}")
-
-    def get(self, d: Any, key: str, where: str) -> Any:
-        if not isinstance(d, dict):
-            self.fail(where, "must be a mapping")
-        if key not in d:
-            self.fail(f"{where}.{key}" if where else key, "missing")
-        return d[key]
-
-    def number(self, v: Any, where: str) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(where, f"must be a finite number, got {clip(repr(v))}")
-        try:
-            x = float(v)
-        except OverflowError:  # an integer beyond the doubles
-            x = math.inf
-        if not math.isfinite(x):
-            self.fail(where, f"must be a finite number, got {clip(repr(v))}")
-        return x
-
-    def numbers(self, v: Any, n: int, where: str) -> np.ndarray:
-        if isinstance(v, dict) and "data" in v:  # ROS matrix form
-            v = v["data"]
-        if not isinstance(v, (list, tuple)) or len(v) != n:
-            got = f"{len(v)} values" if isinstance(v, (list, tuple)) else clip(repr(v))
-            self.fail(where, f"must be a list of {n} numbers, got {got}")
-        return np.array([self.number(x, f"{where}[{i}]") for i, x in enumerate(v)])
-
-    def integer(self, v: Any, where: str) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(where, f"must be an integer, got {clip(repr(v))}")
-        return int(v)
-
-
 def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     """Validate a parsed rig document and build the `Rig` (see the module docstring)."""
-    F = _Fields(path)
+    F = Fields(path)
     if not isinstance(doc, dict):
         F.fail("(top level)", "must be a mapping with 'name' and 'cameras'")
     name = F.get(doc, "name", "")
@@ -483,7 +424,7 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     return Rig(name, cameras, path, calibration, true_rig, supersample)
 
 
-def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
+def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
     if not isinstance(d, dict):
         F.fail(where, "must be a mapping")
     name = F.get(d, "name", where)
@@ -500,7 +441,7 @@ def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
                       f"to render a frame ({BYTES_PER_PIXEL} bytes per pixel); the limit is "
                       f"{MAX_IMAGE_PIXELS / 1e6:.1f} Mpx (4096 x 4096)")
     km = f"{where}.camera_matrix"
-    K = F.numbers(F.get(d, "camera_matrix", where), 9, km).reshape(3, 3)
+    K = F.array(F.get(d, "camera_matrix", where), 9, km).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     for label, f in (("fx", fx), ("fy", fy)):
         if f <= 0:
@@ -522,7 +463,7 @@ def _camera_from_dict(F: _Fields, d: Any, where: str) -> Camera:
     model = d.get("distortion_model", "plumb_bob")
     if model != "plumb_bob":
         F.fail(f"{where}.distortion_model", f"only plumb_bob is supported, got {model!r}")
-    dist = F.numbers(F.get(d, "distortion_coefficients", where), 5,
+    dist = F.array(F.get(d, "distortion_coefficients", where), 5,
                      f"{where}.distortion_coefficients")
     if np.max(np.abs(dist)) > MAX_DISTORTION:
         F.fail(f"{where}.distortion_coefficients", f"each must be within +-{MAX_DISTORTION:g}, "
@@ -590,23 +531,23 @@ def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
     return "", int(np.ceil(margin)) + 2
 
 
-def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
+def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(d, dict):
         F.fail(where, "must be a mapping")
     if "rotation_matrix" in d:
-        R = F.numbers(d["rotation_matrix"], 9, f"{where}.rotation_matrix").reshape(3, 3)
+        R = F.array(d["rotation_matrix"], 9, f"{where}.rotation_matrix").reshape(3, 3)
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             F.fail(f"{where}.rotation_matrix", "must be a rotation (orthonormal, det +1)")
-        t = F.numbers(F.get(d, "translation_mm", where), 3, f"{where}.translation_mm")
+        t = F.array(F.get(d, "translation_mm", where), 3, f"{where}.translation_mm")
         if np.max(np.abs(t)) > MAX_POSITION_MM:
             F.fail(f"{where}.translation_mm", f"each must be within +-{MAX_POSITION_MM:g} mm")
         return R, t
-    C = F.numbers(F.get(d, "position_mm", where), 3, f"{where}.position_mm")
+    C = F.array(F.get(d, "position_mm", where), 3, f"{where}.position_mm")
     if np.max(np.abs(C)) > MAX_POSITION_MM:
         F.fail(f"{where}.position_mm", f"each must be within +-{MAX_POSITION_MM:g} mm")
     if "look_at_mm" in d:
-        target = F.numbers(d["look_at_mm"], 3, f"{where}.look_at_mm")
-        up = F.numbers(d.get("up", [0, 0, 1]), 3, f"{where}.up")
+        target = F.array(d["look_at_mm"], 3, f"{where}.look_at_mm")
+        up = F.array(d.get("up", [0, 0, 1]), 3, f"{where}.up")
         if np.linalg.norm(target - C) < 1e-9:
             F.fail(f"{where}.look_at_mm", "must differ from position_mm")
         try:
@@ -614,7 +555,7 @@ def _pose_from_dict(F: _Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndar
         except ValueError:
             F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
     elif "rotation_deg" in d:
-        rv = F.numbers(d["rotation_deg"], 3, f"{where}.rotation_deg")
+        rv = F.array(d["rotation_deg"], 3, f"{where}.rotation_deg")
         if np.max(np.abs(rv)) > 3600:
             F.fail(f"{where}.rotation_deg", "each must be within +-3600 deg")
         R, _ = cv2.Rodrigues(np.radians(rv))

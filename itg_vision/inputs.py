@@ -4,12 +4,18 @@
 device never ends in a MemoryError), decodes UTF-8 (a leading byte-order mark is dropped, as
 spreadsheet programs write one), and turns every failure into one
 :class:`~itg_vision.errors.UserError` line naming the file, and the line and column of a byte
-that is not UTF-8 (a binary file). :func:`clip` shortens a user's text quoted in a message.
+that is not UTF-8 (a binary file). :func:`read_yaml` parses a YAML file (rigs, arms) the same
+way; :class:`Fields` checks the fields of a parsed file, each failure one line naming the file
+and the field. :func:`clip` shortens a user's text quoted in a message.
 """
 
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
+
+import numpy as np
 
 from .errors import UserError
 
@@ -59,3 +65,126 @@ def position(data: bytes | str, offset: int) -> tuple[int, int]:
     line = data.count(nl, 0, offset) + 1
     col = offset - (data.rfind(nl, 0, offset) + 1) + 1
     return line, col
+
+
+def read_yaml(path: str | Path, what: str):
+    """The parsed YAML of ``path`` (a ``what``: 'rig file', 'arm file'), read by
+    :func:`read_text`. Every failure is one `UserError` naming the file: a YAML error at its line
+    and column, an integer of more than 4300 digits (int's limit) at its own, a document nested
+    too deeply."""
+    import yaml
+
+    text = read_text(path, what)
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        context, cmark = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+        if context and cmark is not None and cmark is not mark:
+            problem += f", {context} at {cmark.line + 1}:{cmark.column + 1}"
+        raise UserError(f"{where}: not valid YAML ({problem})") from None
+    except ValueError as exc:  # an integer of more than 4300 digits (int's str limit)
+        m = re.search(r"\d{4300,}", text)
+        if m is None:
+            raise UserError(f"{path}: not valid YAML ({clip(str(exc), 80)})") from None
+        line, col = position(text, m.start())
+        raise UserError(f"{path}:{line}:{col}: not valid YAML (a number of more than 4300 "
+                        "digits)") from None
+    except RecursionError:
+        article = "an" if what[:1] in "aeiou" else "a"
+        raise UserError(f"{path}: nested too deeply to be {article} {what}") from None
+
+
+def show(v) -> str:
+    """A value read from the file, for a one-line message (shortened)."""
+    try:
+        return clip(repr(v))
+    except (RecursionError, ValueError):  # nested deeply, an int beyond int's str limit
+        return f"a {type(v).__name__}"
+
+
+def count(items: list, noun: str) -> str:
+    return f"{len(items)} {noun}{'' if len(items) == 1 else 's'}"
+
+
+class Fields:
+    """Field readers that raise `UserError` with ``file: where: problem``."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def fail(self, where: str, msg: str):
+        raise UserError(f"{self.path}: {where}: {msg}")
+
+    def mapping(self, v, where: str, required, optional=()) -> dict:
+        """``v`` as a mapping holding every key of ``required`` and no key outside ``optional``."""
+        known = (*required, *optional)
+        if not isinstance(v, dict):
+            self.fail(where, f"must be a mapping of {', '.join(known)}, got {show(v)}")
+        prefix = f"{where}." if where != "(top level)" else ""
+        for k in v:
+            if k not in known:
+                self.fail(f"{prefix}{clip(str(k))}", f"unknown field (known: {', '.join(known)})")
+        for k in required:
+            if k not in v:
+                self.fail(f"{prefix}{k}", "missing")
+        return v
+
+    def get(self, d, key: str, where: str):
+        """``d[key]``, ``d`` a mapping (``where``: its place, "" at the top)."""
+        if not isinstance(d, dict):
+            self.fail(where, "must be a mapping")
+        if key not in d:
+            self.fail(f"{where}.{key}" if where else key, "missing")
+        return d[key]
+
+    def number(self, v, where: str, lo: float = -math.inf, hi: float = math.inf, *,
+               lo_open: bool = False, unit: str = "") -> float:
+        """A finite number in [lo, hi] (``lo_open``: (lo, hi])."""
+        x = math.nan
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            try:
+                x = float(v)
+            except OverflowError:  # an integer beyond the doubles
+                x = math.inf
+        if not math.isfinite(x):
+            self.fail(where, f"must be a finite number{unit}, got {show(v)}")
+        if not ((lo < x) if lo_open else (lo <= x)) or x > hi:
+            span = (f"{'>' if lo_open else '>='} {lo:g}" if hi == math.inf else
+                    f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+            self.fail(where, f"must be {span}{unit}, got {x:g}")
+        return x
+
+    def numbers(self, v, n: int | None, where: str, what: str = "numbers", **kw) -> tuple:
+        """A list of ``n`` (any number of, when None) finite numbers, each as :meth:`number`."""
+        if isinstance(v, dict) and "data" in v:  # ROS's matrix form (rig files)
+            v = v["data"]
+        if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n) or not v:
+            got = count(v, "value") if isinstance(v, (list, tuple)) else show(v)
+            self.fail(where, f"must be a list of {'' if n is None else f'{n} '}{what}, got {got}")
+        return tuple(self.number(x, f"{where}[{i}]", **kw) for i, x in enumerate(v))
+
+    def array(self, v, n: int, where: str) -> np.ndarray:
+        """:meth:`numbers` as an array."""
+        return np.array(self.numbers(v, n, where))
+
+    def integer(self, v, where: str, lo: int | None = None, hi: int | None = None) -> int:
+        """An integer (in ``lo..hi`` when given)."""
+        if lo is None or hi is None:
+            if isinstance(v, bool) or not isinstance(v, int):
+                self.fail(where, f"must be an integer, got {show(v)}")
+            return int(v)
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.fail(where, f"must be a whole number in {lo}..{hi}, got {show(v)}")
+        if not lo <= v <= hi:
+            self.fail(where, f"must be a whole number in {lo}..{hi}, got {clip(str(v))}")
+        return int(v)
+
+    def text(self, v, where: str, pattern: str | None = None, what: str = "") -> str:
+        if not isinstance(v, str) or not v.strip() or any(c in v for c in "\0\n\r") or (
+                pattern is not None and not re.fullmatch(pattern, v)):
+            self.fail(where, f"must be {what or 'a name or a path on one line'}, got "
+                             f"{show(v)}")
+        return v

@@ -234,7 +234,10 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
             estimate_rig = Rig.from_yaml(cfg.rig_path)
         render_rig = estimate_rig
         if estimate_rig.true_rig:
-            render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
+            try:
+                render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
+            except UserError as exc:  # name the calibrated rig and its field, then the problem
+                raise UserError(f"{cfg.rig_path}: true_rig: {exc}") from None
         if not cfg.allow_unseen:
             check_visible(render_rig, true_arm, trajectory.points_mm)
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
@@ -275,14 +278,27 @@ def supersample_of(cfg: RunConfig, rig) -> int:
     return int(rig.supersample or DEFAULT_SUPERSAMPLE)
 
 
+def shown_path(path: str) -> str:
+    """A path for a summary: a shipped file's relative to the project (``data/arms/...``), the
+    same on every machine; any other as given."""
+    from .arm import ARMS_DIR
+
+    root = ARMS_DIR.parent.parent
+    try:
+        return str(Path(path).resolve().relative_to(root)) if path else path
+    except ValueError:
+        return path
+
+
 def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[RunConfig, str]:
     """The configuration of a rule base whose S is the servo limit, and where the limit came
     from: the run's ``max_step_deg``, else the arm file's benchmark limit (which the loop then
-    applies too). ``step_deg`` may only repeat it (`ConfigError` otherwise)."""
+    applies too; the arm file checked it, :func:`itg_vision.arm.load_arm`). ``step_deg`` may
+    only repeat it (`ConfigError` otherwise)."""
     servo, note = cfg.max_step_deg, "the run's max_step_deg"
     if servo is None:
-        servo = float(model.benchmark["max_step_deg"])
-        note = f"the arm file's benchmark limit (data/arms/{model.name}.yaml)"
+        servo = model.benchmark["max_step_deg"]
+        note = f"the arm file's benchmark limit ({shown_path(model.source) or model.name})"
         cfg = dataclasses.replace(cfg, max_step_deg=servo)
     if cfg.step_deg is not None and cfg.step_deg != servo:
         raise ConfigError("step_deg", f"{source}: S is the servo limit ({servo:g} deg per "

@@ -2,6 +2,7 @@
 option, no traceback, nothing touched. Table-driven, each command called in-process."""
 
 import copy
+import json
 import os
 import random
 import re
@@ -60,6 +61,29 @@ def _below(doc):
         c["pose"]["position_mm"][2] = -620.0
 
 
+#: Bad arm files: (name, a line of data/arms/two-link.yaml (regex), what replaces it).
+ARM_EDITS = [
+    ("ranges-5", r"^pose_ranges_deg:.*$", "pose_ranges_deg: 5"),
+    ("ranges-empty", r"^pose_ranges_deg:.*$", "pose_ranges_deg:"),
+    ("ranges-reversed", r"^pose_ranges_deg:.*$", "pose_ranges_deg: [[-180, 180], [150, -150]]"),
+    ("start-1-angle", r"^start_pose_deg:.*$", "start_pose_deg: [90]"),
+    ("rules-5", r"^defaults:.*$", "defaults: {rules: 5, rig: planar, trajectory: ellipse-t1}"),
+    ("trajectory-7", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: 7}"),
+    ("rig-list", r"^defaults:.*$", "defaults: {rules: table2, rig: [a], trajectory: ellipse-t1}"),
+    ("servo-abc", r"^benchmark:.*$", "benchmark: {max_step_deg: abc, iterations: 1}"),
+    ("servo-negative", r"^benchmark:.*$", "benchmark: {max_step_deg: -5, iterations: 1}"),
+    ("servo-zero", r"^benchmark:.*$", "benchmark: {max_step_deg: 0, iterations: 1}"),
+    ("servo-nan", r"^benchmark:.*$", "benchmark: {max_step_deg: .nan, iterations: 1}"),
+    ("iterations-0", r"^benchmark:.*$", "benchmark: {max_step_deg: 20, iterations: 0}"),
+    ("iterations-half", r"^benchmark:.*$", "benchmark: {max_step_deg: 20, iterations: 1.5}"),
+    ("name-markup", r"^name:.*$", "name: 'a\"/><robot'"),
+    ("unknown-field", r"^kind:.*$", "kind: planar\ncolour: red"),
+    ("sweep-poses-0", r"poses: 23, pose_deg: \[90, null\]", "poses: 0, pose_deg: [90, null]"),
+    ("standoff-5000-digits", r"^led_standoff_mm:.*$", "led_standoff_mm: " + "9" * 5000),
+    ("standoff-nested", r"^led_standoff_mm:.*$", "led_standoff_mm: " + "[" * 2000 + "]" * 2000),
+]
+
+
 def make_inputs(tmp):
     """The bad files of the table, by name."""
     f = {}
@@ -107,6 +131,13 @@ def make_inputs(tmp):
     text("not-rig.yaml", "just: text\n")
     text("negative-standoff.yaml", re.sub(r"(?m)^led_standoff_mm: .*$", "led_standoff_mm: -3",
                                           (ARMS_DIR / "two-link.yaml").read_text()))
+    text("lost-true-rig.yaml", (ARMS_DIR.parent.parent / "cameras" / "planar.yaml").read_text()
+         + "true_rig: nosuch.yaml\n")
+    two_link = (ARMS_DIR / "two-link.yaml").read_text()
+    for name, line, bad in ARM_EDITS:
+        body, n = re.subn(line, lambda m: bad, two_link, flags=re.M)
+        assert n == 1, name  # the shipped file changed: mend the edit
+        text(f"arm-{name}.yaml", body)
     f["folder"] = tmp / "a-folder"
     f["folder"].mkdir()
     (f["folder"] / "thesis.tex").write_text("keep me")
@@ -144,6 +175,7 @@ CASES = [
     ("preview-three-link", "run", RUN + ["--arm", "three-link", "--preview"], "--preview: plans for a planar two-link arm (its gripper slides along a line through the base); arm three-link is not"),
     ("gain-with-ik", "run", RUN + ["--controller", "ik", "--gain", "0.3"], "--gain: the ik controller takes no f"),
     ("step-unused", "run", RUN + ["--step", "3"], "table2.rules never uses S"),
+    ("rig-true-rig-missing", "run", ["--quiet", "--rig", "{lost-true-rig.yaml}"], "lost-true-rig.yaml: true_rig: nosuch.yaml: cannot read rig file (No such file or directory)"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
@@ -154,6 +186,26 @@ CASES = [
     ("rig-nested", "run", ["--quiet", "--rig", "{nested.yaml}"], "nested.yaml: nested too deeply"),
     ("arm-negative-standoff", "run", ["--quiet", "--arm", "{negative-standoff.yaml}"], "negative-standoff.yaml: led_standoff_mm: must be >= 0 (mm), got -3"),
     ("rig-not-a-rig", "run", ["--quiet", "--rig", "{not-rig.yaml}"], "not-rig.yaml: name: missing"),
+    # arm files: every field checked when the file is read
+    ("arm-pose-ranges-5", "run", RUN + ["--arm", "{arm-ranges-5.yaml}"], "arm-ranges-5.yaml: pose_ranges_deg: must be a list of 2 [lo, hi] ranges in deg (one per joint), got 5"),
+    ("arm-pose-ranges-empty", "run", RUN + ["--arm", "{arm-ranges-empty.yaml}"], "arm-ranges-empty.yaml: pose_ranges_deg: must be a list of 2 [lo, hi] ranges in deg (one per joint), got None"),
+    ("arm-pose-ranges-5-accuracy", "bench", ["accuracy", "--arm", "{arm-ranges-5.yaml}", "--poses", "5"], "arm-ranges-5.yaml: pose_ranges_deg: must be a list of 2"),
+    ("arm-pose-range-reversed", "run", RUN + ["--arm", "{arm-ranges-reversed.yaml}"], "arm-ranges-reversed.yaml: pose_ranges_deg[1]: lo must be <= hi, got [150, -150]"),
+    ("arm-start-pose-1-angle", "run", RUN + ["--arm", "{arm-start-1-angle.yaml}"], "arm-start-1-angle.yaml: start_pose_deg: must be a list of 2 angles in deg (one per joint), got 1 value"),
+    ("arm-default-rules-5", "run", RUN + ["--arm", "{arm-rules-5.yaml}"], "arm-rules-5.yaml: defaults.rules: must be a name or a path on one line, got 5"),
+    ("arm-default-trajectory-7", "run", RUN + ["--arm", "{arm-trajectory-7.yaml}"], "arm-trajectory-7.yaml: defaults.trajectory: must be a name or a path on one line, got 7"),
+    ("arm-default-rig-list", "run", ["--quiet", "--arm", "{arm-rig-list.yaml}"], "arm-rig-list.yaml: defaults.rig: must be a name or a path on one line, got ['a']"),
+    ("arm-servo-abc", "run", RUN + ["--arm", "{arm-servo-abc.yaml}", "--rules", "itg-plus-two-link"], "arm-servo-abc.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got 'abc'"),
+    ("arm-servo-negative", "run", RUN + ["--arm", "{arm-servo-negative.yaml}"], "arm-servo-negative.yaml: benchmark.max_step_deg: must be in (0, 360] (deg per iteration), got -5"),
+    ("arm-servo-zero", "run", RUN + ["--arm", "{arm-servo-zero.yaml}"], "arm-servo-zero.yaml: benchmark.max_step_deg: must be in (0, 360] (deg per iteration), got 0"),
+    ("arm-servo-nan", "run", RUN + ["--arm", "{arm-servo-nan.yaml}"], "arm-servo-nan.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got nan"),
+    ("arm-iterations-0", "run", RUN + ["--arm", "{arm-iterations-0.yaml}"], "arm-iterations-0.yaml: benchmark.iterations: must be a whole number in 1..10000, got 0"),
+    ("arm-iterations-1.5", "run", RUN + ["--arm", "{arm-iterations-half.yaml}"], "arm-iterations-half.yaml: benchmark.iterations: must be a whole number in 1..10000, got 1.5"),
+    ("arm-name-markup", "run", RUN + ["--arm", "{arm-name-markup.yaml}"], "arm-name-markup.yaml: name: must be a name of at most 64 letters"),
+    ("arm-unknown-field", "run", RUN + ["--arm", "{arm-unknown-field.yaml}"], "arm-unknown-field.yaml: colour: unknown field"),
+    ("arm-sweep-poses-0", "run", RUN + ["--arm", "{arm-sweep-poses-0.yaml}"], "arm-sweep-poses-0.yaml: calibration.axis_sweeps[1].poses: must be a whole number in 3..1000, got 0"),
+    ("arm-5000-digit-int", "run", RUN + ["--arm", "{arm-standoff-5000-digits.yaml}"], "arm-standoff-5000-digits.yaml:6:18: not valid YAML (a number of more than 4300 digits)"),
+    ("arm-nested", "run", RUN + ["--arm", "{arm-standoff-nested.yaml}"], "arm-standoff-nested.yaml: nested too deeply to be an arm file"),
     ("rig-dev-zero", "run", ["--quiet", "--rig", "/dev/zero"], "/dev/zero: rig file larger than"),
     ("rig-folder", "run", ["--quiet", "--rig", "{folder}"], "a-folder: is a folder, not a rig file"),
     ("rig-fx-1e300", "run", ["--quiet", "--rig", "{rig-fx-huge}"], "cameras[1].camera_matrix: fx must be at most 1e+06 px"),
@@ -206,6 +258,14 @@ CASES = [
     ("itg-plus-workers", "bench", ["itg-plus", "--quiet", "--workers", "-2", "--out", "{tmp}/n"], "--workers: must be >= 1, got -2"),
     ("noise-workers-type", "noise", ["--quick", "--workers", "two"], "--workers: expected a whole number, got 'two'"),
     ("noise-seeds-type", "noise", ["--quick", "--seeds", "two"], "argument --seeds: invalid int value: 'two'"),
+    ("speed-frames-0", "bench", ["speed", "--frames", "0"], "argument --frames: must be >= 1, got 0"),
+    ("speed-frames-negative", "bench", ["speed", "--frames", "-3"], "argument --frames: must be >= 1, got -3"),
+    ("speed-frames-161", "bench", ["speed", "--frames", "161"], "--frames: must be at most 160 (the set points of ellipse-t1 after the first 20), got 161"),
+    ("speed-frames-type", "bench", ["speed", "--frames", "x"], "argument --frames: expected a whole number, got 'x'"),
+    ("speed-passes-0", "bench", ["speed", "--passes", "0"], "argument --passes: must be >= 1, got 0"),
+    ("accuracy-seed-negative", "bench", ["accuracy", "--seed", "-1", "--poses", "5"], "--seed: must be >= 0, got -1"),
+    ("accuracy-poses-3", "bench", ["accuracy", "--poses", "3"], "--poses: must be in 5..100000, got 3"),
+    ("accuracy-unknown-option", "bench", ["accuracy", "--bogus"], "unrecognized arguments: --bogus"),
     ("bench-unknown", "bench", ["sped"], "unknown benchmark 'sped'"),
     ("bench-nothing", "bench", [], "name a benchmark"),
 ]
@@ -256,6 +316,41 @@ def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, 
     assert expect in lines[0], lines[0]
     assert _tree(tmp) == before  # nothing written, nothing left behind (staging, parents)
     assert _cameras_tree() == cameras  # the shipped rigs and calibrations too
+
+
+@pytest.mark.parametrize("option, value, expect", [
+    ("--seeds", "0", "--seeds: must be >= 1, got 0"),
+    ("--seeds-three-link", "0", "--seeds-three-link: must be >= 1, got 0"),
+    ("--points", "1", "--points: must be in 2..100000, got 1"),
+])
+def test_itg_plus_checks_every_option_before_making_or_running_anything(
+        tmp_path, monkeypatch, capsys, option, value, expect):
+    """No --out made (not even its manifest), no sweep started (the two-link sweep takes
+    27 minutes: a sweep here fails the test at once instead)."""
+    def no_sweep(*args, **kwargs):
+        raise AssertionError("a sweep started before every option was checked")
+
+    monkeypatch.setattr(noise, "run_sweep", no_sweep)
+    rc = bench.main(["itg-plus", "--quiet", option, value, "--out", str(tmp_path / "n")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err == f"error: {expect}\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_servo_limit_note_names_the_arm_file_in_use(tmp_path):
+    arm = tmp_path / "my-arm.yaml"
+    arm.write_text(re.sub(r"(?m)^benchmark:.*$", "benchmark: {max_step_deg: 7, iterations: 1}",
+                          (ARMS_DIR / "two-link.yaml").read_text()))
+    out = tmp_path / "o"
+    assert run.main(["--quiet", "--arm", str(arm), "--feedback", "model", "--rules",
+                     "itg-plus-two-link", "--points", "5", "--out", str(out)]) == 0
+    note = json.loads((out / "summary.json").read_text())["servo_limit"]
+    assert note == f"S = servo limit = 7 deg/iteration, from the arm file's benchmark limit ({arm})"
+    # a shipped arm's file, relative to the project: the same on every machine
+    assert run.main(["--quiet", "--feedback", "model", "--rules", "itg-plus-two-link",
+                     "--points", "5", "--out", str(tmp_path / "p")]) == 0
+    note = json.loads((tmp_path / "p" / "summary.json").read_text())["servo_limit"]
+    assert note.endswith("benchmark limit (data/arms/two-link.yaml)")
 
 
 def test_a_utf8_bom_in_a_csv_header_is_accepted(tmp_path):
