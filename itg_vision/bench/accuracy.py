@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 from ..arm import ArmSpec
-from ..camera import Rig, default_rig_path
+from ..camera import Rig
 from ..errors import UserError, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..triangulate import predicted_rms_error_mm
@@ -27,6 +27,8 @@ from ..world import World
 #: The issue's targets: centroid RMS (px, zero added noise), gripper RMS (mm), and the
 #: measured / predicted triangulation RMS within this factor for 0.1..1 px.
 TARGET_CENTROID_PX, TARGET_GRIPPER_MM, TARGET_RATIO = 0.04, 0.1, 1.1
+#: Fewest and most random poses measured (the tails need a few; each renders 8 stereo pairs).
+MIN_POSES, MAX_POSES = 5, 100_000
 #: Zero-noise settings compared: (label, supersample, full_frame).
 SETTINGS = (("windows s=1", 1, False), ("windows s=2", 2, False), ("windows s=3", 3, False),
             ("windows s=4", 4, False), (f"full frame s={DEFAULT_SUPERSAMPLE}",
@@ -107,21 +109,36 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
     return out
 
 
+def build_parser() -> argparse.ArgumentParser:
+    from ..errors import ArgumentParser  # one-line option errors
+
+    ap = ArgumentParser(prog="python -m itg_vision.bench accuracy",
+                        description=__doc__.split("\n\n")[0])
+    ap.add_argument("--arm", default="two-link", metavar="NAME|PATH",
+                    help="an arm of data/arms or an arm file (default %(default)s)")
+    ap.add_argument("--rig", metavar="NAME|PATH",
+                    help="a rig of cameras/ or a rig file (default: the arm file's)")
+    ap.add_argument("--poses", type=int, default=60, metavar="N",
+                    help=f"random poses, {MIN_POSES}..{MAX_POSES} (default %(default)s)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the poses and the noise, >= 0 "
+                                                        "(default %(default)s)")
+    return ap
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m itg_vision.bench accuracy", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--arm", default="two-link")
-    ap.add_argument("--rig", help="rig file (default: the arm's)")
-    ap.add_argument("--poses", type=int, default=60)
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
 
     def body() -> int:
+        from ..camera import resolve_rig
         from ..imaging import opencv_threads
 
+        args = build_parser().parse_args(argv)
+        if not MIN_POSES <= args.poses <= MAX_POSES:
+            raise UserError(f"--poses: must be in {MIN_POSES}..{MAX_POSES}, got {args.poses}")
+        if args.seed < 0:
+            raise UserError(f"--seed: must be >= 0, got {args.seed}")
         arm = ArmSpec.from_args(args.arm)
-        if args.poses < 5:
-            raise UserError("--poses: at least 5")
-        rig = Rig.from_yaml(args.rig or default_rig_path(arm.name))
+        rig = Rig.from_yaml(resolve_rig(args.rig or arm.defaults["rig"]))
         print(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
               "zero added noise")
         names = arm.marker_names

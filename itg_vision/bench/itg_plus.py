@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
-from ..errors import at_least_one, run_main
+from ..errors import UserError, at_least_one, run_main
 from .report import _float as _f, worst
-from .store import started
+from .store import Results, check_sweep_file, definition_hash, started
 from .sweep import FF_CORRECTION
 
 #: What each target compares (issue 13).
@@ -479,6 +479,23 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def check_options(args: argparse.Namespace) -> list[tuple]:
+    """Check every option (`UserError` naming it) and build both sweeps' run specs, before
+    anything is made or run: [(sweep, its folder under --out, its --seeds, its specs)]."""
+    from ..run import MAX_POINTS
+    from .sweep import build_sweep
+
+    plan = (("itg-plus", "tracking", args.seeds, "--seeds"),
+            ("itg-plus-three-link", "three-link", args.seeds_three_link, "--seeds-three-link"))
+    for *_, seeds, option in plan:
+        if seeds is not None and seeds < 1:
+            raise UserError(f"{option}: must be >= 1, got {seeds}")
+    if args.points is not None and not 2 <= args.points <= MAX_POINTS:
+        raise UserError(f"--points: must be in 2..{MAX_POINTS}, got {args.points}")
+    return [(sweep, sub, seeds, build_sweep(sweep=sweep, seeds=seeds, points=args.points))
+            for sweep, sub, seeds, _ in plan]
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
 
@@ -486,18 +503,21 @@ def main(argv: list[str] | None = None) -> int:
         from .. import preview
         from ..arm import ArmSpec
         from . import noise
-        from .sweep import SWEEPS, build_sweep, load_trajectory
+        from .sweep import SWEEPS, load_trajectory
 
         args = build_parser().parse_args(argv)
+        sweeps = check_options(args)  # every option, before anything is made or run
         out = noise.check_out(args.out, COMMAND)  # resumable: no --force
+        for _, sub, _, specs in sweeps:  # and each sweep's folder in it, as run_sweep will
+            noise.check_out(out / sub)
+            check_sweep_file(out / sub, definition_hash(specs), specs,
+                             Results(out / sub / "results.csv"))
         if not (out / outputs.MANIFEST).exists():
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         status = 0
         rows, paths = {}, {}
-        for sweep, sub, seeds in (("itg-plus", "tracking", args.seeds),
-                                  ("itg-plus-three-link", "three-link", args.seeds_three_link)):
-            specs = build_sweep(sweep=sweep, seeds=seeds, points=args.points)
+        for sweep, sub, seeds, specs in sweeps:
             if sweep == "itg-plus":  # a spec per path: its points, laps and servo limit
                 paths = {s.trajectory: s for s in specs}
             options = {"sweep": sweep, "seeds": seeds, "points": args.points}

@@ -18,7 +18,7 @@ import numpy as np
 from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
 from ..controllers import two_link_ik
-from ..errors import run_main
+from ..errors import UserError, at_least_one, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, Markers, VisionFeedback
 from ..rules import RuleBase, load_rules
 from .. import native, trajectory as traj
@@ -83,6 +83,8 @@ def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
 SETTINGS = (("windows s=1", 1, False), ("windows s=2", 2, False), ("windows s=3", 3, False),
             ("windows s=4", 4, False), ("full frame s=1", 1, True),
             (f"full frame s={DEFAULT_SUPERSAMPLE}", DEFAULT_SUPERSAMPLE, True))
+#: The replay the vision settings are timed on, and the set points it settles for first.
+REPLAY, SETTLE = "ellipse-t1", 20
 #: The issue's targets (stereo loop at 640x480, one core).
 TARGET_DEFAULT_HZ, TARGET_RATIO, TARGET_FASTEST_HZ, TARGET_DET_TRI_MS = 300.0, 10.0, 500.0, 0.5
 #: Issue 13: a compiled ITG+ step at least this many times cheaper than PyBullet's IK.
@@ -113,7 +115,7 @@ def replay_states(arm, rules, points_mm, settle: int, frames: int) -> list:
     return out
 
 
-def vision_costs(settings=SETTINGS, frames: int = 40, settle: int = 20, passes: int = 3
+def vision_costs(settings=SETTINGS, frames: int = 40, settle: int = SETTLE, passes: int = 3
                  ) -> list[dict]:
     """CPU milliseconds per iteration of the stereo loop (640x480, two LEDs, two cameras,
     the rig's distortion and sensor noise, one OpenCV thread) for each setting, measured
@@ -129,7 +131,7 @@ def vision_costs(settings=SETTINGS, frames: int = 40, settle: int = 20, passes: 
     arm = ArmSpec.from_args("two-link")
     rig = Rig.from_yaml(default_rig_path(arm.name))
     rules = load_rules("table2", 2, arm.links_mm, f=0.5)
-    pts = traj.named("ellipse-t1").points_mm  # the paper's 180 points: ~2 mm per step
+    pts = traj.named(REPLAY).points_mm  # the paper's 180 points: ~2 mm per step
     states = replay_states(arm, rules, pts, settle, frames)
     fbs = [VisionFeedback(rig, rig, arm, supersample=s, full_frame=full)
            for _, s, full in settings]
@@ -212,16 +214,33 @@ def vision_report(rows: list[dict], default_supersample: int) -> list[str]:
     return L
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m itg_vision.bench speed", description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    from ..errors import ArgumentParser  # one-line option errors
+
+    ap = ArgumentParser(prog="python -m itg_vision.bench speed",
+                        description=__doc__.split("\n\n")[0])
     ap.add_argument("--no-vision", action="store_true", help="skip the vision pipeline timings")
-    ap.add_argument("--frames", type=int, default=40,
-                    help="states of the replay per pass (default %(default)s)")
-    ap.add_argument("--passes", type=int, default=3,
+    ap.add_argument("--frames", type=at_least_one, default=40, metavar="N",
+                    help=f"states of the replay per pass, at most {max_frames()} (default "
+                         "%(default)s)")
+    ap.add_argument("--passes", type=at_least_one, default=3, metavar="N",
                     help="passes over the states, settings interleaved (default %(default)s)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def max_frames(settle: int = SETTLE) -> int:
+    """Most states the replay gives: the points of ellipse T1 after its ``settle``."""
+    return len(traj.named(REPLAY)) - settle
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
 
     def body() -> int:
+        args = build_parser().parse_args(argv)
+        if args.frames > max_frames():
+            raise UserError(f"--frames: must be at most {max_frames()} (the set points of "
+                            f"{REPLAY} after the first {SETTLE}), got {args.frames}")
         c = decision_costs()
         base = c["rules_compiled_us"]
         print("one decision, two-link arm, same 720 set points (median of 7 interleaved passes, "
