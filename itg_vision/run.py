@@ -167,7 +167,8 @@ def default_out(args: argparse.Namespace, prep) -> Path:
     """``runs/<arm>-<trajectory>-<controller>-<feedback>[-<option><value>...]`` for the options
     that differ from their default (file names less their type)."""
     cfg, defaults = prep.config, build_parser()
-    parts = [cfg.arm, Path(prep.trajectory.name).stem, cfg.controller, cfg.feedback]
+    arm = Path(cfg.arm).stem if Path(cfg.arm).suffix in _FILE_TYPES else cfg.arm  # a file: its name
+    parts = [arm, Path(prep.trajectory.name).stem, cfg.controller, cfg.feedback]
     for dest, label in _NAMED:
         v = getattr(args, dest)
         if v == defaults.get_default(dest):
@@ -197,6 +198,8 @@ def run_key(prep) -> dict:
             files[key] = prep.info[key]
     if Path(prep.trajectory.name).is_file():
         files["trajectory"] = prep.trajectory.name
+    if Path(prep.config.arm).is_file():  # an arm file of the user's (a shipped arm: its name)
+        files["arm"] = prep.config.arm
     digests = {}
     for key, path in files.items():
         try:
@@ -216,6 +219,9 @@ def _check_default_out(out: Path, key: dict, force: bool) -> None:
         defaults = outputs.json_safe(config_dict(RunConfig()))
         old = {**old, "config": {**{k: defaults[k] for k in set(key["config"]) - set(old["config"])},
                                  **old["config"]}}
+    made = old.get("inputs_sha256", {})
+    if "arm" in key["inputs_sha256"] and "arm" not in made:  # made before arm files were hashed
+        old = {**old, "inputs_sha256": {**made, "arm": key["inputs_sha256"]["arm"]}}
     if old == key:
         return
     diff = sorted(k for k in set(old.get("config", {})) | set(key["config"])

@@ -395,6 +395,7 @@ def test_default_run_folders_tell_rigs_and_files_apart_by_their_whole_names():
 
 def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     from itg_vision import run
+    from itg_vision.arm import ARMS_DIR
     from itg_vision.rules import RULES_DIR
 
     monkeypatch.chdir(tmp_path)
@@ -433,6 +434,21 @@ def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     assert _tree(folder) == kept
     assert run.main(base + ["--rules", str(rules), "--force"]) == 0
     assert _tree(folder) != kept
+    # so is an edited arm file of the user's; a folder made before arm files were hashed is not
+    # refused for that alone
+    arm = tmp_path / "my-arm.yaml"
+    arm.write_text((ARMS_DIR / "two-link.yaml").read_text())
+    assert run.main(base + ["--arm", str(arm)]) == 0
+    folder = tmp_path / "runs" / "my-arm-ellipse-t1-itg-model-n6"
+    made = json.loads((folder / outputs.MANIFEST).read_text())
+    assert "arm" in made["key"]["inputs_sha256"]
+    del made["key"]["inputs_sha256"]["arm"]
+    (folder / outputs.MANIFEST).write_text(json.dumps(made))
+    assert run.main(base + ["--arm", str(arm)]) == 0
+    arm.write_text(arm.read_text().replace("led_standoff_mm: 12", "led_standoff_mm: 15"))
+    capsys.readouterr()
+    assert run.main(base + ["--arm", str(arm)]) == 2
+    assert "other settings (content of the arm file)" in capsys.readouterr().err
 
 
 def test_run_out_empty_is_an_error_not_the_default_folder(tmp_path, monkeypatch, capsys):
@@ -442,15 +458,6 @@ def test_run_out_empty_is_an_error_not_the_default_folder(tmp_path, monkeypatch,
     assert run.main(["--quiet", "--feedback", "model", "--points", "3", "--out", ""]) == 2
     assert capsys.readouterr().err == "error: --out: empty path\n"
     assert list(tmp_path.iterdir()) == []  # no runs/ folder
-
-
-def test_paper_out_empty_is_an_error_not_the_current_folder(tmp_path, monkeypatch, capsys):
-    from itg_vision import paper
-
-    monkeypatch.chdir(tmp_path)
-    assert paper.main(["--quiet", "--out", ""]) == 2
-    assert capsys.readouterr().err == "error: --out: empty path\n"
-    assert list(tmp_path.iterdir()) == []
 
 
 def test_calibrate_output_checks(tmp_path):

@@ -109,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
 
     def body() -> int:
+        from ..run import MAX_POINTS
+
         args = build_parser().parse_args(argv)
         conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
         ctrls = _parse_names(args.controllers, ALL_CONTROLLERS, "controllers", "controller")
@@ -116,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
         trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
+        if args.points is not None and not 2 <= args.points <= MAX_POINTS:
+            raise UserError(f"--points: must be in 2..{MAX_POINTS}, got {args.points}")
         if args.list:
             print("controllers: " + ", ".join(ALL_CONTROLLERS))
             print("conditions:  " + ", ".join(CONDITIONS))
@@ -128,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
                   f"~{cost / 60:.1f} min of work")
             return 0
-        out = Path(args.out)
+        out = outputs.check_path(args.out)  # the text: '' is the empty-path error, not '.'
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
