@@ -22,8 +22,8 @@ Rules (what every command follows):
 - A run killed with SIGKILL leaves a staging folder ``.<name>.staging-<pid>-<8 characters>``;
   the next run into the same place removes those whose process is gone. If it was killed
   between the two renames of the swap, the old folder (``.<name>.old-<pid>``) is put back first.
-  Only folders named exactly so *and* carrying our manifest are touched: a user's folder that
-  happens to look alike is left alone.
+  Only folders named exactly so *and* carrying our manifest (or, for an old folder, beside its
+  run's staging folder) are touched: a user's folder that happens to look alike is left alone.
 - JSON is strict (:func:`write_json`): non-finite floats are written as ``null``, never as the
   bare ``NaN`` / ``Infinity`` that strict readers reject.
 """
@@ -150,15 +150,21 @@ def manifest(command: str, key=None, entries: list[str] | None = None) -> dict:
     return doc
 
 
+#: Files that file managers put into any folder they show (macOS Finder, Windows Explorer):
+#: never listed, so that looking at a result does not make it the user's.
+OS_METADATA = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
+
+
 def listing(folder: str | Path) -> list[str]:
-    """Every entry below ``folder`` but its manifest, sorted: paths relative to ``folder`` with
-    ``/`` between parts, a folder's ending in ``/`` (symbolic links are entries, not followed)."""
+    """Every entry below ``folder`` but its manifest and :data:`OS_METADATA`, sorted: paths
+    relative to ``folder`` with ``/`` between parts, a folder's ending in ``/`` (symbolic links
+    are entries, not followed)."""
     out = []
 
     def walk(d: str, prefix: str) -> None:
         for e in sorted(os.scandir(d), key=lambda e: e.name):
             rel = prefix + e.name
-            if rel == MANIFEST:
+            if rel == MANIFEST or e.name in OS_METADATA:
                 continue
             if e.is_dir(follow_symlinks=False):
                 out.append(rel + "/")
@@ -251,8 +257,8 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
     :func:`listing`), or any folder with ``force``. Never a file.
 
     A manifest written before manifests listed their entries proves nothing about the rest of
-    the folder: such a folder passes while ``own`` is None (the check before the work) and is
-    then held to ``own`` alone (the check before the swap).
+    the folder: such a folder is refused (``force`` replaces it). The file managers' own
+    files (:data:`OS_METADATA`) are nobody's results and never count.
     """
     path = check_path(out, option)
     if not (path.exists() or path.is_symlink()):
@@ -269,9 +275,9 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
     if made is not None and made.get("command") == command:
         recorded = made.get("entries")
         if not (isinstance(recorded, list) and all(isinstance(e, str) for e in recorded)):
-            if own is None:
-                return path
-            recorded = []
+            raise UserError(f"{option} {out}: was made by an earlier itg_vision, whose manifest "
+                            f"does not list what it wrote; choose another {option}, or add "
+                            "--force to replace it")
         try:
             foreign = _foreign(path, set(recorded) | set(own or ()))
         except OSError as exc:
@@ -338,35 +344,39 @@ def clean_stale(out: str | Path) -> list[Path]:
     back an old folder left by a run killed between the two renames of the swap. Returns the
     paths removed or restored.
 
-    Only folders named exactly as :func:`staged_dir` names them and carrying our manifest are
-    touched (an empty staging folder, left by a run killed as it began, is removed too):
-    anything else, however alike its name, is the user's and left alone."""
+    Only folders named exactly as :func:`staged_dir` names them are touched: a staging folder
+    carrying our manifest (or empty: a run killed as it began), and an old folder carrying our
+    manifest, or any old folder whose swap was cut short (its run's staging folder lies beside
+    it: a folder of the user's replaced with ``--force``), which is put back. Anything else,
+    however alike its name, is the user's and left alone."""
     out = Path(out)
     parent = out.parent
     if not parent.is_dir():
         return []
     pat = _stale_pattern(out.name)
-    done = []
+    stale = []  # (entry, pid, staging?, ours?) of the processes that are gone
     for entry in sorted(os.scandir(parent), key=lambda e: e.name):
         m = pat.match(entry.name)
         if not m or not entry.is_dir(follow_symlinks=False):
             continue
-        staging = m.group("spid") is not None
-        if _pid_alive(int(m.group("spid") or m.group("opid"))):
-            continue
-        p = Path(entry.path)
-        if read_manifest(p) is None:
-            if staging:  # nothing in it yet: nothing to lose
-                try:
-                    os.rmdir(p)
-                except OSError:
-                    continue
-                done.append(p)
-            continue
-        if not staging and not (out.exists() or out.is_symlink()):
-            os.replace(p, out)  # killed mid-swap: the old results come back
-        else:
+        pid = int(m.group("spid") or m.group("opid"))
+        if not _pid_alive(pid):
+            stale.append((Path(entry.path), pid, m.group("spid") is not None,
+                          read_manifest(entry.path) is not None))
+    swapping = {pid for _, pid, staging, ours in stale if staging and ours}
+    done = []
+    for p, pid, staging, ours in sorted(stale, key=lambda s: s[2]):  # old folders first
+        if staging and not ours:  # nothing in it yet: nothing to lose
+            try:
+                os.rmdir(p)
+            except OSError:
+                continue
+        elif not staging and (ours or pid in swapping) and not (out.exists() or out.is_symlink()):
+            os.replace(p, out)  # killed mid-swap: the old folder comes back
+        elif ours:
             _remove_ours(p)
+        else:
+            continue
         done.append(p)
     return done
 

@@ -407,7 +407,7 @@ def main(argv: list[str] | None = None) -> int:
         ap: argparse.ArgumentParser = ArgumentParser(prog="python -m itg_vision.paper", description=__doc__.split("\n\n")[0])
         ap.add_argument("--out", default="paper-out",
                         help="output folder (default %(default)s); replaced only if this command "
-                             "made it")
+                             "made it and it holds nothing else")
         ap.add_argument("--force", action="store_true",
                         help="replace --out even if it is a folder this command did not make")
         ap.add_argument("--feedback", default="model", choices=("model", "truth", "vision"),

@@ -3,8 +3,8 @@
 Output folder: ``--out DIR``, or by default ``runs/<arm>-<trajectory>-<controller>-<feedback>``
 followed by every option that differs from its default (``-rules<name>``, ``-rig<name>``,
 ``-f0.3``, ``-noise0.5``, ``-seed3``, ...), so two different command lines never share a
-folder. The folder is replaced only if this command made it (see :mod:`itg_vision.outputs`);
-its manifest records the run's settings and a hash of its input files, and a default folder
+folder. The folder is replaced only if this command made it and it holds nothing else (see
+:mod:`itg_vision.outputs`); its manifest records the run's settings and a hash of its input files, and a default folder
 holding a run with other settings (an edited rule file, a CSV of the same name elsewhere) is
 refused too. ``--force`` replaces anyway.
 """
@@ -20,15 +20,13 @@ from pathlib import Path
 
 from . import outputs, plot
 from .camera import MAX_SUPERSAMPLE
-from .errors import ArgumentParser, ConfigError, UserError, run_main
+from .errors import MAX_POINTS, ArgumentParser, ConfigError, UserError, points_arg, run_main
 from .feedback import DEFAULT_SUPERSAMPLE
 from .progress import progress
 from .rules import shipped_rules
 from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
                      prepare)
 
-#: Largest --points accepted (a named trajectory; a vision run costs ~30 ms per point).
-MAX_POINTS = 100_000
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"), ("gain", "f"),
           ("step", "S"), ("tolerance", "w"), ("iterations", "it"), ("max_step", "maxstep"),
@@ -54,16 +52,6 @@ def _links(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"expected link lengths in mm separated by commas, got {text!r}")
 
 
-def _points(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of set points, got {text!r}")
-    if not 2 <= n <= MAX_POINTS:
-        raise argparse.ArgumentTypeError(f"must be in 2..{MAX_POINTS}, got {n}")
-    return n
-
-
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(
         prog="python -m itg_vision.run",
@@ -77,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, or a CSV with "
                          "header x_mm,y_mm[,z_mm][,t_s] (default: ellipse-t1 for two-link, "
                          "line-ab-reach for three-link, arc for one-link)")
-    ap.add_argument("--points", type=_points, metavar="N",
+    ap.add_argument("--points", type=points_arg, metavar="N",
                     help=f"number of set points of a named trajectory (2..{MAX_POINTS})")
     ap.add_argument("--rules", metavar="NAME|PATH",
                     help="rule base: one shipped in data/rules (" + ", ".join(shipped_rules())
@@ -149,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", metavar="DIR",
                     help="output folder (default runs/<arm>-<trajectory>-<controller>-<feedback> "
                          "plus every option that differs from its default); replaced only if a "
-                         "run made it")
+                         "run made it and it holds nothing else")
     ap.add_argument("--force", action="store_true",
                     help="replace --out even if it is a folder this command did not make")
     ap.add_argument("--video", action="store_true",

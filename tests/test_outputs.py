@@ -126,21 +126,42 @@ def test_what_an_earlier_run_wrote_counts_as_the_commands_own(tmp_path):
 
 def test_a_folder_from_before_manifests_listed_entries(tmp_path):
     """A manifest without ``entries`` (written by an earlier version) proves nothing about the
-    rest of the folder: the run goes ahead, and the swap replaces the folder only if it holds
-    nothing but what this run wrote; otherwise the folder is kept and no staging is left."""
+    rest of the folder: refused before any work (the command body never runs), one line,
+    nothing touched; --force replaces it, and the new manifest lists what it wrote."""
     out = tmp_path / "r"
     out.mkdir()
     outputs.write_json(out / outputs.MANIFEST, outputs.manifest("run"))
     (out / "result.txt").write_text("old")
-    _make(out, text="new")
-    assert (out / "result.txt").read_text() == "new"
-    outputs.write_json(out / outputs.MANIFEST, outputs.manifest("run"))
     (out / "notes.txt").write_text("my notes")
     before = _tree(tmp_path)
-    with pytest.raises(UserError, match=r"holds 1 entry that run did not write \(first: "
-                                        r"notes.txt\)"):
-        _make(out, text="newer")
-    assert _tree(tmp_path) == before
+    worked = []
+    with pytest.raises(UserError, match=r"--out .*r: was made by an earlier itg_vision, whose "
+                                        r"manifest does not list what it wrote; .* --force"):
+        with outputs.staged_dir(out, "run"):
+            worked.append(True)
+    assert not worked and _tree(tmp_path) == before
+    with outputs.staged_dir(out, "run", force=True) as tmp:
+        (tmp / "result.txt").write_text("new")
+    assert outputs.read_manifest(out)["entries"] == ["result.txt"]
+    assert not (out / "notes.txt").exists()
+
+
+def test_a_file_managers_own_files_do_not_make_a_result_the_users(tmp_path):
+    """Finder's .DS_Store (or Explorer's Thumbs.db) in a result folder, even in a subfolder, is
+    not the user's work: the re-run replaces the folder; a real file beside it is refused."""
+    out = tmp_path / "r"
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "plots").mkdir()
+        (tmp / "plots" / "a.png").write_bytes(b"png")
+    (out / ".DS_Store").write_bytes(b"finder")
+    (out / "plots" / "Thumbs.db").write_bytes(b"explorer")
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "plots").mkdir()
+        (tmp / "plots" / "a.png").write_bytes(b"png 2")
+    assert (out / "plots" / "a.png").read_bytes() == b"png 2"
+    (out / "plots" / "mine.png").write_bytes(b"mine")
+    with pytest.raises(UserError, match=r"first: plots/mine.png"):
+        _make(out)
 
 
 def test_a_file_the_user_puts_in_while_the_command_works_is_kept(tmp_path):
@@ -268,6 +289,19 @@ def test_a_run_killed_between_the_two_renames_gets_its_old_folder_back(tmp_path)
     old = _ours(tmp_path / f".r.old-{dead}", result_txt="older")
     assert outputs.clean_stale(tmp_path / "r") == [old] and not old.exists()
     assert (tmp_path / "r" / "result.txt").read_text() == "old"
+
+
+def test_a_users_folder_replaced_with_force_comes_back_if_the_swap_was_cut_short(tmp_path):
+    """--force over the user's folder, killed between the renames: the folder (no manifest) lies
+    at .r.old-<pid>, the run's staging folder beside it; the next run puts the folder back and
+    removes the staging folder."""
+    dead = _dead_pid()
+    old = tmp_path / f".r.old-{dead}"
+    old.mkdir()
+    (old / "thesis.tex").write_text("the user's")
+    staging = _ours(tmp_path / f".r.staging-{dead}-abcdefgh", result_txt="new")
+    assert outputs.clean_stale(tmp_path / "r") == [old, staging]
+    assert (tmp_path / "r" / "thesis.tex").read_text() == "the user's" and not staging.exists()
 
 
 def test_user_folders_that_look_like_staging_or_old_folders_are_left_alone(tmp_path):
