@@ -41,7 +41,6 @@ import cv2
 import numpy as np
 import yaml
 
-from .errors import UserError
 from .inputs import Fields, read_yaml
 
 _MM = 1e-3

@@ -44,6 +44,23 @@ def at_least_one(text: str) -> int:
     return n
 
 
+#: Most set points a named trajectory may be given (``--points``; a vision run costs ~30 ms
+#: per point).
+MAX_POINTS = 100_000
+
+
+def points_arg(text: str) -> int:
+    """An argparse ``type``: ``--points``, a whole number of set points in 2..MAX_POINTS."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of set points, got {text!r}") \
+            from None
+    if not 2 <= n <= MAX_POINTS:
+        raise argparse.ArgumentTypeError(f"must be in 2..{MAX_POINTS}, got {n}")
+    return n
+
+
 def run_main(body: Callable[[], int]) -> int:
     """Run a command body; turn a `UserError` into one line on stderr and status 2.
 

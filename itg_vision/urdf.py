@@ -8,6 +8,8 @@ axis towards the cameras.
 
 from __future__ import annotations
 
+from xml.sax.saxutils import quoteattr
+
 from .arm import ArmSpec
 
 #: LED colours (RGB in [0, 1]): distinct saturated hues, none the colour of the arm.
@@ -71,7 +73,7 @@ def arm_urdf(arm: ArmSpec) -> str:
     """URDF text of the arm: joints ``q1..qn``, LED links ``gripper_led`` (and ``elbow_led``)."""
     L = arm.links_mm
     h = arm.led_standoff_mm
-    parts = [f'<?xml version="1.0"?><robot name="{arm.name}">', _material("arm", ARM_RGB)]
+    parts = [f'<?xml version="1.0"?><robot name={quoteattr(arm.name)}>', _material("arm", ARM_RGB)]
     parts += [_material(f"{n}_led", LED_RGB[n]) for n in arm.marker_names]
     parts.append(
         '<link name="base"><visual><origin xyz="0 0 -0.006"/><geometry><cylinder radius="0.015" '

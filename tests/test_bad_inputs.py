@@ -76,7 +76,7 @@ ARM_EDITS = [
     ("servo-nan", r"^benchmark:.*$", "benchmark: {max_step_deg: .nan, iterations: 1}"),
     ("iterations-0", r"^benchmark:.*$", "benchmark: {max_step_deg: 20, iterations: 0}"),
     ("iterations-half", r"^benchmark:.*$", "benchmark: {max_step_deg: 20, iterations: 1.5}"),
-    ("name-markup", r"^name:.*$", "name: 'a\"/><robot'"),
+    ("name-newline", r"^name:.*$", "name: \"two\\nlines\""),
     ("unknown-field", r"^kind:.*$", "kind: planar\ncolour: red"),
     ("sweep-poses-0", r"poses: 23, pose_deg: \[90, null\]", "poses: 0, pose_deg: [90, null]"),
     ("standoff-5000-digits", r"^led_standoff_mm:.*$", "led_standoff_mm: " + "9" * 5000),
@@ -201,7 +201,7 @@ CASES = [
     ("arm-servo-nan", "run", RUN + ["--arm", "{arm-servo-nan.yaml}"], "arm-servo-nan.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got nan"),
     ("arm-iterations-0", "run", RUN + ["--arm", "{arm-iterations-0.yaml}"], "arm-iterations-0.yaml: benchmark.iterations: must be a whole number in 1..10000, got 0"),
     ("arm-iterations-1.5", "run", RUN + ["--arm", "{arm-iterations-half.yaml}"], "arm-iterations-half.yaml: benchmark.iterations: must be a whole number in 1..10000, got 1.5"),
-    ("arm-name-markup", "run", RUN + ["--arm", "{arm-name-markup.yaml}"], "arm-name-markup.yaml: name: must be a name of at most 64 letters"),
+    ("arm-name-newline", "run", RUN + ["--arm", "{arm-name-newline.yaml}"], "arm-name-newline.yaml: name: must be a name on one line, got 'two\\nlines'"),
     ("arm-unknown-field", "run", RUN + ["--arm", "{arm-unknown-field.yaml}"], "arm-unknown-field.yaml: colour: unknown field"),
     ("arm-sweep-poses-0", "run", RUN + ["--arm", "{arm-sweep-poses-0.yaml}"], "arm-sweep-poses-0.yaml: calibration.axis_sweeps[1].poses: must be a whole number in 3..1000, got 0"),
     ("arm-5000-digit-int", "run", RUN + ["--arm", "{arm-standoff-5000-digits.yaml}"], "arm-standoff-5000-digits.yaml:6:18: not valid YAML (a number of more than 4300 digits)"),
@@ -257,9 +257,9 @@ CASES = [
     ("noise-workers", "noise", ["--quick", "--quiet", "--workers", "0", "--out", "{tmp}/n"], "--workers: must be >= 1, got 0"),
     ("itg-plus-workers", "bench", ["itg-plus", "--quiet", "--workers", "-2", "--out", "{tmp}/n"], "--workers: must be >= 1, got -2"),
     ("noise-workers-type", "noise", ["--quick", "--workers", "two"], "--workers: expected a whole number, got 'two'"),
-    ("noise-seeds-type", "noise", ["--quick", "--seeds", "two"], "argument --seeds: invalid int value: 'two'"),
+    ("noise-seeds-type", "noise", ["--quick", "--seeds", "two"], "argument --seeds: expected a whole number, got 'two'"),
     ("noise-out-empty", "bench", ["noise", "--quiet", "--out", ""], "--out: empty path"),
-    ("noise-points-huge", "bench", ["noise", "--quiet", "--points", "1000000", "--out", "{tmp}/n"], "--points: must be in 2..100000, got 1000000"),
+    ("noise-points-huge", "bench", ["noise", "--quiet", "--points", "1000000", "--out", "{tmp}/n"], "argument --points: must be in 2..100000, got 1000000"),
     ("paper-out-empty", "paper", ["--quiet", "--out", ""], "--out: empty path"),
     ("speed-frames-0", "bench", ["speed", "--frames", "0"], "argument --frames: must be >= 1, got 0"),
     ("speed-frames-negative", "bench", ["speed", "--frames", "-3"], "argument --frames: must be >= 1, got -3"),
@@ -322,9 +322,9 @@ def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, 
 
 
 @pytest.mark.parametrize("option, value, expect", [
-    ("--seeds", "0", "--seeds: must be >= 1, got 0"),
-    ("--seeds-three-link", "0", "--seeds-three-link: must be >= 1, got 0"),
-    ("--points", "1", "--points: must be in 2..100000, got 1"),
+    ("--seeds", "0", "argument --seeds: must be >= 1, got 0"),
+    ("--seeds-three-link", "0", "argument --seeds-three-link: must be >= 1, got 0"),
+    ("--points", "1", "argument --points: must be in 2..100000, got 1"),
 ])
 def test_itg_plus_checks_every_option_before_making_or_running_anything(
         tmp_path, monkeypatch, capsys, option, value, expect):
@@ -336,8 +336,18 @@ def test_itg_plus_checks_every_option_before_making_or_running_anything(
     monkeypatch.setattr(noise, "run_sweep", no_sweep)
     rc = bench.main(["itg-plus", "--quiet", option, value, "--out", str(tmp_path / "n")])
     err = capsys.readouterr().err
-    assert rc == 2 and err == f"error: {expect}\n"
+    assert rc == 2 and err.startswith(f"error: {expect} (see ") and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_arm_may_have_any_one_line_name_markup_included(tmp_path):
+    """The name goes into the URDF's robot name, escaped: spaces, quotes and brackets run."""
+    arm = tmp_path / "arm.yaml"
+    arm.write_text(re.sub(r"(?m)^name:.*$", "name: 'UR5 (\"modified\") <a/>'",
+                          (ARMS_DIR / "two-link.yaml").read_text()))
+    assert run.main(["--quiet", "--arm", str(arm), "--feedback", "vision", "--points", "4",
+                     "--out", str(tmp_path / "o")]) == 0
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["arm"] == 'UR5 ("modified") <a/>'
 
 
 def test_the_servo_limit_note_names_the_arm_file_in_use(tmp_path):

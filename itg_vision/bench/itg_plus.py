@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
-from ..errors import UserError, at_least_one, run_main
+from ..errors import UserError, at_least_one, points_arg, run_main
 from .report import _float as _f, worst
 from .store import Results, check_sweep_file, definition_hash, started
 from .sweep import FF_CORRECTION
@@ -468,11 +468,11 @@ def build_parser() -> argparse.ArgumentParser:
                                     "target's measured value, threshold and computed verdict.")
     ap.add_argument("--out", default="runs/bench-itg-plus", metavar="DIR",
                     help="output folder (default %(default)s); rerun to resume")
-    ap.add_argument("--seeds", type=int, metavar="K", help="seeds of the two-link vision sweep "
+    ap.add_argument("--seeds", type=at_least_one, metavar="K", help="seeds of the two-link vision sweep "
                     "(default: the itg-plus sweep's)")
-    ap.add_argument("--seeds-three-link", type=int, metavar="K",
+    ap.add_argument("--seeds-three-link", type=at_least_one, metavar="K",
                     help="seeds of the three-link sweep (default: its 40)")
-    ap.add_argument("--points", type=int, metavar="N",
+    ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points of the named trajectories (default: each one's own)")
     ap.add_argument("--workers", type=at_least_one, metavar="N", help="local worker processes")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -480,20 +480,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def check_options(args: argparse.Namespace) -> list[tuple]:
-    """Check every option (`UserError` naming it) and build both sweeps' run specs, before
+    """Build both sweeps' run specs from the options (the parser checked each), before
     anything is made or run: [(sweep, its folder under --out, its --seeds, its specs)]."""
-    from ..run import MAX_POINTS
     from .sweep import build_sweep
 
-    plan = (("itg-plus", "tracking", args.seeds, "--seeds"),
-            ("itg-plus-three-link", "three-link", args.seeds_three_link, "--seeds-three-link"))
-    for *_, seeds, option in plan:
-        if seeds is not None and seeds < 1:
-            raise UserError(f"{option}: must be >= 1, got {seeds}")
-    if args.points is not None and not 2 <= args.points <= MAX_POINTS:
-        raise UserError(f"--points: must be in 2..{MAX_POINTS}, got {args.points}")
+    plan = (("itg-plus", "tracking", args.seeds),
+            ("itg-plus-three-link", "three-link", args.seeds_three_link))
     return [(sweep, sub, seeds, build_sweep(sweep=sweep, seeds=seeds, points=args.points))
-            for sweep, sub, seeds, _ in plan]
+            for sweep, sub, seeds in plan]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from .. import outputs
-from ..errors import UserError, at_least_one, run_main
+from ..errors import UserError, at_least_one, points_arg, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"reduced sweep (< 2 min on 2 cores): {QUICK['trajectories'][0]} with "
                          f"{QUICK['points']} points, {QUICK['seeds']} seeds, conditions "
                          + ", ".join(QUICK["conditions"]).replace("%", "%%"))
-    ap.add_argument("--seeds", type=int, metavar="K",
+    ap.add_argument("--seeds", type=at_least_one, metavar="K",
                     help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
     ap.add_argument("--workers", type=at_least_one, metavar="N",
                     help="local worker processes (default: the number of CPUs; 1 = this process)")
@@ -94,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="only these controllers: " + ", ".join(ALL_CONTROLLERS))
     ap.add_argument("--trajectories", metavar="A,B,...",
                     help="only these trajectories: " + ", ".join(TRAJECTORIES))
-    ap.add_argument("--points", type=int, metavar="N",
+    ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points per trajectory (default: the trajectory's; --quick "
                          f"{QUICK['points']})")
     ap.add_argument("--limit", type=int, metavar="N",
@@ -109,8 +109,6 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
 
     def body() -> int:
-        from ..run import MAX_POINTS
-
         args = build_parser().parse_args(argv)
         conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
         ctrls = _parse_names(args.controllers, ALL_CONTROLLERS, "controllers", "controller")
@@ -118,8 +116,6 @@ def main(argv: list[str] | None = None) -> int:
         trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
-        if args.points is not None and not 2 <= args.points <= MAX_POINTS:
-            raise UserError(f"--points: must be in 2..{MAX_POINTS}, got {args.points}")
         if args.list:
             print("controllers: " + ", ".join(ALL_CONTROLLERS))
             print("conditions:  " + ", ".join(CONDITIONS))
