@@ -36,8 +36,6 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 #: The plan's grid of line directions (deg), finer for a servo limit below 8 cells per set point.
 GRID_DEG = 0.25
-#: The finest grid the plan takes (deg): a turn per set point below 8 of its cells is refused.
-MIN_GRID_DEG = 0.01
 #: The most set points x cells one plan takes (about 30 bytes each: 1.5 GB).
 MAX_CELLS = 50_000_000
 
@@ -69,21 +67,18 @@ def plan(points_mm, turn_deg: float, grid_deg: float = GRID_DEG) -> Preview:
     set point's line is the direction in its cell nearest the set point's own: the set point
     itself when its direction lies in the cell, else the cell's edge nearer to it. So the lines
     of consecutive set points may differ by ``turn_deg`` plus one cell (at most 1/8 of it).
-    A turn below 8 cells of :data:`MIN_GRID_DEG`, or a plan of more than :data:`MAX_CELLS` set
-    points x cells, raises ValueError.
+    A plan of more than :data:`MAX_CELLS` set points x cells raises ValueError.
     """
     points = np.asarray(points_mm, float).reshape(-1, 3)
     if not (math.isfinite(turn_deg) and turn_deg > 0):
         raise ValueError(f"turn_deg must be finite and > 0, got {turn_deg}")
-    if turn_deg < 8 * MIN_GRID_DEG:
-        raise ValueError(f"a turn of {turn_deg:g} deg per set point is below the plan's finest "
-                         f"grid: 8 cells of {MIN_GRID_DEG:g} deg ({8 * MIN_GRID_DEG:g} deg)")
     if len(points) == 0:
         return Preview(points, 0, 0.0, turn_deg)
     grid = min(grid_deg, turn_deg / 8)
     if len(points) * 180.0 / grid > MAX_CELLS:
         raise ValueError(f"{len(points)} set points x {180.0 / grid:.0f} cells of {grid:g} deg "
-                         f"exceed the plan's {MAX_CELLS:.0e} (fewer set points or a larger turn)")
+                         f"(an eighth of the turn of {turn_deg:g} deg per set point) exceed the "
+                         f"plan's {MAX_CELLS:.0e}: fewer set points or a larger turn")
     theta = np.radians(np.arange(0.0, 180.0, grid) + grid / 2)  # cell centres, mod 180 deg
     half = np.radians(grid) / 2
     x, y = points[:, :1], points[:, 1:2]

@@ -264,8 +264,8 @@ def _preview(cfg: RunConfig, model: ArmSpec, trajectory) -> Preview:
     try:
         return plan(trajectory.points_mm, cfg.max_step_deg * cfg.iterations)
     except ValueError as exc:  # a turn too fine, or too many set points, for the plan's grid
-        raise ConfigError("preview", f"with max_step_deg {cfg.max_step_deg:g} x iterations "
-                                     f"{cfg.iterations}: {exc}") from None
+        raise ConfigError("preview", f"with a servo limit of {cfg.max_step_deg:g} deg x "
+                                     f"{cfg.iterations} iteration(s): {exc}") from None
 
 
 def supersample_of(cfg: RunConfig, rig) -> int:

@@ -157,20 +157,31 @@ def test_plan_of_nothing_and_bad_turns():
     for bad in (0.0, -1.0, float("inf"), float("nan")):
         with pytest.raises(ValueError, match="turn_deg must be finite and > 0"):
             plan(line_past_base(2.0, 2.0), bad)
-    # the finest grid is 0.01 deg, 8 cells per turn: a finer turn would freeze the line (or, on
-    # a finer grid, take gigabytes); so would too many set points x cells
-    with pytest.raises(ValueError, match="below the plan's finest grid"):
-        plan(line_past_base(2.0, 2.0), 0.079)
-    assert plan(line_past_base(2.0, 2.0), 0.08).turn_deg == 0.08
+    # a fine turn plans on a finer grid (8 cells per turn); too many set points x cells is
+    # refused before anything is allocated
+    fine = plan(line_past_base(2.0, 2.0), 0.05)
+    assert fine.turn_deg == 0.05 and fine.largest_move_mm <= 2.0
     with pytest.raises(ValueError, match="exceed the plan's"):
-        plan(np.ones((2800, 3)), 0.08)  # 2800 x 18000 cells
+        plan(np.ones((1000, 3)), 0.01)  # 1000 x 144000 cells
 
 
-def test_a_run_whose_servo_is_too_fine_for_the_plan_is_refused_naming_it():
-    from itg_vision.errors import ConfigError
+def test_a_run_whose_servo_is_too_fine_for_the_plan_is_refused_naming_it(tmp_path):
+    """One line, exit 2, under a 3 GB address-space limit: were the check gone, the plan's 19 GB
+    would end in a MemoryError (exit 1), not in the machine's swap."""
+    import resource
+    import subprocess
+    import sys
 
-    with pytest.raises(ConfigError, match="preview.*max_step_deg 0.0001 x iterations 1"):
-        prepare(RunConfig(preview=True, max_step_deg=0.0001, feedback="truth"))
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    res = subprocess.run([sys.executable, "-m", "itg_vision.run", "--preview", "--max-step",
+                          "0.0001", "--feedback", "truth", "--quiet", "--out", str(tmp_path / "o")],
+                         capture_output=True, text=True, preexec_fn=limit, timeout=300)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.startswith("error: --preview: with a servo limit of 0.0001 deg x 1 "
+                                 "iteration(s): 180 set points x 14400000 cells")
+    assert res.stderr.count("\n") == 1 and not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("iterations, correction", [(1, 1.0), (2, 1.0), (1, 0.5)])
