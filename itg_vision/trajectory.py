@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -189,7 +190,7 @@ def read_csv(path: str | Path) -> Trajectory:
     path = Path(path)
     text = read_text(path, "trajectory CSV")
     try:
-        rows = list(csv.reader(text.splitlines()))  # \n, \r\n or a lone \r
+        rows = list(csv.reader(re.split(r"\r\n|\r|\n", text)))  # not splitlines: \f is no line end
     except csv.Error as exc:  # e.g. a field larger than csv's limit (128 KiB)
         raise UserError(f"{path}: not a CSV file ({exc})") from None
     if not rows or not any(cell.strip() for cell in rows[0]):

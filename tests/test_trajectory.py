@@ -92,6 +92,7 @@ def test_csv_reader_good(tmp_path):
     # blank lines before it: still the line of the time that decreases
     ("x_mm,y_mm,t_s\n50,50,0\n\n60,60,1\n70,70,0.5\n", ":5: field t_s: times must not decrease"),
     ("x_mm,y_mm\n1,2\n1e308,0\n", ":3: field x_mm: 1e308 is beyond +-1e+06 mm"),
+    ("x_mm,y_mm\n1,2\f\n3,abc\n", ":3: field y_mm: not a number"),  # a form feed ends no line
     ("x_mm,y_mm\n1,2\n1,-1000001\n", ":3: field y_mm: -1000001 is beyond"),
 ])
 def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
