@@ -4,9 +4,9 @@ Output folder: ``--out DIR``, or by default ``runs/<arm>-<trajectory>-<controlle
 followed by every option that differs from its default (``-rules<name>``, ``-rig<name>``,
 ``-f0.3``, ``-noise0.5``, ``-seed3``, ...), so two different command lines never share a
 folder. The folder is replaced only if this command made it and it holds nothing else (see
-:mod:`itg_vision.outputs`); its manifest records the run's settings and a hash of its input files, and a default folder
-holding a run with other settings (an edited rule file, a CSV of the same name elsewhere) is
-refused too. ``--force`` replaces anyway.
+:mod:`itg_vision.outputs`); its manifest records the run's settings and a hash of its input
+files, and a default folder holding a run with other settings (an edited rule file, a CSV of
+the same name elsewhere) is refused too. ``--force`` replaces anyway.
 """
 
 from __future__ import annotations
