@@ -216,7 +216,7 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
             F.fail(f"pose_ranges_deg[{i}]", f"lo must be <= hi, got [{lo:g}, {hi:g}]")
     defaults = F.mapping(doc["defaults"], "defaults", ("rules", "rig", "trajectory"),
                          ("itg_plus_rules",))
-    defaults = {k: F.text(v, f"defaults.{k}") for k, v in defaults.items()}
+    defaults = {k: _default(F, v, f"defaults.{k}", path) for k, v in defaults.items()}
     bench = F.mapping(doc["benchmark"], "benchmark", ("max_step_deg", "iterations"))
     bench = {"max_step_deg": F.number(bench["max_step_deg"], "benchmark.max_step_deg", 0.0,
                                       MAX_ANGLE_DEG, lo_open=True, unit=" (deg per iteration)"),
@@ -225,6 +225,25 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
     calib = _calibration(F, doc["calibration"], n, planar)
     return ArmSpec(name, kind, links, standoff, start, (0.0,) * n, defaults, ranges, bench, calib,
                    source=path)
+
+
+#: File types a default may name (a rule base, a rig, an arm's trajectory); other text is a name.
+DEFAULT_FILE_TYPES = (".rules", ".yaml", ".yml", ".csv")
+
+
+def _default(F: Fields, value, where: str, path: str) -> str:
+    """A default of the arm file: a shipped name as it is (checked where it is used), or a file,
+    which must exist: a relative one beside the arm file (as a rig's ``true_rig``), else from
+    the current folder."""
+    text = F.text(value, where)
+    p = Path(text)
+    if "/" not in text and p.suffix not in DEFAULT_FILE_TYPES:
+        return text
+    beside = p if p.is_absolute() else Path(path).parent / p
+    for candidate in (beside, p):
+        if candidate.is_file():
+            return str(candidate)
+    F.fail(where, f"no such file: {beside}")
 
 
 def _calibration(F: Fields, calib, n: int, planar: bool) -> dict:

@@ -11,10 +11,11 @@ import pytest
 import yaml
 
 from itg_vision import calibrate, paper, run
-from itg_vision.arm import ARMS_DIR
+from itg_vision.arm import ARMS_DIR, ArmSpec
 from itg_vision.bench import __main__ as bench
 from itg_vision.bench import noise
 from itg_vision.camera import CAMERAS_DIR
+from itg_vision.errors import UserError
 from itg_vision.rules import RULES_DIR
 
 COMMANDS = {"run": run.main, "paper": paper.main, "calibrate": calibrate.main,
@@ -338,6 +339,29 @@ def test_itg_plus_checks_every_option_before_making_or_running_anything(
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith(f"error: {expect} (see ") and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_arm_files_own_files_are_found_beside_it(tmp_path, monkeypatch):
+    """defaults naming files: a relative one is read beside the arm file, whatever the current
+    folder (as a rig's true_rig); a missing one is one line naming the field."""
+    from itg_vision.rules import RULES_DIR
+
+    mine = tmp_path / "my-arm"
+    mine.mkdir()
+    (mine / "mine.rules").write_text((RULES_DIR / "table2.rules").read_text())
+    (mine / "path.csv").write_text("x_mm,y_mm\n120,40\n110,50\n100,60\n")
+    arm = mine / "arm.yaml"
+    arm.write_text(re.sub(r"(?m)^defaults:.*$",
+                          "defaults: {rules: mine.rules, rig: planar, trajectory: path.csv}",
+                          (ARMS_DIR / "two-link.yaml").read_text()))
+    monkeypatch.chdir(tmp_path)
+    assert run.main(["--quiet", "--arm", str(arm), "--feedback", "model", "--out", "o"]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["rules"] == str(mine / "mine.rules") and summary["n_setpoints"] == 3
+    (mine / "path.csv").unlink()
+    with pytest.raises(UserError, match=rf"arm.yaml: defaults.trajectory: no such file: "
+                                        rf"{re.escape(str(mine / 'path.csv'))}$"):
+        ArmSpec.from_args(str(arm))
 
 
 def test_an_arm_may_have_any_one_line_name_markup_included(tmp_path):
