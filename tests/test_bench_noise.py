@@ -286,6 +286,28 @@ def test_cells_where_a_run_did_not_start_are_named_and_left_out_of_the_compariso
     assert no_start_lines(summarize([r for r in rows if not r["no_start"]])) == []
 
 
+def test_the_conclusion_counts_ties_within_5_percent_plus_0_01_mm_and_names_the_largest_loss():
+    """A cell is a tie when the two medians are within 5 % of the larger plus 0.01 mm (1.04
+    against 1.00, and 0.02 against 0.011 by the 0.01 mm), a loss beyond it (1.10 against 1.00;
+    2.0 against 1.0) and a win below; the largest loss named is the largest ratio, 2x."""
+    from itg_vision.bench.report import conclusion, summarize
+
+    cells = {"clean": (1.04, 1.00), "links+5%": (1.10, 1.00), "rig-perturbed-cams": (2.0, 1.0),
+             "noise-1px": (0.5, 1.0), "offset-1deg": (0.02, 0.011)}
+    cols = ("e_av_mm", "e_max_mm", "track_median_mm", "track_mean_mm", "track_p95_mm",
+            "track_max_mm")
+    rows = [{"trajectory": "ellipse-t1", "condition": c, "controller": k, "seed": str(s),
+             "diverged": "0", "no_start": "", **{col: str(v) for col in cols}}
+            for c, pair in cells.items() for k, v in zip(("itg-vision", "ik"), pair)
+            for s in range(3)]
+    lines = conclusion(summarize(rows), ["ellipse-t1"], list(cells), ["itg-vision", "ik"])
+    compared = [line for line in lines if "vs `ik`" in line]
+    assert len(compared) == 3  # E_av, tracking mean, tracking max
+    for line in compared:
+        assert ("vs `ik`: lower in 1 of 5 cells, higher in 2, within 5 % + 0.01 mm in 2 "
+                "(largest loss: rig-perturbed-cams on ellipse-t1, 2 against 1 mm, 2x).") in line
+
+
 # ---------------------------------------------------------------------------- Dask
 @pytest.mark.slow
 def test_dask_path_on_a_local_cluster(tmp_path):

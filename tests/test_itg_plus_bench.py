@@ -119,10 +119,71 @@ def test_first_step_and_three_link_targets_count_runs():
     assert t.measured == 1 and not t.met
     div, med = itg_plus.three_link_targets(rows, ["helix", "line-ab-reach"])
     assert div.measured == 0 and div.met and "DLS 1" in div.note
+    # the median target: ITG+'s median over its runs against 2 x DLS's (both 0.1 here)
+    assert med.case == "helix" and med.op == "<="
+    assert med.measured == pytest.approx(0.1) and med.threshold == pytest.approx(0.2) and med.met
     rows[2]["diverged"] = "1"
     assert not itg_plus.three_link_targets(rows, ["helix"])[0].met
     # the note gives the other controllers' counts (DLS: first error 1 < start 2 in all 3)
     assert t.note == "of 3; DLS 0 of 3"
+
+
+def test_a_first_step_ending_as_far_as_it_started_is_not_farther():
+    """"Farther than it started" is strict: a run whose first error equals its start error
+    is not counted; one 0.001 mm farther is."""
+    rows = [_row(itg_plus.SUBJECT_3, s, "helix", first_error_mm=2, start_error_mm=2)
+            for s in range(3)]
+    t = itg_plus.first_step_target(rows, itg_plus.SUBJECT_3, "c")
+    assert t.measured == 0 and t.met and t.note == "of 3"
+    rows[0]["first_error_mm"] = "2.001"
+    t = itg_plus.first_step_target(rows, itg_plus.SUBJECT_3, "c")
+    assert t.measured == 1 and not t.met
+
+
+def test_three_link_median_is_the_median_over_runs_against_twice_dls():
+    """ITG+'s tracking median over its runs (0.1, 0.2, 3.0: median 0.2, mean 1.1) against
+    MEDIAN_FACTOR (2) x DLS's median over its runs (0.05, 0.15, 0.9: median 0.15, mean 0.37):
+    0.2 <= 0.3 is met; ITG+ at 0.35 (median of 0.1, 0.35, 0.4) misses it."""
+    assert itg_plus.MEDIAN_FACTOR == 2.0
+
+    def rows_for(mine):
+        return ([_row(itg_plus.SUBJECT_3, s, "helix", track_median_mm=v) for s, v in enumerate(mine)]
+                + [_row(itg_plus.DLS_3, s, "helix", track_median_mm=v)
+                   for s, v in enumerate((0.05, 0.15, 0.9))])
+
+    div, med = itg_plus.three_link_targets(rows_for((0.1, 0.2, 3.0)), ["helix"])
+    assert med.what.startswith("three-link tracking median") and med.op == "<="
+    assert med.measured == pytest.approx(0.2) and med.threshold == pytest.approx(0.3) and med.met
+    assert med.note.startswith("2 x DLS 0.15; ")
+    _, med = itg_plus.three_link_targets(rows_for((0.4, 0.1, 0.35)), ["helix"])
+    assert med.measured == pytest.approx(0.35) and med.threshold == pytest.approx(0.3)
+    assert not med.met
+
+
+def test_tracking_targets_take_the_median_over_seeds_not_the_mean():
+    """Three skewed seeds whose median and mean differ: the clean tracking median (0.1, 0.2,
+    3.0 -> 0.2), E_av (1, 2, 30 -> 2) and the 1 px degradation (x2, x3, x30 -> 3) are medians
+    over seeds, and so are the references (DLS 0.1, 0.15, 0.2 -> 0.15; its degradation x4)."""
+    k = itg_plus
+    mine = {"0": (0.1, 1, 2), "1": (0.2, 2, 3), "2": (3.0, 30, 30)}  # median, E_av, 1 px factor
+    dls = {"0": 0.1, "1": 0.15, "2": 0.2}
+    rows = [_row(k.SUBJECT, s, track_median_mm=m, e_av_mm=e) for s, (m, e, _) in mine.items()]
+    rows += [_row(k.DLS, s, track_median_mm=m, e_av_mm=40) for s, m in dls.items()]
+    rows += [_row(k.TABLE2, s, e_av_mm=3) for s in range(3)]
+    # the noisy rows in another seed order: the ratio is taken seed by seed
+    rows += [_row(k.SUBJECT, s, condition="noise-1px", track_median_mm=mine[s][0] * mine[s][2])
+             for s in ("2", "0", "1")]
+    rows += [_row(k.DLS, s, condition="noise-1px", track_median_mm=m * 4) for s, m in dls.items()]
+    got = {t.what.split(" (")[0]: t for t in k.tracking_targets(rows, ["ellipse-t1"])}
+    med = got["tracking median E_i"]
+    assert med.measured == pytest.approx(0.2) and med.threshold == pytest.approx(0.3) and med.met
+    eav = got["E_av below Table 2's"]
+    assert eav.measured == pytest.approx(2.0) and eav.threshold == pytest.approx(3.0) and eav.met
+    assert got["E_av below DLS's"].threshold == pytest.approx(40.0)
+    noise = got["1 px noise: tracking median / clean"]
+    assert noise.measured == pytest.approx(3.0) and noise.threshold == pytest.approx(4.0)
+    assert noise.met
+    assert "with 1 px: ITG+ 0.6 mm, DLS 0.6 mm" in noise.note  # medians of (0.2, 0.6, 90), (0.4, 0.6, 0.8)
 
 
 def test_memory_checks_test_the_explanation_by_changing_its_cause():
@@ -154,6 +215,37 @@ def test_memory_checks_test_the_explanation_by_changing_its_cause():
                   and r["seed"] in seeds else r for r in rows2]
         checks, _ = k.memory_checks(broken, ["ellipse-t1", "rose"])
         assert [t.case for t in checks] == ["1 curves"] * 4 and not any(t.met for t in checks)
+
+
+def test_memory_checks_report_the_worst_curve_against_a_pinned_threshold():
+    """Two curves: on ellipse-t1 every check holds; on rose (listed second) ITG+ lands 20 %
+    off DLS under 1 px (1.2 against 1.0: more than SAME_MM, 0.15) and its memory raises its
+    median by 5 % (1.26 against 1.2). Each check reports its worst curve, rose, and is missed
+    there, although ellipse-t1 alone would meet it; the memory pair lands 5 % apart on rose
+    (met)."""
+    k = itg_plus
+    assert k.SAME_MM == 0.15
+    noisy = {"ellipse-t1": {k.SUBJECT: 1.0, k.DLS: 1.0, k.SUBJECT_FF: 0.5, k.DLS_FF: 0.5},
+             "rose": {k.SUBJECT: 1.2, k.DLS: 1.0, k.SUBJECT_FF: 1.26, k.DLS_FF: 1.2}}
+    rows = [_row(c, s, trajectory=t, condition=cond,
+                 track_median_mm=0.1 if cond == "clean" else noisy[t][c])
+            for t in noisy for c in noisy[t] for s in range(3) for cond in ("clean", "noise-1px")]
+    checks, _ = k.memory_checks(rows, ["ellipse-t1", "rose"])
+    same, same_ff, lowered, lowered_dls = checks
+    assert all(t.case == "2 curves" for t in checks)
+    assert same.threshold == 0.15 and same.op == "<="
+    assert same.measured == pytest.approx(0.2) and not same.met
+    assert same.note == "worst rose: 1.2 against 1 mm"
+    assert same_ff.measured == pytest.approx(0.05) and same_ff.met
+    assert same_ff.note == "worst rose: 1.26 against 1.2 mm"
+    assert lowered.threshold == 1.0 and lowered.op == "<"
+    assert lowered.measured == pytest.approx(1.05) and not lowered.met
+    assert lowered.note.startswith("worst rose; all 0.50-1.05; ")
+    assert lowered_dls.measured == pytest.approx(1.2) and not lowered_dls.met
+    assert lowered_dls.note.startswith("worst rose; all 0.50-1.20; ")
+    # ellipse-t1 alone: every check met, with the gaps and ratios of that curve
+    alone, _ = k.memory_checks(rows, ["ellipse-t1"])
+    assert [(t.measured, t.met) for t in alone] == [(0.0, True), (0.0, True), (0.5, True), (0.5, True)]
 
 
 def test_preview_checks_compare_each_tracker_with_itself():
@@ -280,6 +372,18 @@ def test_speed_target_is_the_ratio_of_the_times():
     t = itg_plus.speed_target(costs | {"itg_plus_native_us": 0.1, "native_error": None})
     assert t.measured == pytest.approx(200.0) and t.met and t.case.endswith("to C")
     assert "compiled to Python 0.50 us (40.0x)" in t.note
+    assert t.op == ">=" and t.threshold == 50.0 and t.unit == "x"
+
+
+@pytest.mark.parametrize("native_us, ratio, met", [(1 / 3, 60.0, True), (0.4, 50.0, True),
+                                                   (0.5, 40.0, False), (20 / 45, 45.0, False)])
+def test_speed_target_threshold_is_fifty_times(native_us, ratio, met):
+    """PyBullet's IK must take at least 50x the compiled step's time: 60x and exactly 50x are
+    met, 45x and 40x are not."""
+    costs = {"itg_plus_compiled_us": 2.0, "ik_pybullet_us": 20.0, "rules_compiled_us": 0.4,
+             "itg_plus_native_us": native_us, "native_error": None}
+    t = itg_plus.speed_target(costs)
+    assert t.threshold == 50.0 and t.measured == pytest.approx(ratio) and t.met is met
 
 
 @pytest.mark.slow
