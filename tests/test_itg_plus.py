@@ -3,13 +3,15 @@ computations (finite-difference Jacobians of the nominal model, the forward kine
 properties the issue asks for (first step never farther, ties settled the same way whatever the
 noise, no link length in the motion rules)."""
 
+from dataclasses import fields, is_dataclass
+
 import numpy as np
 import pytest
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.errors import UserError
 from itg_vision.feedback import Markers
-from itg_vision.rules import RuleBase, load_rules
+from itg_vision.rules import Name, RuleBase, load_rules
 
 _SPECS = {n: ArmSpec.from_args(n) for n in ("one-link", "two-link", "three-link")}
 #: arm -> its ITG+ rule base (the arm file's itg_plus_rules)
@@ -92,33 +94,170 @@ def test_let_errors_name_file_line_column(text, where, what):
 
 
 # ----------------------------------------------------------------------------- model-free
+#: The rules each motion may read of the link lengths: none, but for the three-link shoulder
+#: height L1 (the pivot of q2, a measured point like the base axis; its rule file says so).
+ALLOWED_LINKS = {"one-link": set(), "two-link": set(), "three-link": {"L1"}}
+
+
+def _names(node) -> list[str]:
+    """Every name a parsed rule, action, definition or expression reads. The parser's nodes
+    (Num, Name, Unary, Binary) and the Rule, Action and Definition holding them are frozen
+    dataclasses: walk their fields, and tuples of them (a Name's Token holds only its text)."""
+    if isinstance(node, Name):
+        return [node.name]
+    if isinstance(node, (tuple, list)):
+        return [n for x in node for n in _names(x)]
+    if is_dataclass(node) and not isinstance(node, type):
+        return [n for f in fields(node) for n in _names(getattr(node, f.name))]
+    return []
+
+
 @pytest.mark.parametrize("name", list(ARMS))
 def test_motion_rules_use_no_link_length(name):
-    """L1..Ln appear only in RULE 0 (the reach test), except the three-link shoulder height L1
-    (the pivot of q2, a measured point like the base axis): the steps do not change when the
-    rules are told other lengths."""
+    """L1..Ln (and L) appear only in RULE 0, the reach test, except the three-link shoulder
+    height L1: no definition, no condition and no step of the motion rules reads one. The
+    walker is checked on the same trees: it finds the lengths in RULE 0, a name in every
+    definition (none is a constant) and the markers in the rules."""
+    from itg_vision.rules import RULES_DIR, resolve_rules_path
+
+    assert {resolve_rules_path(r) for r in ARMS.values()} == set(RULES_DIR.glob("itg-plus-*.rules"))
     arm = ArmSpec.from_args(name)
-    other = tuple(v * f for v, f in zip(arm.links_mm, (1.0 if name == "three-link" else 0.8, 1.3, 0.7)))
-    a, b = itg_plus(arm), itg_plus(arm, links=other)
-    for d in a.definitions:
-        assert not any(n[0] in ("L", "L2", "L3") or (n[0] == "L1" and name != "three-link")
-                       for n in _names(d.expr)), d.name
+    rb = itg_plus(arm)
+    lengths = {"L"} | {f"L{i}" for i in range(1, arm.n_joints + 1)}
+    reach = [r for r in rb.rules if r.out_of_reach]
+    assert [r.number for r in reach] == [0]
+    assert set(_names(reach[0])) & lengths == ({"L"} if name == "one-link" else lengths - {"L"})
+    assert rb.definitions
+    motion = [(f"LET {d.name}", d) for d in rb.definitions]
+    motion += [(f"RULE {r.number}", r) for r in rb.rules if not r.out_of_reach]
+    read = {where: set(_names(node)) for where, node in motion}
+    assert all(read[f"LET {d.name}"] for d in rb.definitions)
+    assert {"xg", "yg", "xd", "yd", "S", "w"} <= set().union(*read.values())
+    for where, names in read.items():
+        assert not names & (lengths - ALLOWED_LINKS[name]), (where, names & lengths)
+
+
+#: Other link lengths to tell the rules (factors of the arm's): each length changed by its own
+#: factor, and a set whose reach (RULE 0) holds all of the arm's, so that near-base and full-reach
+#: set points are compared too. One-link: RULE 0 passes a ring |rd2 - L^2| <= 2 L w, 1 mm wide at
+#: w = 0.5: L x 1.003 still passes the arm's circle (|100.3^2 - 100^2| = 60 <= 2 * 100.3 * 0.5).
+OTHER_LINKS = {"one-link": [(1.003,)], "two-link": [(0.8, 1.3), (1.3, 1.3)],
+               "three-link": [(1.0, 1.3, 0.7), (1.0, 1.3, 1.3)]}
+#: Rules the sample below must have fired: all the one-link steps, the singular rules of the
+#: others (two-link RULES 7-11, three-link 5-9: the elbow within 1 deg of straight or folded).
+SAMPLED_RULES = {"one-link": {2, 3, 4, 5, 6}, "two-link": set(range(7, 12)),
+                 "three-link": set(range(5, 10))}
+
+
+def _near_full_reach(arm, rng):
+    """A set point the rules let through (RULE 0) within 3 mm of the arm's full reach about its
+    shoulder (the planar arms: the base), in any direction the LED can reach."""
+    lo, hi = arm.reach_mm()
+    while True:
+        v = rng.normal(size=3)
+        if arm.planar:
+            v[2] = 0.0
+        p = arm.shoulder_mm() + rng.uniform(hi - 3.0, hi) * v / np.linalg.norm(v)
+        if arm.planar:
+            p[2] = arm.led_standoff_mm
+        if arm.reachable(p):
+            return p
+
+
+@pytest.mark.parametrize("name", list(ARMS))
+def test_motion_steps_do_not_change_with_the_link_lengths_the_rules_are_told(name):
+    """The steps do not change when the rules are told other lengths (the shoulder height L1 of
+    the three-link arm kept): random poses and set points, poses with the elbow within 1 deg of
+    straight or folded (the singular rules), and set points within 3 mm of full reach (where
+    RULES 7-8 of the two-link arm test the set point against the gripper's circle)."""
+    arm = ArmSpec.from_args(name)
+    a = itg_plus(arm)
+    others = [itg_plus(arm, links=tuple(v * f for v, f in zip(arm.links_mm, fs)))
+              for fs in OTHER_LINKS[name]]
     rng = np.random.default_rng(1)
-    for _ in range(200):
+    elbow = arm.n_joints - 1
+    fired, compared, n = set(), [0] * len(others), 300
+    for i in range(n):
         q = rng.uniform(-180, 180, arm.n_joints)
-        p = reachable_target(arm, rng)
+        if i % 3 and arm.n_joints > 1:
+            q[elbow] = rng.choice([0.0, 180.0]) + rng.uniform(-1.0, 1.0)
+        p = _near_full_reach(arm, rng) if i % 3 == 2 else reachable_target(arm, rng)
         m = observe(arm, q)
-        sa, sb = a.step(p, m, q), b.step(p, m, q)
-        if not (sa.out_of_reach or sb.out_of_reach):
-            np.testing.assert_array_equal(sa.dq_deg, sb.dq_deg)
+        sa = a.step(p, m, q)
+        if sa.out_of_reach:
+            continue
+        fired |= set(sa.fired)
+        for k, b in enumerate(others):
+            sb = b.step(p, m, q)
+            if not sb.out_of_reach:
+                np.testing.assert_array_equal(sa.dq_deg, sb.dq_deg, err_msg=str((q, p, sa.fired)))
+                compared[k] += 1
+    assert SAMPLED_RULES[name] <= fired, fired
+    assert min(compared) >= n // 2, compared
 
 
-def _names(node):
-    if not isinstance(node, tuple):
-        return []
-    if node[0] == "name":
-        return [node[1:2]]
-    return [n for child in node[1:] for n in _names(child)]
+# ----------------------------------------------------------------------------- hold
+#: The tolerance w the rule bases get here (``itg_plus``; the runner's default, RULE_DEFAULTS).
+W_MM = 0.5
+
+
+def _set_point_at(arm, q, r_mm, v):
+    """The gripper LED of the pose q + t v (v in deg, t > 0) that lies r_mm from the LED at q:
+    a set point the arm reaches, from the forward kinematics (bisection on t to 1e-12 mm)."""
+    def gap(t):
+        return distance(arm, forward_kinematics(arm, q + t * v)["gripper"], q) - r_mm
+
+    lo, hi = 0.0, 1.0
+    while gap(hi) < 0:
+        lo, hi = hi, 2 * hi
+    while hi - lo > 1e-12 * hi:
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if gap(mid) < 0 else (lo, mid)
+    return forward_kinematics(arm, q + hi * v)["gripper"]
+
+
+def _hold_poses(arm, rng, n):
+    """Poses away from singular ones (J from finite differences: smallest singular value at
+    least 0.3 mm/deg) where a set point 0.6 mm away is one small servo step: two-link not near
+    the base, three-link forearm 10 deg or more off vertical (see the Newton test below) and the
+    gripper 5 mm or more inside RULE 0's reach (the pose's own LED must pass it)."""
+    out = []
+    while len(out) < n:
+        q = rng.uniform(-180, 180, arm.n_joints)
+        if np.linalg.svd(_fd_jacobian(arm, q), compute_uv=False).min() < 0.3:
+            continue
+        if arm.name == "two-link" and near_base(arm, q):
+            continue
+        if arm.name == "three-link" and (abs((q[1] + q[2]) % 180 - 90) < 10 or np.linalg.norm(
+                forward_kinematics(arm, q)["gripper"] - arm.shoulder_mm()) > arm.reach_mm()[1] - 5):
+            continue
+        out.append(q)
+    return out
+
+
+@pytest.mark.parametrize("name", list(ARMS))
+def test_rule_1_holds_within_w_of_the_set_point_and_only_there(name):
+    """RULE 1 of every ITG+ rule base: the gripper within w of the set point (compared on
+    squares), every joint holds. A set point w - 0.1 mm from the LED (in the plane for the planar
+    arms, in space for the three-link arm; reached by turning each joint alone, and all of them
+    at random): the step is exactly zero and RULE 1 alone fires. At w + 0.1 mm: RULE 1 does not
+    fire, the arm moves, and the step (servo-limited) lands nearer the set point."""
+    arm = ArmSpec.from_args(name)
+    rb = itg_plus(arm)
+    rng = np.random.default_rng(9)
+    for q in _hold_poses(arm, rng, 15):
+        for v in [*np.eye(arm.n_joints), rng.normal(size=arm.n_joints)]:
+            for sign in (1, -1):
+                inside = _set_point_at(arm, q, W_MM - 0.1, sign * v)
+                got = rb.step(inside, observe(arm, q), q)
+                assert got.fired == (1,) and not got.out_of_reach, (q, inside, got)
+                assert np.all(got.dq_deg == 0), (q, inside, got)
+                outside = _set_point_at(arm, q, W_MM + 0.1, sign * v)
+                got = rb.step(outside, observe(arm, q), q)
+                assert 1 not in got.fired and not got.out_of_reach, (q, outside, got)
+                assert np.any(got.dq_deg != 0), (q, outside, got)
+                after = distance(arm, outside, q + step(rb, arm, outside, q))
+                assert after < W_MM + 0.1, (q, outside, got, after)
 
 
 # ----------------------------------------------------------------------------- steps
@@ -282,12 +421,15 @@ def test_first_step_from_the_start_never_moves_the_gripper_away(name, sigma):
 @pytest.mark.parametrize("name", ["two-link", "three-link"])
 def test_the_straight_start_tie_is_settled_the_same_way_whatever_the_noise(name):
     """At the straight start the elbow's radial lever is zero and its sign is noise; the rules'
-    dead band makes every noisy observation give the bend of the noise-free one. Noise 0.15 mm
-    per axis: the gripper's distance from the base-elbow line then has 0.34 mm std, and the dead
-    band (4 w = 2 mm) holds it to 6 sigma; at 0.25 mm per axis about one observation in 10^4
-    falls outside and bends the other way (the run still converges: both bends reach). (Set points
-    more than 3 mm, the dead band's 4 w plus the noise, from the plane through the base axis
-    square to the arm: nearer, the three-link elbow's choice is between bending and waiting.)"""
+    dead band makes noisy observations give the bend of the noise-free one. Noise 0.15 mm per
+    axis: the gripper's distance from the base-elbow line has 0.34 mm std (its own 0.15 and the
+    elbow's doubled by the lever, sqrt(0.15^2 + 0.3^2)); without the band about half the draws
+    would bend the other way. (That the band reaches 4 w = 2 mm, 6 sigma, 600 draws cannot show:
+    the test below places observations at its edge. At 0.25 mm per axis about one observation in
+    10^4 falls outside and bends the other way; the run still converges: both bends reach.) (Set
+    points more than 3 mm, the dead band's 4 w plus the noise, from the plane through the base
+    axis square to the arm: nearer, the three-link elbow's choice is between bending and
+    waiting.)"""
     arm = ArmSpec.from_args(name)
     rb = itg_plus(arm)
     rng = np.random.default_rng(4)
@@ -301,6 +443,65 @@ def test_the_straight_start_tie_is_settled_the_same_way_whatever_the_noise(name)
         for _ in range(20):
             noisy = step(rb, arm, p, q0, rng, 0.15)[elbow]
             assert np.sign(noisy) == np.sign(clean), p
+
+
+#: The elbow's rules at a singular pose (the dead band) and elsewhere (the radial step).
+SINGULAR_RULES = {"two-link": set(range(7, 12)), "three-link": set(range(5, 10))}
+RADIAL_RULES = {"two-link": {12, 13, 14}, "three-link": {10, 11, 12}}
+
+
+@pytest.mark.parametrize("name", ["two-link", "three-link"])
+def test_the_straight_start_dead_band_ends_4w_from_the_arms_line(name):
+    """The dead band of the singular rules, (a . (u x w))^2 <= (4 w)^2 |e - s|^2 (two-link:
+    C^2 <= 16 w^2 re2; a the joint axis, z for the planar arm; s the base or the shoulder; u = g -
+    e, w = g - s), at the straight start, where a . (u x w) = 0. The gripper observed moved by
+    delta along n = a x (e - s) / |a x (e - s)| (in the arm's plane, square to the
+    base/shoulder-elbow line) makes a . (u x w) = delta |a x (e - s)|, so the band ends at
+    delta* = 4 w |e - s| / |a x (e - s)|: 4 w = 2 mm on the two-link arm (e - s in the plane of
+    motion); on the three-link arm the stand-off h = 12 mm along a lengthens |e - s| but not
+    the lever, delta* = 4 w sqrt(100^2 + 12^2) / 100 = 2.014 mm. Observed 0.01 mm inside the edge
+    (either side of the line): the singular rule of the noise-free observation fires and the
+    elbow bends the same way; 0.01 mm outside: the radial step (g . err over the vanishing lever)
+    takes over and its sign follows the side, opposite on the two sides. Set points more than
+    10 mm from the plane through the base axis containing the arm (x = 0 at both starts):
+    moving the gripper 2 mm tilts the forearm's line by up to 3 x 2 mm at a set point behind
+    the base, and within 4 w of that line the elbow's side is a tie of its own."""
+    arm = ArmSpec.from_args(name)
+    rb = itg_plus(arm)
+    q0 = arm.start_q_deg
+    elbow = arm.n_joints - 1
+    m = forward_kinematics(arm, q0)
+    g, e = m["gripper"], m["elbow"]
+    if arm.planar:
+        a, s, flat = np.array([0.0, 0.0, 1.0]), np.zeros(3), np.array([1.0, 1.0, 0.0])
+    else:  # the pitch axis (sin q1, -cos q1, 0), along which the LEDs stand off
+        q1 = np.radians(q0[0])
+        a, s, flat = np.array([np.sin(q1), -np.cos(q1), 0.0]), arm.shoulder_mm(), np.ones(3)
+    lever = np.cross(a, (e - s) * flat)
+    assert abs(a @ np.cross(g - e, (g - s) * flat)) < 1e-9  # straight: on the band's centre
+    edge = 4 * W_MM * np.linalg.norm((e - s) * flat) / np.linalg.norm(lever)
+    n = lever / np.linalg.norm(lever)
+    L2, h = arm.links_mm[1], arm.led_standoff_mm
+    assert edge == pytest.approx(4 * W_MM * (1.0 if arm.planar else np.hypot(L2, h) / L2))
+    rng = np.random.default_rng(4)
+    bends = set()
+    for _ in range(30):
+        p = reachable_target(arm, rng)
+        while abs(p[0]) <= 10.0:
+            p = reachable_target(arm, rng)
+        clean = rb.step(p, Markers(g, e), q0)
+        assert set(clean.fired) & SINGULAR_RULES[name], (p, clean)
+        bends.add(np.sign(clean.dq_deg[elbow]))
+        outside = []
+        for side in (1, -1):
+            seen = rb.step(p, Markers(g + side * (edge - 0.01) * n, e), q0)
+            assert seen.fired == clean.fired, (p, side, seen, clean)
+            assert np.sign(seen.dq_deg[elbow]) == np.sign(clean.dq_deg[elbow]) != 0, (p, side, seen)
+            seen = rb.step(p, Markers(g + side * (edge + 0.01) * n, e), q0)
+            assert set(seen.fired) & RADIAL_RULES[name], (p, side, seen)
+            outside.append(np.sign(seen.dq_deg[elbow]))
+        assert outside[0] == -outside[1] != 0, (p, outside)
+    assert bends == {1.0, -1.0}  # set points on either side of the arm
 
 
 @pytest.mark.parametrize("name, iterations", [("one-link", 12), ("two-link", 15), ("three-link", 250)])
