@@ -150,7 +150,10 @@ class Fields:
             except OverflowError:  # an integer beyond the doubles
                 x = math.inf
         if not math.isfinite(x):
-            self.fail(where, f"must be a finite number{unit}, got {show(v)}")
+            hint = ""
+            if isinstance(v, str) and re.fullmatch(r"\s*[-+]?\d+[eE][-+]?\d+\s*", v):
+                hint = f" (YAML reads {v.strip()} as text: write it with a dot, 1.0e5 not 1e5)"
+            self.fail(where, f"must be a finite number{unit}, got {show(v)}{hint}")
         if not ((lo < x) if lo_open else (lo <= x)) or x > hi:
             span = (f"{'>' if lo_open else '>='} {lo:g}" if hi == math.inf else
                     f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]")

@@ -298,7 +298,10 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
 
 
 def _pid_alive(pid: int) -> bool:
-    if pid == os.getpid():
+    """Whether process ``pid`` may still run (its staging folder is then not stale). On Windows
+    ``os.kill(pid, 0)`` would send CTRL_C_EVENT, not probe: every process counts as alive there,
+    so nothing is cleaned."""
+    if pid == os.getpid() or os.name == "nt":
         return True
     try:
         os.kill(pid, 0)

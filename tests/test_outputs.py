@@ -304,6 +304,14 @@ def test_a_users_folder_replaced_with_force_comes_back_if_the_swap_was_cut_short
     assert (tmp_path / "r" / "thesis.tex").read_text() == "the user's" and not staging.exists()
 
 
+def test_on_windows_no_process_counts_as_gone(monkeypatch):
+    """There os.kill(pid, 0) sends CTRL_C_EVENT: never called, every staging folder kept."""
+    called, dead = [], _dead_pid()
+    monkeypatch.setattr(outputs.os, "name", "nt")
+    monkeypatch.setattr(outputs.os, "kill", lambda *a: called.append(a))
+    assert outputs._pid_alive(dead) and not called
+
+
 def test_user_folders_that_look_like_staging_or_old_folders_are_left_alone(tmp_path):
     """Only a folder named exactly as staged_dir names it and carrying our manifest is a stale
     staging or old folder: a user's folder whose name matches the pattern is neither removed
