@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
-from .inputs import Fields, count, read_yaml, show
+from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -227,23 +227,17 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
                    source=path)
 
 
-#: File types a default may name (a rule base, a rig, an arm's trajectory); other text is a name.
-DEFAULT_FILE_TYPES = (".rules", ".yaml", ".yml", ".csv")
-
-
 def _default(F: Fields, value, where: str, path: str) -> str:
     """A default of the arm file: a shipped name as it is (checked where it is used), or a file,
     which must exist: a relative one beside the arm file (as a rig's ``true_rig``), else from
     the current folder."""
     text = F.text(value, where)
-    p = Path(text)
-    if "/" not in text and p.suffix not in DEFAULT_FILE_TYPES:
+    if "/" not in text and Path(text).suffix not in FILE_TYPES:
         return text
-    beside = p if p.is_absolute() else Path(path).parent / p
-    for candidate in (beside, p):
-        if candidate.is_file():
-            return str(candidate)
-    F.fail(where, f"no such file: {beside}")
+    p = resolve_relative(text, Path(path))
+    if not p.is_file():
+        F.fail(where, f"no such file: {Path(path).parent / text}")
+    return str(p)
 
 
 def _calibration(F: Fields, calib, n: int, planar: bool) -> dict:

@@ -54,7 +54,7 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
     replaced: the write would fail after all the work).
     """
     from .outputs import probe_folder
-    from .runner import resolve_relative
+    from .inputs import resolve_relative
 
     check_path(out, what="file")
     if out.is_dir():

@@ -21,11 +21,23 @@ from .errors import UserError
 
 #: Largest input file read (bytes). The shipped files are a few kB.
 MAX_FILE_BYTES = 1 << 20
+#: The types of the user's input files (rule bases, rigs and arms, trajectories): a name
+#: ending so is a file, any other a shipped name.
+FILE_TYPES = (".rules", ".yaml", ".yml", ".csv")
 
 
 def clip(text: str, n: int = 40) -> str:
     """``text`` shortened to about ``n`` characters for a one-line message."""
     return text if len(text) <= n else f"{text[: n - 12]}...({len(text)} chars)"
+
+
+def resolve_relative(path: str, relative_to: Path) -> Path:
+    """A path named inside a file: relative to that file's folder (as written), else as given."""
+    p = Path(path)
+    if p.is_absolute():
+        return p
+    beside = Path(relative_to).parent / p
+    return beside if beside.exists() else p
 
 
 def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:

@@ -30,6 +30,7 @@ Rules (what every command follows):
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -321,18 +322,9 @@ def _remove_ours(folder: Path) -> None:
         if e.is_dir(follow_symlinks=False):
             shutil.rmtree(e.path, ignore_errors=True)
         else:
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(e.path)
-            except OSError:
-                pass
-    try:
-        os.unlink(folder / MANIFEST)
-    except OSError:
-        pass
-    try:
-        os.rmdir(folder)
-    except OSError:
-        pass
+    shutil.rmtree(folder, ignore_errors=True)  # the manifest, then the folder
 
 
 def _stale_pattern(name: str) -> re.Pattern:
@@ -468,7 +460,5 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
     if old is not None:
         if old.is_symlink() or not old.is_dir():
             old.unlink()
-        elif read_manifest(old) is not None:
+        else:  # ours (the manifest goes last), or a folder replaced with force
             _remove_ours(old)
-        else:  # a foreign folder replaced with force
-            shutil.rmtree(old, ignore_errors=True)

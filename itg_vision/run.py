@@ -22,6 +22,7 @@ from . import outputs, plot
 from .camera import MAX_SUPERSAMPLE
 from .errors import MAX_POINTS, ArgumentParser, ConfigError, UserError, points_arg, run_main
 from .feedback import DEFAULT_SUPERSAMPLE
+from .inputs import FILE_TYPES
 from .progress import progress
 from .rules import shipped_rules
 from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
@@ -147,16 +148,16 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-#: File types a default folder's name leaves out of a file's name.
-_FILE_TYPES = (".yaml", ".yml", ".csv", ".rules")
+def _less_type(name: str) -> str:
+    """A file's name less its type (planar.calib.yaml -> planar.calib); a shipped name as it is."""
+    return Path(name).stem if Path(name).suffix in FILE_TYPES else name
 
 
 def default_out(args: argparse.Namespace, prep) -> Path:
     """``runs/<arm>-<trajectory>-<controller>-<feedback>[-<option><value>...]`` for the options
     that differ from their default (file names less their type)."""
     cfg, defaults = prep.config, build_parser()
-    arm = Path(cfg.arm).stem if Path(cfg.arm).suffix in _FILE_TYPES else cfg.arm  # a file: its name
-    parts = [arm, Path(prep.trajectory.name).stem, cfg.controller, cfg.feedback]
+    parts = [_less_type(cfg.arm), Path(prep.trajectory.name).stem, cfg.controller, cfg.feedback]
     for dest, label in _NAMED:
         v = getattr(args, dest)
         if v == defaults.get_default(dest):
@@ -167,9 +168,8 @@ def default_out(args: argparse.Namespace, prep) -> Path:
             parts.append(label + "x".join(f"{x:g}" for x in v))
         elif isinstance(v, float):
             parts.append(f"{label}{v:g}")
-        elif isinstance(v, str):  # a file by its name less its type: planar.calib.yaml -> planar.calib
-            name = Path(v).name
-            parts.append(label + (Path(name).stem if Path(name).suffix in _FILE_TYPES else name))
+        elif isinstance(v, str):
+            parts.append(label + _less_type(Path(v).name))
         else:
             parts.append(f"{label}{v}")
     name = re.sub(r"[^A-Za-z0-9._+=-]", "_", "-".join(parts))

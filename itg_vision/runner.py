@@ -9,12 +9,13 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from . import trajectory as traj
-from .arm import ArmSpec
+from .arm import ARMS_DIR, MAX_ITERATIONS, ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
 from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
+from .inputs import resolve_relative
 from .loop import Trace, distance_mm, simulate
 from .preview import Preview, plan
 from .rules import PARAM_FIELDS, load_rules
@@ -101,8 +102,8 @@ class RunConfig:
              f"must be in [0, 1e4] mm, got {self.tolerance_mm}"),
             ("max_step_deg", positive(self.max_step_deg),
              f"must be > 0 (deg per iteration), got {self.max_step_deg}"),
-            ("iterations", 1 <= self.iterations <= 10000,
-             f"must be in 1..10000, got {self.iterations}"),
+            ("iterations", 1 <= self.iterations <= MAX_ITERATIONS,
+             f"must be in 1..{MAX_ITERATIONS}, got {self.iterations}"),
             ("noise_px", math.isfinite(self.noise_px) and self.noise_px >= 0,
              f"must be >= 0, got {self.noise_px}"),
             ("noise_mm", math.isfinite(self.noise_mm) and self.noise_mm >= 0,
@@ -281,8 +282,6 @@ def supersample_of(cfg: RunConfig, rig) -> int:
 def shown_path(path: str) -> str:
     """A path for a summary: a shipped file's relative to the project (``data/arms/...``), the
     same on every machine; any other as given."""
-    from .arm import ARMS_DIR
-
     root = ARMS_DIR.parent.parent
     try:
         return str(Path(path).resolve().relative_to(root)) if path else path
@@ -304,15 +303,6 @@ def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[
         raise ConfigError("step_deg", f"{source}: S is the servo limit ({servo:g} deg per "
                                       "iteration): set max_step_deg instead")
     return cfg, f"S = servo limit = {servo:g} deg/iteration, from {note}"
-
-
-def resolve_relative(path: str, relative_to: Path) -> Path:
-    """A path named inside a file: relative to that file's folder (as written), else as given."""
-    p = Path(path)
-    if p.is_absolute():
-        return p
-    beside = Path(relative_to).parent / p
-    return beside if beside.exists() else p
 
 
 def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:

@@ -479,7 +479,7 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def check_options(args: argparse.Namespace) -> list[tuple]:
+def build_sweeps(args: argparse.Namespace) -> list[tuple]:
     """Build both sweeps' run specs from the options (the parser checked each), before
     anything is made or run: [(sweep, its folder under --out, its --seeds, its specs)]."""
     from .sweep import build_sweep
@@ -500,7 +500,7 @@ def main(argv: list[str] | None = None) -> int:
         from .sweep import SWEEPS, load_trajectory
 
         args = build_parser().parse_args(argv)
-        sweeps = check_options(args)  # every option, before anything is made or run
+        sweeps = build_sweeps(args)  # every run spec, before anything is made or run
         out = noise.check_out(args.out, COMMAND)  # resumable: no --force
         for _, sub, _, specs in sweeps:  # and each sweep's folder in it, as run_sweep will
             noise.check_out(out / sub)

@@ -238,8 +238,9 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         args = build_parser().parse_args(argv)
-        if args.frames > max_frames():
-            raise UserError(f"--frames: must be at most {max_frames()} (the set points of "
+        most = max_frames()
+        if args.frames > most:
+            raise UserError(f"--frames: must be at most {most} (the set points of "
                             f"{REPLAY} after the first {SETTLE}), got {args.frames}")
         c = decision_costs()
         base = c["rules_compiled_us"]
