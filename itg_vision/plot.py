@@ -71,11 +71,17 @@ def error_figure(trace, title: str, path) -> None:
     marks = _reach_marks(trace)
     for which, _, color, label in marks:
         ax.plot(np.flatnonzero(which), np.zeros(which.sum()), "|", color=color, label=label)
-    if marks:
+    late = trace.tracking_errors_mm()
+    if late.size:
+        ax.axvline(trace.tracking_start - 0.5, color="0.4", ls="--", lw=0.8,
+                   label=f"tracking phase: median {np.median(late):.3g} / "
+                         f"p95 {np.percentile(late, 95):.3g} / max {late.max():.3g} mm")
+    if marks or late.size:
         ax.legend(fontsize=8)
     ax.set_xlabel("set point i")
     ax.set_ylabel("E_i (mm)")
-    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_yscale("symlog", linthresh=0.01)  # log above 0.01 mm, so that the tracking shows
+    ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.set_title(title, fontsize=9)
     _save(fig, path)

@@ -265,8 +265,7 @@ def main(argv: list[str] | None = None) -> int:
             cols, rows = trace.rows()
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
             outputs.write_json(tmp / "summary.json", summary)
-            title = (f"{summary['arm']} {summary['trajectory']} ({summary['controller']}, "
-                     f"{summary['feedback']}): E_av {summary['e_av_mm'] or float('nan'):.2f} mm")
+            title = plot_title(summary)
             plot.path_figure(trace, title, tmp / "path.png")
             plot.error_figure(trace, title, tmp / "error.png")
         if not args.quiet:
@@ -274,6 +273,20 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     return run_main(body)
+
+
+def plot_title(s: dict) -> str:
+    """The run's figures' title: what ran on which path and what it saw, then E_av. Files are
+    named by their name less folder and type; an ITG run names its rule base."""
+    who = _less_type(Path(s["rules"]).name) if s["controller"] == "itg" else s["controller"]
+    seen = s["feedback"]
+    noise = s.get("feedback_params", {}).get("noise_px") or 0.0
+    if seen == "vision" and noise > 0:
+        seen += f", {noise:g} px noise"
+    laps = f", {s['laps']} laps" if s.get("laps", 1) > 1 else ""
+    e_av = s["e_av_mm"] if s["e_av_mm"] is not None else float("nan")
+    return (f"{s['arm']} {_less_type(Path(s['trajectory']).name)}{laps} ({who}, {seen}): "
+            f"E_av {e_av:.2f} mm")
 
 
 def summary_table(s: dict, out: Path) -> str:

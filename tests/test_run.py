@@ -209,3 +209,18 @@ def test_start_and_first_errors_against_the_forward_kinematics():
     # PyBullet keeps positions in metres as float32-accurate link frames: ~1e-6 m at most
     assert s["start_error_mm"] == pytest.approx(np.linalg.norm((p0 - g0)[:2]), abs=1e-3)
     assert s["first_error_mm"] == pytest.approx(trace.error_mm()[0])
+
+
+def test_figure_titles_name_the_rule_base_the_path_and_what_the_eye_saw():
+    from itg_vision.run import plot_title
+
+    base = {"arm": "two-link", "trajectory": "/home/u/paths/lemniscate.csv", "controller": "itg",
+            "rules": "/x/data/rules/itg-plus-two-link.rules", "feedback": "vision",
+            "feedback_params": {"noise_px": 1.0}, "laps": 2, "e_av_mm": 1.4291}
+    assert plot_title(base) == ("two-link lemniscate, 2 laps (itg-plus-two-link, vision, 1 px "
+                                "noise): E_av 1.43 mm")
+    # a baseline names itself, not the arm's rule base; no noise, one lap and no E_av say so
+    dls = {**base, "controller": "jacobian", "trajectory": "ellipse-t1", "laps": 1,
+           "feedback_params": {"noise_px": 0.0}, "e_av_mm": None}
+    assert plot_title(dls) == "two-link ellipse-t1 (jacobian, vision): E_av nan mm"
+    assert "noise" not in plot_title({**base, "feedback": "model", "feedback_params": {}})
