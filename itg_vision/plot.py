@@ -100,7 +100,7 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside: curves stay seen
     ax.set_title(title, fontsize=9)
     _save(fig, path)
 
@@ -141,6 +141,6 @@ def grouped_bars_figure(categories: list, values: dict, ylabel: str, title: str,
         ax.set_yscale("log")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3, axis="y")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside: bars stay seen
     ax.set_title(title, fontsize=9)
     _save(fig, path)

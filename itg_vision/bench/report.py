@@ -343,8 +343,8 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]
                 if not series:  # no run of these conditions finished: nothing to draw
                     continue
                 path = out / f"{metric}_vs_{name}-{t}.png"
-                plot.lines_figure(series, xlabel, f"median over seeds of {label} (mm; < 0.001 "
-                                  "drawn at 0.001)", f"{t}: {label} against {xlabel}", path,
+                plot.lines_figure(series, xlabel, f"{label} (mm)\nmedian over seeds; < 0.001 "
+                                  "drawn at 0.001", f"{t}: {label} against {xlabel}", path,
                                   logy=True)
                 made.append(path)
         for metric in metrics:
@@ -352,7 +352,7 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]
             if not any(math.isfinite(v) for vs in values.values() for v in vs):
                 continue  # no finished run: a log axis has nothing to scale
             path = out / f"{metric}_by_condition-{t}.png"
-            plot.grouped_bars_figure(conds, values, f"median over seeds of {PLOT_METRICS[metric]} (mm)",
+            plot.grouped_bars_figure(conds, values, f"{PLOT_METRICS[metric]} (mm)\nmedian over seeds",
                                      f"{t}: {PLOT_METRICS[metric]} per controller and condition",
                                      path, logy=True)
             made.append(path)
