@@ -216,6 +216,9 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
         for k in given:
             raise ConfigError(k, f"the {cfg.controller} controller takes no {RULE_NAMES[k]} "
                                  "(a rule base's parameter)")
+        if cfg.rules is not None:
+            raise ConfigError("rules", f"the {cfg.controller} controller takes no rule base "
+                                       "(rules are for --controller itg)")
         controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step_deg)
         info["controller_params"] = controller.params()
     planned = _preview(cfg, model, trajectory) if cfg.preview else None
@@ -365,10 +368,11 @@ def feedback_params(cfg: RunConfig, supersample: int | None = None) -> dict:
 
 
 def start_up_geometry(cfg: RunConfig, world, feedback, model):
-    """The lengths the controller may use: the nominal model's under ``model`` feedback, else
-    measured from the LEDs at start-up. A run the user let go on with a rig that cannot see
-    the arm (``allow_unseen``) falls back to the nominal lengths, and says so."""
-    if cfg.feedback == "model":
+    """The lengths the controller may use: the nominal model's under ``model`` feedback and for
+    open-loop IK (the nominal model by definition), else measured from the LEDs at start-up. A
+    run the user let go on with a rig that cannot see the arm (``allow_unseen``) falls back to
+    the nominal lengths, and says so."""
+    if cfg.feedback == "model" or cfg.controller == "ik":
         return nominal_geometry(model)
     try:
         return measure_geometry(world, feedback, model)

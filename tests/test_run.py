@@ -132,6 +132,9 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--rules", "nope"], "unknown rule base 'nope'"),
     (["--trajectory", "spiral"], "unknown trajectory 'spiral'"),
     (["--gain", "-1"], "--gain"),
+    (["--controller", "ik", "--rules", "table2"], "--rules: the ik controller takes no rule base"),
+    (["--controller", "jacobian", "--rules", "itg-plus-two-link"],
+     "--rules: the jacobian controller takes no rule base"),
 ])
 def test_bad_input_one_line_exit_2_old_output_kept(main_in_process, tmp_path, args, expect):
     out = tmp_path / "r"
@@ -224,3 +227,14 @@ def test_figure_titles_name_the_rule_base_the_path_and_what_the_eye_saw():
            "feedback_params": {"noise_px": 0.0}, "e_av_mm": None}
     assert plot_title(dls) == "two-link ellipse-t1 (jacobian, vision): E_av nan mm"
     assert "noise" not in plot_title({**base, "feedback": "model", "feedback_params": {}})
+
+
+def test_open_loop_ik_records_the_nominal_lengths_it_uses_not_the_measured_ones():
+    # the true arm is 5 % long and vision measures it, but IK solves the nominal model: its
+    # summary must say so, and its motion is the same as under model feedback
+    cfg = dict(controller="ik", trajectory="ellipse-t1", points=40, true_links_mm=(105.0, 105.0))
+    _, vis = execute(prepare(RunConfig(**cfg, feedback="vision")))
+    _, mod = execute(prepare(RunConfig(**cfg, feedback="model")))
+    assert vis["geometry"]["links_mm"] == [100.0, 100.0]
+    assert vis["geometry"]["source"].startswith("nominal model")
+    assert vis["e_av_mm"] == pytest.approx(mod["e_av_mm"], rel=1e-9)
