@@ -191,6 +191,7 @@ class Action:
     kind: str  # "inc", "dec", "hold", "out"
     joint: int = 0  # 1-based
     step: Node | None = None
+    where: tuple[int, int] = field(default=(0, 0), compare=False)  # (line, col) in the file
 
 
 @dataclass(frozen=True)
@@ -200,6 +201,7 @@ class Rule:
     actions: tuple[Action, ...]
     line: int
     text: str = ""
+    col: int = field(default=0, compare=False)  # of 'RULE'
 
     @property
     def out_of_reach(self) -> bool:
@@ -317,27 +319,28 @@ class _Parser:
                 raise self.error(f"q{joint} has two actions in one rule", tok)
         if not self._at_statement_end():
             raise self.error("expected ',' or the next 'RULE'")
-        return Rule(int(num.text), cond, tuple(actions), start.line)
+        return Rule(int(num.text), cond, tuple(actions), start.line, col=start.col)
 
     def action(self) -> Action:
-        if self.accept("kw", "OUT_OF_REACH"):
-            return Action("out")
         tok = self.tok
+        if self.accept("kw", "OUT_OF_REACH"):
+            return Action("out", where=(tok.line, tok.col))
         if tok.kind != "name" or not re.fullmatch(r"q[1-9]", tok.text):
             raise self.error("expected an action: qN += step, qN -= step, qN HOLD or OUT_OF_REACH")
         self.i += 1
         joint = int(tok.text[1:])
+        where = (tok.line, tok.col)
         if self.accept("kw", "HOLD"):
-            return Action("hold", joint)
+            return Action("hold", joint, where=where)
         if self.accept("op", "="):
             same = self.expect("name", what=f"{tok.text} (as in '{tok.text} = {tok.text}')")
             if same.text != tok.text:
                 raise self.error(f"only '{tok.text} = {tok.text}' (hold) is allowed", same)
-            return Action("hold", joint)
+            return Action("hold", joint, where=where)
         op = self.accept("op", "+=") or self.accept("op", "-=")
         if op is None:
             raise self.error(f"expected '+=', '-=', '=' or HOLD after {tok.text}")
-        return Action("inc" if op.text == "+=" else "dec", joint, self.expr())
+        return Action("inc" if op.text == "+=" else "dec", joint, self.expr(), where=where)
 
     def condition(self):
         node = self.conjunction()
@@ -427,6 +430,9 @@ class _Parser:
             return self.node(tok, Num(float(tok.text)))
         if tok.kind == "name":
             self.i += 1
+            if self.tok.kind == "op" and self.tok.text == "(":
+                raise self.error(f"{tok.text}(...): the rule language has no functions (only "
+                                 "+ - * / ^, |x| and comparisons)", tok)
             return self.node(tok, Name(tok.text, tok))
         if tok.kind == "op" and tok.text in ("(", "|"):
             self.enter(tok)
@@ -812,8 +818,7 @@ class RuleBase:
         parser = _Parser(tokenize(text, source), source)
         rules = parser.rules()
         lines = text.split("\n")  # the tokenizer's lines
-        rules = [Rule(r.number, r.condition, r.actions, r.line, lines[r.line - 1].strip())
-                 for r in rules]
+        rules = [replace(r, text=lines[r.line - 1].strip()) for r in rules]
         rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source,
                  servo_step=bool(SERVO_STEP.search(text)),
                  definitions=tuple(parser.definitions), **params)
@@ -874,17 +879,19 @@ class RuleBase:
         seen: dict[int, int] = {}
         for r in self.rules:
             if r.number in seen:
-                raise UserError(f"{self.source}:{r.line}: RULE {r.number} is defined twice "
+                raise UserError(f"{self.source}:{r.line}:{r.col}: RULE {r.number} is defined twice "
                                 f"(first on line {seen[r.number]})")
             seen[r.number] = r.line
             above = {name for name, line in defined.items() if line < r.line}
             self._check_names([r.condition] + [a.step for a in r.actions], known | above)
             for a in r.actions:
                 if a.kind != "out" and not 1 <= a.joint <= self.n_joints:
-                    raise UserError(f"{self.source}:{r.line}: RULE {r.number} moves q{a.joint}, "
+                    raise UserError(f"{self.source}:{a.where[0]}:{a.where[1]}: RULE {r.number} moves q{a.joint}, "
                                     f"but the arm has {self.n_joints} joint(s)")
             if r.out_of_reach and len(r.actions) > 1:
-                raise UserError(f"{self.source}:{r.line}: OUT_OF_REACH must be a rule's only action")
+                out = next(a for a in r.actions if a.kind == "out")
+                raise UserError(f"{self.source}:{out.where[0]}:{out.where[1]}: OUT_OF_REACH must be "
+                                "a rule's only action")
         if not any(not r.out_of_reach for r in self.rules):
             raise UserError(f"{self.source}: no rule moves a joint")
 
