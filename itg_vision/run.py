@@ -295,6 +295,10 @@ def summary_table(s: dict, out: Path) -> str:
 
     rows = [("arm", f"{s['arm']} {s['links_mm']} mm"), ("trajectory", s["trajectory"]),
             ("controller / feedback", f"{s['controller']} / {s['feedback']}"),
+            *([("rule base", s["rules"])] if s.get("rules") else []),
+            *([("rig", s["estimate_rig"]) if s["estimate_rig"] == s["render_rig"] else
+               ("rig (estimates / renders)", f"{s['estimate_rig']} / {s['render_rig']}")]
+              if s.get("estimate_rig") else []),
             ("set points (out of reach / flagged)",
              f"{s['n_setpoints']} ({s['n_out_of_reach']} / {s['n_flagged']})"),
             ("E_av", f(s["e_av_mm"], " mm")), ("E_max", f(s["e_max_mm"], " mm")),

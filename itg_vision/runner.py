@@ -284,12 +284,15 @@ def supersample_of(cfg: RunConfig, rig) -> int:
 
 def shown_path(path: str) -> str:
     """A path for a summary: a shipped file's relative to the project (``data/arms/...``), the
-    same on every machine; any other as given."""
-    root = ARMS_DIR.parent.parent
-    try:
-        return str(Path(path).resolve().relative_to(root)) if path else path
-    except ValueError:
+    same on every machine; a user's file absolute, so that the summary finds it from anywhere;
+    anything else (a shipped trajectory's name) as given."""
+    if not path or not Path(path).is_file():
         return path
+    full = Path(path).resolve()
+    try:
+        return str(full.relative_to(ARMS_DIR.parent.parent))
+    except ValueError:
+        return str(full)
 
 
 def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[RunConfig, str]:
@@ -337,7 +340,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "links_mm": list(prep.model.links_mm),
         "true_links_mm": list(prep.true_arm.links_mm),
         "joint_offset_deg": list(prep.true_arm.joint_offset_deg),
-        "trajectory": prep.trajectory.name,
+        "trajectory": shown_path(prep.trajectory.name),
         "controller": cfg.controller,
         "feedback": cfg.feedback,
         "iterations": cfg.iterations,
@@ -351,6 +354,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "seed": cfg.seed,
         "wall_s": wall_s,
         **prep.info,
+        **{k: shown_path(prep.info[k]) for k in ("rules", "estimate_rig", "render_rig")
+           if k in prep.info},
     }
     return trace, summary
 

@@ -238,3 +238,23 @@ def test_open_loop_ik_records_the_nominal_lengths_it_uses_not_the_measured_ones(
     assert vis["geometry"]["links_mm"] == [100.0, 100.0]
     assert vis["geometry"]["source"].startswith("nominal model")
     assert vis["e_av_mm"] == pytest.approx(mod["e_av_mm"], rel=1e-9)
+
+
+def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from itg_vision.run import summary_table
+
+    _, shipped = execute(prepare(RunConfig(points=20)))
+    # shipped files relative to the project, the same on every machine; a name as given
+    assert (shipped["rules"], shipped["estimate_rig"], shipped["trajectory"]) == (
+        "data/rules/table2.rules", "cameras/planar.yaml", "ellipse-t1")
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "mine.rules").write_text((root / shipped["rules"]).read_text())
+    (tmp_path / "path.csv").write_text("x_mm,y_mm\n100,50\n101,50\n102,50\n")
+    monkeypatch.chdir(tmp_path)  # a user's files, named relative to where they ran
+    _, s = execute(prepare(RunConfig(rules="mine.rules", trajectory="path.csv", feedback="model")))
+    assert s["rules"] == str((tmp_path / "mine.rules").resolve())
+    assert s["trajectory"] == str((tmp_path / "path.csv").resolve())
+    lines = summary_table(s, tmp_path / "out").splitlines()
+    assert [ln.split()[-1] for ln in lines if ln.startswith("rule base")] == [s["rules"]]
