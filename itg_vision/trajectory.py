@@ -87,12 +87,15 @@ def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Traj
 
 
 def is_closed(points_mm: np.ndarray) -> bool:
-    """Whether the last point is followed by the first: their distance is at most 1.5 times the
-    median spacing of the path (a loop sampled without repeating its start)."""
+    """Whether the last point is followed by the first (a loop sampled without repeating its
+    start): their distance is at most 1.5 times the path's spacing there, the larger of its
+    first and last steps, or its median step (a loop sampled densely in its corners and sparsely
+    along its sides closes with a side's step)."""
     p = np.asarray(points_mm, float)
     if len(p) < 4:
         return False
-    step = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    step = max(float(np.median(steps)), steps[0], steps[-1])
     return step > 0 and float(np.linalg.norm(p[-1] - p[0])) <= 1.5 * step
 
 

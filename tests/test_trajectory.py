@@ -1,6 +1,7 @@
 """Trajectory generators (geometry, the quintic) and the CSV reader."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -101,3 +102,23 @@ def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
     with pytest.raises(UserError) as exc:
         T.read_csv(f)
     assert str(exc.value).startswith(str(f)) and expect in str(exc.value)
+
+
+def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
+    t = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    loop = np.c_[100 + 50 * np.cos(t), 50 * np.sin(t)]
+    assert T.is_closed(loop)  # sampled without repeating its start
+    assert not T.is_closed(loop[:50])  # an arc: the gap is 11 steps
+    assert not T.is_closed(loop[:3])
+    data = Path(__file__).resolve().parents[1] / "data" / "trajectories"
+    # dense in the corners, sparse along the sides: it closes with a side's step (9.2 mm),
+    # which the median step (1.6 mm) does not cover
+    square = np.loadtxt(data / "rounded-square.csv", delimiter=",", skiprows=1)
+    steps = np.linalg.norm(np.diff(square, axis=0), axis=1)
+    assert 1.5 * np.median(steps) < np.linalg.norm(square[-1] - square[0]) <= 1.5 * steps[0]
+    assert T.load(str(data / "rounded-square.csv")).closed
+    for name in ("peanut", "limacon", "rose", "lemniscate", "ellipse-by-base", "trefoil"):
+        assert T.load(str(data / f"{name}.csv")).closed, name
+    for name in ("abcd", "line-ab", "line-ab-reach"):
+        assert not T.load(name).closed, name
+    assert T.load("ellipse-t1").closed
