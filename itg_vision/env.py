@@ -16,9 +16,16 @@ around the LEDs (the same pixels there, ~50x slower). The encoders' joint angles
 ``info["q_deg"]``: a model-free controller does not read them.
 
 ``reset(seed=...)`` rebuilds the world at the start pose and reseeds the feedback: the same
-seed and the same actions give the same observations and rewards, bit for bit. The lengths the
+seed and the same actions give the same observations and rewards, bit for bit. ``reset()``
+without a seed starts the next episode of a reproducible sequence: the config's ``seed`` at
+the first reset, then one more than the last episode's seed. The lengths the
 start-up measurement found (what a model-free controller may know) are in
-``info["geometry"]`` (an :class:`itg_vision.identify.ArmGeometry`) after ``reset``.
+``info["geometry"]`` (an :class:`itg_vision.identify.ArmGeometry`) after ``reset``. After each
+``step``, ``info["missed"]`` names the markers the new observation could not measure (their
+values in it are held from the last good estimate).
+
+An action holds one finite increment per joint (deg); a wrong size or a NaN or infinite value
+raises ``ValueError`` (a NaN joint would spoil the rest of the episode).
 
 Example::
 
@@ -83,7 +90,11 @@ class TrackingEnv(gym.Env):
             cfg = dataclasses.replace(cfg, full_frame=True)
         self.config = cfg
         self.images = bool(images)
-        self._prep = prepare(cfg)
+        # you are the controller: the config's controller and rule settings are not checked
+        # against a rule base that never runs (the Jacobian tracker takes no parameter)
+        self._prep = prepare(dataclasses.replace(cfg, controller="jacobian", rules=None,
+                                                 gain_deg_per_mm=None, step_deg=None,
+                                                 tolerance_mm=None))
         model = self._prep.model
         self.marker_names = model.marker_names
         box = gym.spaces.Box(-POSITION_BOUND_MM, POSITION_BOUND_MM, (3,), np.float64)
@@ -98,13 +109,16 @@ class TrackingEnv(gym.Env):
         self._world: World | None = None
         self._session: Session | None = None
         self._feedback = None
+        self._next_seed = cfg.seed
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self.close()
-        prep, cfg = self._prep, self.config
-        run_seed = cfg.seed if seed is None else int(seed)
+        prep = self._prep
+        cfg = prep.config  # the config as given, its controller settings set aside
+        run_seed = self._next_seed if seed is None else int(seed)
+        self._next_seed = run_seed + 1
         self._feedback = prep.feedback_factory()
         self._feedback.reset(run_seed)
         self._world = World(prep.true_arm)
@@ -113,19 +127,28 @@ class TrackingEnv(gym.Env):
                                 iterations=cfg.iterations, planar=prep.model.planar,
                                 max_step_deg=cfg.max_step_deg,
                                 tracking_start=prep.trajectory.tracking_start)
-        return self._observation(self._session.observe()), {
-            "geometry": geometry, "q_deg": self._world.q_deg.copy(), "k": 0}
+        markers = self._session.observe()
+        return self._observation(markers), {
+            "geometry": geometry, "q_deg": self._world.q_deg.copy(), "k": 0,
+            "missed": tuple(markers.missed)}
 
     def step(self, action):
         if self._session is None:
             raise RuntimeError("call reset() before step()")
-        dq = np.asarray(action, float).reshape(self.action_space.shape)
+        dq = np.asarray(action, float)
+        if dq.size != self.action_space.shape[0]:
+            raise ValueError(f"action: {self.action_space.shape[0]} joint increments (deg) "
+                             f"expected, got shape {dq.shape}")
+        dq = dq.reshape(self.action_space.shape)
+        if not np.isfinite(dq).all():
+            raise ValueError(f"action: joint increments must be finite, got {dq.tolist()}")
         k = self._session.k
         e = self._session.apply(Step(dq, (), False))
         terminated = self._session.done
-        obs = self._observation(self._session.observe())
+        markers = self._session.observe()
+        obs = self._observation(markers)
         info = {"e_mm": e, "k": k, "q_deg": self._world.q_deg.copy(),
-                "missed": self._session.trace.records[-1].flags if terminated else ()}
+                "missed": tuple(markers.missed)}
         if terminated:
             info["metrics"] = self._session.trace.metrics()
         return obs, -e, terminated, False, info

@@ -1074,8 +1074,16 @@ def resolve_rules_path(name_or_path: str) -> Path:
 
 
 def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase:
-    """A rule base for an arm with ``n_joints`` joints; refused unless it moves every one."""
+    """A rule base for an arm with ``n_joints`` joints; refused unless it moves every one.
+
+    ``params``: ``f`` (deg/mm), ``S`` (deg), ``w`` (mm), the rules' parameters; those not given
+    take :class:`RuleBase`'s defaults (f 0.06, S 0.5, w 0.5), not ``run``'s (0.5, 2, 0.5:
+    ``runner.RULE_DEFAULTS``). A rule base whose S is the servo limit (``#! S is the servo
+    limit``, the ITG+ files) needs ``S`` given: the servo's largest step per iteration."""
     rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
+    if rb.servo_step and "S" not in params:
+        raise UserError(f"{rb.source}: S is the servo limit here (its '#! S is the servo limit' "
+                        "line): give S, the largest joint step per iteration in deg")
     unmoved = rb.unmoved_joints()
     if unmoved:
         from .arm import ArmSpec, arm_names

@@ -95,3 +95,51 @@ def test_env_refuses_an_aim_it_would_not_apply(aim):
     with pytest.raises(ConfigError, match=f"{next(iter(aim))}: aims a controller; in the "
                                           "environment you are the controller"):
         TrackingEnv(feedback="truth", max_step_deg=20, **aim)
+
+
+def test_env_refuses_actions_it_cannot_apply():
+    env = TrackingEnv(feedback="truth", points=5)
+    env.reset(seed=0)
+    for bad in ([np.nan, 0.0], [np.inf, 0.0]):
+        with pytest.raises(ValueError, match="action: joint increments must be finite"):
+            env.step(bad)
+    with pytest.raises(ValueError, match=r"action: 2 joint increments \(deg\) expected, got shape \(3,\)"):
+        env.step([1.0, 2.0, 3.0])
+    _, _, _, _, info = env.step([1.0, -1.0])  # the refusals left the episode as it was
+    assert info["k"] == 0 and np.isfinite(info["q_deg"]).all()
+    env.close()
+
+
+def test_info_names_the_markers_each_observation_missed():
+    env = TrackingEnv(feedback="vision", points=12, supersample=1, dropout=0.5)
+    _, info = env.reset(seed=0)
+    missed = [info["missed"]]
+    done = False
+    while not done:
+        _, _, done, _, info = env.step([0.0, 0.0])
+        missed.append(info["missed"])
+    # every look the session counted as missed is reported at the step that made it
+    assert sum(map(len, missed)) == env.trace.n_missed > 0
+    assert set().union(*missed) <= {"gripper", "elbow"}
+    env.close()
+
+
+def test_reset_without_a_seed_runs_the_next_episode_of_a_reproducible_sequence():
+    def firsts(seeds):
+        env = TrackingEnv(feedback="truth", noise_mm=0.3, points=5, seed=10)
+        out = [env.reset(seed=s)[0]["gripper_mm"] for s in seeds]
+        env.close()
+        return out
+
+    by_seed = firsts([10, 11, 7, 8])
+    # a fresh env: the config's seed, then the next; a seed given, then the next after it
+    assert all(np.array_equal(a, b) for a, b in zip(firsts([None, None, 7, None]), by_seed))
+    assert not np.array_equal(by_seed[0], by_seed[1])
+
+
+def test_controller_and_rule_settings_are_not_checked_the_env_has_no_controller():
+    # table2 uses no S and ik takes no gain: a controller would refuse these; the env ignores them
+    env = TrackingEnv(feedback="truth", points=5, step_deg=2.0, controller="ik", gain_deg_per_mm=5.0)
+    obs, info = env.reset(seed=0)
+    assert info["geometry"].source.startswith("measured")  # a model-free user learns the lengths
+    env.close()

@@ -141,7 +141,7 @@ def test_an_unusable_cache_is_one_clear_error(tmp_path, monkeypatch):
 def test_the_c_function_is_plain_c99_of_doubles():
     """The portable part (what a microcontroller port takes) names no Python API."""
     arm = ArmSpec.from_args("two-link")
-    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm)
+    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm, S=20.0)
     text = native.c_function(rb)
     assert text.startswith("static int itg_rules(const double *in, double *dq, int *fired, int *n_fired)")
     assert "Py" not in text and "sqrt" not in text and "atan" not in text and "sin(" not in text
@@ -150,7 +150,7 @@ def test_the_c_function_is_plain_c99_of_doubles():
 def test_the_c_source_compiles_alone_as_c99(tmp_path):
     """c_source is a whole C99 file: the function and the helpers it calls, nothing implicit."""
     arm = ArmSpec.from_args("two-link")
-    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm)
+    rb = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm, S=20.0)
     (tmp_path / "rules.c").write_text(native.c_source(rb))
     res = subprocess.run([*native.compiler(), "-std=c99", "-pedantic-errors",
                           "-Werror=implicit-function-declaration", "-c", "rules.c", "-o", "rules.o"],

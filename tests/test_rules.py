@@ -590,3 +590,11 @@ def test_compiled_layered_rule_bases_equal_the_tree_walking_reference():
             args = tuple(pick(SPECIAL_VALUES) if rng.random() < 0.3 else float(rng.normal(0, 3))
                          for _ in rb.argument_names)
             _assert_compiled_is_reference(rb, args)
+
+
+def test_a_rule_base_whose_s_is_the_servo_limit_needs_s_given():
+    with pytest.raises(UserError, match="itg-plus-two-link.rules: S is the servo limit here"):
+        load_rules("itg-plus-two-link", 2, TWO)
+    rb = load_rules("itg-plus-two-link", 2, TWO, S=20.0)
+    assert rb.servo_step and rb.S == 20.0
+    assert load_rules("table2", 2, TWO).S == RuleBase.S  # a fixed S keeps its default
