@@ -88,11 +88,19 @@ def error_figure(trace, title: str, path) -> None:
 
 
 def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, logx=False,
-                 logy=False, marker="o") -> None:
-    """Generic curves: ``series`` maps a label to (x, y) arrays."""
+                 logy=False, marker="o", hlines=(), vspans=()) -> None:
+    """Generic curves: ``series`` maps a label to (x, y) arrays. ``hlines``: (y, label[, colour])
+    drawn dashed (a threshold); ``vspans``: (x0, x1, label) bands shaded (a tolerance; the
+    label is shown once)."""
     fig, ax = plt.subplots(figsize=(6, 3.8))
     for label, (x, y) in series.items():
         ax.plot(x, y, marker=marker, ms=3, lw=1.2, label=label)
+    for y, label, *color in hlines:
+        ax.axhline(y, color=color[0] if color else "k", ls="--", lw=0.9, label=label)
+    shown = set()
+    for x0, x1, label in vspans:
+        ax.axvspan(x0, x1, color="0.85", zorder=0, label=None if label in shown else label)
+        shown.add(label)
     if logx:
         ax.set_xscale("log")
     if logy:

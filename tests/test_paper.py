@@ -34,6 +34,14 @@ def test_paper_writes_every_figure_and_a_report(paper_run):
         assert f"| {k} |" in text
     for png in ("exp1_path", "exp3_eav_vs_nt", "exp4_eav_vs_f", "exp5_second_lap", "exp6_line_ab"):
         assert (out / f"{png}.png").stat().st_size > 5000
+    # each figure sits under its experiment's claim and verdict, not in a list at the end
+    figures = text.split("## The figures, each beside the paper's claim")[1]
+    sections = {sec.split(".")[0]: sec for sec in figures.split("\n### ")[1:]}
+    assert set(sections) == {"1", "2", "3", "4", "5", "6"}
+    for k, sec in sections.items():
+        pngs = sorted(line.split("](")[1][:-1] for line in sec.splitlines() if line.startswith("!["))
+        assert pngs and all(png.startswith(f"exp{k}_") and (out / png).is_file() for png in pngs)
+        assert any(v in sec.splitlines()[0] for v in ("agrees", "partly", "disagrees"))
 
 
 def _row(text, key):
@@ -85,3 +93,10 @@ def test_three_link_start_tie_is_decided_by_its_sign_not_by_the_links():
         elif row["elbow_bias_mm"] < 0:
             assert row["rg2_minus_re2_mm2"] > 0 and row["first_q3_rule"] == 7
             assert row["track_median_mm"] < 1
+
+
+def test_peaks_are_ordered_largest_first_so_the_verdict_takes_the_largest():
+    e = np.zeros(100)
+    e[[10, 50, 80]] = 5.0, 9.0, 7.0
+    assert paper._peaks(e).tolist() == [50, 80, 10]
+    assert paper._peaks(e, k=1).tolist() == [50]
