@@ -8,7 +8,8 @@ against the true rig.
 Outputs: the calibrated rig (``runs/calibrate/<rig>.calib.yaml`` by default: the shipped
 ``cameras/<rig>.calib.yaml`` is rewritten only when named with ``--out``), in the rig schema with
 a ``calibration`` section and ``true_rig`` (the rig that rendered, relative to the file's folder),
-and a picture of the detected corners of one view (``<name>.calib.png`` beside it).
+and a picture of the detected corners of one view, titled with the rig, the camera and the view
+(``<name>.calib.png`` beside it).
 """
 
 from __future__ import annotations
@@ -96,16 +97,19 @@ def summary_table(r: dict) -> str:
     names = list(e["cameras"])
     rows = [("", *names)]
     rows.append(("reprojection RMS (px)", *(f"{r['reprojection_rms_px'][n]:.3f}" for n in names)))
-    rows.append(("worst view's RMS (px)", *(f"{max(r['per_view_rms_px'][n]):.3f}" for n in names)))
-    rows.append(("focal length fx, fy (%)", *(
+    rows.append(("worst view's reprojection RMS (px)",
+                 *(f"{max(r['per_view_rms_px'][n]):.3f}" for n in names)))
+    # against the true rig (calibrated - true), as error_vs_true in the file
+    rows.append(("focal length error fx, fy (%)", *(
         "{:+.3f}, {:+.3f}".format(*e["cameras"][n]["focal_length_pct"]) for n in names)))
-    rows.append(("principal point u, v (px)", *(
+    rows.append(("principal point error u, v (px)", *(
         "{:+.2f}, {:+.2f}".format(*e["cameras"][n]["principal_point_px"]) for n in names)))
-    rows.append(("distortion, max over image (px)", *(
+    rows.append(("distortion error, max over image (px)", *(
         f"{e['cameras'][n]['distortion_max_px']:.3f}" for n in names)))
-    rows.append(("rotation (deg)", *(f"{e['cameras'][n]['rotation_deg']:.3f}" for n in names)))
-    rows.append(("world position (mm)", *(f"{e['cameras'][n]['position_mm']:.2f}"
+    rows.append(("rotation error (deg)", *(f"{e['cameras'][n]['rotation_deg']:.3f}"
                                            for n in names)))
+    rows.append(("world position error (mm)", *(f"{e['cameras'][n]['position_mm']:.2f}"
+                                                 for n in names)))
     led = r["led_triangulation"]
     u = r["views_used"]
     rows.insert(1, ("views used", *(str(u[n]) for n in names)))
@@ -158,9 +162,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "file is replaced only if it is a calibration of this rig")
     ap.add_argument("--force", action="store_true",
                     help="replace --out even if it is not a calibration of this rig")
-    ap.add_argument("--arm", choices=arm_names(),
-                    help="arm whose LEDs tie the rig to the base frame (default: three-link for "
-                         "the three-link rig, else two-link)")
+    ap.add_argument("--arm", metavar="NAME|PATH",
+                    help=f"arm whose LEDs tie the rig to the base frame: a shipped arm "
+                         f"({', '.join(arm_names())}) or an arm file FILE.yaml (default: "
+                         "three-link for the three-link rig, else two-link)")
     ap.add_argument("--tilt", type=float, default=45.0, metavar="DEG",
                     help="largest board tilt about each in-plane axis (default %(default)s; "
                          "0 shows the board fronto-parallel, which is degenerate)")
@@ -219,7 +224,8 @@ class Job:
             true_rig = dataclasses.replace(true_rig, cameras=tuple(
                 dataclasses.replace(c, noise_sigma_gray=float(args.sensor_noise))
                 for c in true_rig.cameras))
-        arm = ArmSpec.from_args(args.arm or arm_of_rig(true_rig.name))
+        arm_arg = args.arm or arm_of_rig(true_rig.name)  # a name or an arm file, as run's
+        arm = ArmSpec.from_args(arm_arg)
         true_arm = arm
         if args.true_links is not None:
             try:
@@ -228,7 +234,7 @@ class Job:
                 raise UserError(f"--true-links: expected lengths in mm separated by commas, "
                                 f"got {args.true_links!r}") from None
             try:
-                true_arm = ArmSpec.from_args(arm.name, links)
+                true_arm = ArmSpec.from_args(arm_arg, links)
             except UserError as exc:
                 raise UserError(str(exc).replace("--links", "--true-links")) from None
         # '' is the empty-path error (check_path), not the default
@@ -251,8 +257,10 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         job = Job.from_args(build_parser().parse_args(argv))
         check_out(job.out, job.rig_path, job.force)  # before the work, not after it
-        bar = progress(progress_steps(job.arm, job.views, job.check_poses), "calibrate",
-                       quiet=job.quiet, unit="view")
+        # one step per rendered pose: the board's, then the arm's (joint sweeps, check poses)
+        steps = progress_steps(job.arm, job.views, job.check_poses)
+        bar = progress(steps, f"calibrate ({job.views} board + {steps - job.views} arm poses)",
+                       quiet=job.quiet, unit="pose")
         try:
             result = calibrate(job.true_rig, job.arm, views=job.views, seed=job.seed,
                                tilt_deg=job.tilt_deg, true_arm=job.true_arm,

@@ -27,8 +27,9 @@ The board, its poses, views and corners: :mod:`itg_vision.board`. From the corne
 
 :func:`calibrate` does it all and returns a :class:`Result`; :func:`write_result` writes the
 calibrated rig (the rig schema with a ``calibration`` section and ``true_rig``, the rig that
-rendered, relative to the file's folder) and a picture of the detected corners of one view
-(``<name>.png`` beside it). The command line: :mod:`itg_vision.calibrate`.
+rendered, relative to the file's folder) and a picture of the detected corners of one view,
+titled with the rig, the camera and the view (``<name>.png`` beside it). The command line:
+:mod:`itg_vision.calibrate`.
 """
 
 from __future__ import annotations
@@ -129,9 +130,11 @@ def _mono(obj, img, size, flags):
 
 
 def calibrate_views(views: Views, board: Board, size: tuple[int, int],
-                    camera_names=("camera 1", "camera 2"), *,
+                    camera_labels=("camera 1", "camera 2"), *,
                     min_views: int = MIN_VIEWS) -> StereoCalibration:
     """Mono calibration of each camera, outlier views out, then stereo calibration.
+    ``camera_labels``: how a message names each camera (:func:`calibrate`: its rig file and
+    place, ``cameras/planar.yaml: cameras[0] (left)``).
 
     Raises
     ------
@@ -142,7 +145,7 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
     found = [sum(c[i] is not None for c in views.corners) for i in range(2)]
     for i in range(2):
         if found[i] == 0:
-            raise UserError(f"{camera_names[i]} never found the board in {n} views: is it "
+            raise UserError(f"{camera_labels[i]}: never found the board in {n} views: is it "
                             f"pointed at the workspace?")
     seen = [[k for k, c in enumerate(views.corners) if c[i] is not None] for i in range(2)]
     both = [k for k in seen[0] if k in set(seen[1])]
@@ -418,7 +421,8 @@ class Result:
     ----------
     rig : the calibrated rig in the world (base) frame, ``calibration`` filled in.
     record : the ``calibration`` section (plain Python types).
-    picture : RGB image of one view with its detected corners drawn (None if none).
+    picture : RGB image of one view with its detected corners drawn, under a title
+        (:func:`corner_picture`; None if no view showed the board to both cameras).
     stereo : what the board views gave (intrinsics, their uncertainty, the pair).
     """
 
@@ -503,7 +507,9 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
                           progress=tick("board"))
         t1 = time.perf_counter()
         size = true_rig.cameras[0].size
-        cal = calibrate_views(vs, board, size, tuple(c.name for c in true_rig.cameras))
+        cal = calibrate_views(vs, board, size, tuple(
+            f"{true_rig.source or true_rig.name}: cameras[{i}] ({c.name})"
+            for i, c in enumerate(true_rig.cameras)))
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)
@@ -556,8 +562,11 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
     picture = None
     if vs.sample is not None:
         k, img = vs.sample
-        picture = img.copy()
-        cv2.drawChessboardCorners(picture, board.pattern_size, vs.corners[k][0], True)
+        picture = corner_picture(img, board, vs.corners[k][0], [
+            f"{true_rig.name} rig, {c1.name} camera: view {k} (of {views} shown), "
+            f"{len(vs.corners[k][0])} corners detected",
+            f"calibrated from {len(cal.used[0])} {c1.name} and {len(cal.used[1])} {c2.name} "
+            f"views, {len(cal.stereo_views)} in both"])
         record["picture_view"] = k
     return Result(rig, record, picture,
                   {"board_s": t1 - t0, "calibrate_s": t2 - t1, "leds_s": t3 - t2,
@@ -565,6 +574,22 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
 
 
 # ---------------------------------------------------------------------------- the file
+def corner_picture(img: np.ndarray, board: Board, corners: np.ndarray,
+                   title: list[str]) -> np.ndarray:
+    """``img`` (RGB, uint8, shape (H, W, 3)) with the detected ``corners`` drawn, under a white
+    band holding the ``title`` lines (the font shrunk to fit the width): shape (H + band, W, 3)."""
+    picture = img.copy()
+    cv2.drawChessboardCorners(picture, board.pattern_size, corners, True)
+    font, scale, line_px = cv2.FONT_HERSHEY_SIMPLEX, 0.5, 20
+    widest = max(cv2.getTextSize(t, font, scale, 1)[0][0] for t in title)
+    scale *= min(1.0, (picture.shape[1] - 16) / widest)
+    band = np.full((line_px * len(title) + 8, picture.shape[1], 3), 255, np.uint8)
+    band[-1] = 128  # a grey rule between the title and the view
+    for i, text in enumerate(title):
+        cv2.putText(band, text, (8, line_px * (i + 1)), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([band, picture])
+
+
 def picture_path(out: Path) -> Path:
     """The corner picture beside the calibrated rig: ``x.calib.yaml`` -> ``x.calib.png``."""
     return out.with_name(out.name.removesuffix(".yaml").removesuffix(".yml") + ".png")

@@ -20,12 +20,15 @@ Rig files (``cameras/*.yaml``) use ROS ``camera_info`` names where natural::
           look_at_mm: [x, y, z]     #   and the world direction that appears "up" in the image
           up: [0, 0, 1]
           # position_mm + rotation_deg: [rx, ry, rz]  (Rodrigues vector of R world->camera, deg)
-          # rotation_matrix: {rows: 3, cols: 3, data: [9]} + translation_mm: [3]  (exact; saved)
+          # rotation_matrix: {rows: 3, cols: 3, data: [9]} + translation_mm: [3]  (exact; saved
+          #   with position_mm for readers, which must agree)
         sensor: {noise_sigma_gray: 2.0, exposure: 1.0}
     supersample: 2                  # optional: the vision loop's rendering factor (run's
                                     # --supersample overrides; default in feedback.py)
     calibration: {...}              # optional, written by calibration
     true_rig: cameras/planar.yaml   # optional, the rig a calibrated rig was measured from
+
+Any other key, or a pose giving more than one form, is refused (one line naming the field).
 """
 
 from __future__ import annotations
@@ -384,7 +387,7 @@ def _camera_to_dict(c: Camera) -> dict:
         "pose": {
             "rotation_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in c.R.ravel()]},
             "translation_mm": list(c.translation_mm),
-            "position_mm": [round(float(v), 3) for v in c.position_mm],  # for readers; ignored
+            "position_mm": [round(float(v), 3) for v in c.position_mm],  # for readers; checked
         },
         "sensor": {"noise_sigma_gray": c.noise_sigma_gray, "exposure": c.exposure},
     }
@@ -396,10 +399,11 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     F = Fields(path)
     if not isinstance(doc, dict):
         F.fail("(top level)", "must be a mapping with 'name' and 'cameras'")
-    name = F.get(doc, "name", "")
+    name = F.get(doc, "name", "")  # a file without name or cameras: "name: missing", first
     if not isinstance(name, str) or not name:
         F.fail("name", "must be a non-empty string")
     cams = F.get(doc, "cameras", "")
+    F.mapping(doc, "(top level)", ("name", "cameras"), ("supersample", "calibration", "true_rig"))
     if not isinstance(cams, list) or len(cams) != 2:
         F.fail("cameras", "must be a list of exactly two cameras")
     cameras = tuple(_camera_from_dict(F, c, f"cameras[{i}]") for i, c in enumerate(cams))
@@ -424,13 +428,13 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
 
 
 def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
-    if not isinstance(d, dict):
-        F.fail(where, "must be a mapping")
-    name = F.get(d, "name", where)
+    F.mapping(d, where, ("name", "image_width", "image_height", "camera_matrix",
+                         "distortion_coefficients", "pose"), ("distortion_model", "sensor"))
+    name = d["name"]
     if not isinstance(name, str) or not name:
         F.fail(f"{where}.name", "must be a non-empty string")
-    W = F.integer(F.get(d, "image_width", where), f"{where}.image_width")
-    H = F.integer(F.get(d, "image_height", where), f"{where}.image_height")
+    W = F.integer(d["image_width"], f"{where}.image_width")
+    H = F.integer(d["image_height"], f"{where}.image_height")
     if W <= 0:
         F.fail(f"{where}.image_width", f"must be > 0, got {W}")
     if H <= 0:
@@ -440,7 +444,7 @@ def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
                       f"to render a frame ({BYTES_PER_PIXEL} bytes per pixel); the limit is "
                       f"{MAX_IMAGE_PIXELS / 1e6:.1f} Mpx (4096 x 4096)")
     km = f"{where}.camera_matrix"
-    K = F.array(F.get(d, "camera_matrix", where), 9, km).reshape(3, 3)
+    K = F.array(d["camera_matrix"], 9, km).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     for label, f in (("fx", fx), ("fy", fy)):
         if f <= 0:
@@ -462,8 +466,7 @@ def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
     model = d.get("distortion_model", "plumb_bob")
     if model != "plumb_bob":
         F.fail(f"{where}.distortion_model", f"only plumb_bob is supported, got {model!r}")
-    dist = F.array(F.get(d, "distortion_coefficients", where), 5,
-                     f"{where}.distortion_coefficients")
+    dist = F.array(d["distortion_coefficients"], 5, f"{where}.distortion_coefficients")
     if np.max(np.abs(dist)) > MAX_DISTORTION:
         F.fail(f"{where}.distortion_coefficients", f"each must be within +-{MAX_DISTORTION:g}, "
                                                    f"got {np.max(np.abs(dist)):g}")
@@ -475,10 +478,9 @@ def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
         F.fail(where, f"this lens needs a {W + 2 * margin} x {H + 2 * margin} px render for a "
                       f"{W} x {H} px image, about {rendered * BYTES_PER_PIXEL / 1e9:.3g} GB per "
                       f"frame; the limit is {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx")
-    R, t = _pose_from_dict(F, F.get(d, "pose", where), f"{where}.pose")
-    sensor = d.get("sensor", {}) or {}
-    if not isinstance(sensor, dict):
-        F.fail(f"{where}.sensor", "must be a mapping")
+    R, t = _pose_from_dict(F, d["pose"], f"{where}.pose")
+    sensor = F.mapping(d.get("sensor") or {}, f"{where}.sensor", (),
+                       ("noise_sigma_gray", "exposure"))
     sigma = F.number(sensor.get("noise_sigma_gray", 2.0), f"{where}.sensor.noise_sigma_gray")
     if not 0 <= sigma <= 255:
         F.fail(f"{where}.sensor.noise_sigma_gray", f"must be in [0, 255] grey levels, got {sigma:g}")
@@ -530,18 +532,41 @@ def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
     return "", int(np.ceil(margin)) + 2
 
 
+#: The pose forms of a rig file (see the module docstring): (required, optional) keys. The
+#: exact form's position_mm is written for readers; it must agree with the pose.
+POSE_FORMS = ((("position_mm", "look_at_mm"), ("up",)),
+              (("position_mm", "rotation_deg"), ()),
+              (("rotation_matrix", "translation_mm"), ("position_mm",)))
+#: How far (mm) the exact form's position_mm may be from the pose's (written to 0.001 mm).
+POSITION_TOL_MM = 0.01
+
+
 def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(d, dict):
         F.fail(where, "must be a mapping")
+    own = [[k for k in d if k in req + opt and k != "position_mm"] for req, opt in POSE_FORMS]
+    forms = [f for f, keys in zip(POSE_FORMS, own) if keys]
+    if len(forms) != 1:
+        given = "; ".join(" + ".join(keys) for keys in own if keys)
+        head = f"gives more than one pose form ({given}): keep one of " if forms else "needs "
+        F.fail(where, head + "look_at_mm, rotation_deg or rotation_matrix + translation_mm")
+    F.mapping(d, where, *forms[0])
     if "rotation_matrix" in d:
         R = F.array(d["rotation_matrix"], 9, f"{where}.rotation_matrix").reshape(3, 3)
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             F.fail(f"{where}.rotation_matrix", "must be a rotation (orthonormal, det +1)")
-        t = F.array(F.get(d, "translation_mm", where), 3, f"{where}.translation_mm")
+        t = F.array(d["translation_mm"], 3, f"{where}.translation_mm")
         if np.max(np.abs(t)) > MAX_POSITION_MM:
             F.fail(f"{where}.translation_mm", f"each must be within +-{MAX_POSITION_MM:g} mm")
+        if "position_mm" in d:
+            C = -R.T @ t
+            given = F.array(d["position_mm"], 3, f"{where}.position_mm")
+            if np.max(np.abs(given - C)) > POSITION_TOL_MM:
+                F.fail(f"{where}.position_mm", "contradicts rotation_matrix + translation_mm "
+                       f"(camera centre [{', '.join(f'{v:.3f}' for v in C)}]): correct or "
+                       "remove it")
         return R, t
-    C = F.array(F.get(d, "position_mm", where), 3, f"{where}.position_mm")
+    C = F.array(d["position_mm"], 3, f"{where}.position_mm")
     if np.max(np.abs(C)) > MAX_POSITION_MM:
         F.fail(f"{where}.position_mm", f"each must be within +-{MAX_POSITION_MM:g} mm")
     if "look_at_mm" in d:
@@ -553,13 +578,11 @@ def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarr
             R = look_at_rotation(C, target, up)
         except ValueError:
             F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
-    elif "rotation_deg" in d:
+    else:
         rv = F.array(d["rotation_deg"], 3, f"{where}.rotation_deg")
         if np.max(np.abs(rv)) > 3600:
             F.fail(f"{where}.rotation_deg", "each must be within +-3600 deg")
         R, _ = cv2.Rodrigues(np.radians(rv))
-    else:
-        F.fail(where, "needs look_at_mm, rotation_deg or rotation_matrix + translation_mm")
     return R, -R @ C
 
 

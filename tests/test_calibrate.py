@@ -194,6 +194,66 @@ def test_summary_table_lists_the_figures(planar_result):
         assert word in text
 
 
+def test_summary_table_labels_the_errors_against_the_true_rig():
+    """The rows comparing with the true rig say so ("error"), as the README's table does; the
+    values are the file's error_vs_true (calibrated - true)."""
+    record = Rig.from_yaml(ROOT / "cameras" / "planar.calib.yaml").calibration
+    rows = {line[:45].strip(): line[45:].split() for line in summary_table(record).splitlines()}
+    assert rows["focal length error fx, fy (%)"] == ["-0.073,", "-0.064", "-0.108,", "-0.100"]
+    assert rows["principal point error u, v (px)"] == ["-0.19,", "-0.41", "-0.44,", "+0.25"]
+    assert rows["distortion error, max over image (px)"] == ["0.477", "0.817"]
+    assert rows["rotation error (deg)"] == ["0.036", "0.055"]
+    assert rows["world position error (mm)"] == ["0.47", "0.60"]
+    assert rows["worst view's reprojection RMS (px)"] == ["0.202", "0.195"]
+
+
+def test_corner_picture_has_a_title_above_the_view():
+    """The picture is the view with its corners drawn, under a band with the title's lines."""
+    board = cal.Board()
+    img = np.full((480, 640, 3), 200, np.uint8)
+    cols, rows = board.pattern_size
+    corners = np.array([[[100 + 20 * i, 100 + 20 * j]] for j in range(rows) for i in range(cols)],
+                       np.float32)
+    title = ["planar rig, left camera: view 0 (of 60 shown), 54 corners detected", "second line"]
+    pic = cal.corner_picture(img, board, corners, title)
+    band = pic.shape[0] - 480
+    assert band == 20 * len(title) + 8 and pic.shape[1:] == (640, 3)
+    assert pic[:21].min() < 100 and pic[21:band].min() < 100  # each line's dark text
+    assert (pic[band:] != img).any()  # the corners drawn on the view
+    assert (pic[band:, 300:] == img[:, 300:]).all()  # nowhere else: the title is above it
+
+
+def test_progress_counts_the_poses_it_renders(tmp_path, monkeypatch, main_in_process):
+    """The bar's total is every rendered pose (board views, then the arm's sweeps and check
+    poses) and says so: it read "126/126 view" for 60 views."""
+    from itg_vision import calibrate as command
+
+    def fake_calibrate(true_rig, arm, *, progress, **kw):
+        for _ in range(cal.progress_steps(arm, 60, 20)):
+            progress("board")
+        raise UserError("stop")
+
+    monkeypatch.setattr(command, "calibrate", fake_calibrate)
+    proc = main_in_process("itg_vision.calibrate", "--out", tmp_path / "x.calib.yaml")
+    sweeps = sum(len(q) for q, _ in cal.axis_sweeps(ArmSpec.from_args("two-link")).values())
+    n = 60 + sweeps + 20  # 126
+    assert proc.stderr.splitlines()[-2].startswith(
+        f"calibrate (60 board + {sweeps + 20} arm poses): {n}/{n} pose (100%), ")
+
+
+def test_arm_may_be_an_arm_file_with_true_links(tmp_path):
+    """--arm takes a shipped arm or an arm file, as run's; --true-links applies to that file
+    (it reloaded the arm by its name, unknown outside data/arms)."""
+    from itg_vision.calibrate import Job, build_parser
+
+    text = (ROOT / "data" / "arms" / "two-link.yaml").read_text()
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(text.replace("name: two-link", "name: mine"))
+    job = Job.from_args(build_parser().parse_args(["--arm", str(mine), "--true-links", "105,95"]))
+    assert (job.arm.name, job.arm.source, job.arm.links_mm) == ("mine", str(mine), (100.0, 100.0))
+    assert (job.true_arm.name, job.true_arm.links_mm) == ("mine", (105.0, 95.0))
+
+
 # ---------------------------------------------------------------------------- failures
 def _camera_looking_away(tmp_path):
     d = yaml.safe_load(PLANAR.read_text())
@@ -207,7 +267,9 @@ def _camera_looking_away(tmp_path):
 @pytest.mark.parametrize("args, expect", [
     (["--views", "2"], "found by both cameras in only"),
     (["--views", "12", "--tilt", "0"], "degenerate board poses"),
-    (["--views", "6", "--rig", "AWAY"], "right never found the board"),
+    # names the rig file and the camera's place in it (the file was not named before)
+    (["--views", "6", "--rig", "AWAY"], "away.yaml: cameras[1] (right): never found the board in "
+                                        "6 views: is it pointed at the workspace?"),
     (["--views", "0"], "--views"),
     (["--rig", "no-such-rig"], "cannot read rig file"),
 ])

@@ -152,6 +152,17 @@ _K = [600.0, 0.0, 319.5, 0.0, 600.0, 239.5, 0.0, 0.0, 1.0]
     (("cameras", 0, "distortion_model"), "fisheye", "cameras[0].distortion_model"),
     (("cameras",), [], "cameras: must be a list of exactly two"),
     (("name",), _DELETE, "name: missing"),
+    # unknown and contradicting keys (they ran, ignored, before)
+    (("supersampel",), 1,
+     "supersampel: unknown field (known: name, cameras, supersample, calibration, true_rig)"),
+    (("cameras", 0, "sensor", "noise_sigma_grey"), 20,
+     "cameras[0].sensor.noise_sigma_grey: unknown field (known: noise_sigma_gray, exposure)"),
+    (("cameras", 1, "focal_mm"), 8, "cameras[1].focal_mm: unknown field (known: name, "),
+    (("cameras", 0, "pose", "rotation_deg"), [180, 0, 0], "cameras[0].pose: gives more than "
+     "one pose form (look_at_mm + up; rotation_deg): keep one of look_at_mm, rotation_deg or "
+     "rotation_matrix + translation_mm"),
+    (("cameras", 1, "pose", "translation_mm"), [0, 0, 600],
+     "cameras[1].pose: gives more than one pose form (look_at_mm + up; translation_mm)"),
 ])
 def test_bad_rig_file_names_the_field(tmp_path, keys, value, expected):
     doc = yaml.safe_load(PLANAR.read_text())
@@ -162,6 +173,45 @@ def test_bad_rig_file_names_the_field(tmp_path, keys, value, expected):
         Rig.from_yaml(path)
     msg = str(exc.value)
     assert msg.startswith(f"{path}: ") and expected in msg and "\n" not in msg
+
+
+def _mappings(doc):
+    """Where a key can go in a rig document: (place in the message, the mapping)."""
+    yield "", doc
+    for i, cam in enumerate(doc["cameras"]):
+        yield f"cameras[{i}].", cam
+        yield f"cameras[{i}].pose.", cam["pose"]
+        yield f"cameras[{i}].sensor.", cam["sensor"]
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "cameras").glob("*.yaml")), ids=lambda p: p.name)
+def test_shipped_rigs_load_and_an_unknown_key_anywhere_is_refused(path, tmp_path):
+    """Every key the shipped rigs and calibrations use is known (they load); a key added to any
+    mapping of theirs is one line naming the file and the key."""
+    Rig.from_yaml(path)
+    text, bad = path.read_text(), tmp_path / path.name
+    for k in range(len(list(_mappings(yaml.safe_load(text))))):
+        doc = yaml.safe_load(text)
+        place, mapping = list(_mappings(doc))[k]
+        mapping["colour"] = 1
+        bad.write_text(yaml.safe_dump(doc))
+        with pytest.raises(UserError) as exc:
+            Rig.from_yaml(bad)
+        assert str(exc.value).startswith(f"{bad}: {place}colour: unknown field (known: ")
+
+
+def test_a_saved_pose_whose_position_contradicts_it_is_refused(tmp_path):
+    """The exact pose form also writes position_mm, for readers: edited (to move the camera), it
+    would be ignored; it is refused instead."""
+    doc = yaml.safe_load((ROOT / "cameras" / "planar.calib.yaml").read_text())
+    doc["cameras"][1]["pose"]["position_mm"][0] += 10.0
+    path = tmp_path / "moved.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(UserError) as exc:
+        Rig.from_yaml(path)
+    assert str(exc.value) == (f"{path}: cameras[1].pose.position_mm: contradicts rotation_matrix "
+                              "+ translation_mm (camera centre [179.873, -59.845, 619.432]): "
+                              "correct or remove it")
 
 
 def test_unreadable_rig_file(tmp_path):
