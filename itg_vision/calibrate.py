@@ -24,7 +24,7 @@ from .arm import ArmSpec, arm_names
 from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrate,
                           picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
-from .errors import UserError, run_main
+from .errors import UserError, exit_status, run_main
 from .outputs import check_path
 from .progress import progress
 
@@ -281,4 +281,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))

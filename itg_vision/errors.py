@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from typing import Callable
 
@@ -75,3 +76,12 @@ def run_main(body: Callable[[], int]) -> int:
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130
+
+
+def exit_status(status: int) -> int:
+    """A command's ``__main__``: ``sys.exit(exit_status(main()))``. After an interruption (130)
+    a further Ctrl-C is ignored while the interpreter exits: it would land in the exit hooks
+    that join a process pool's threads and print their traceback."""
+    if status == 130:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return status

@@ -18,7 +18,7 @@ import numpy as np
 
 from . import outputs, plot
 from . import trajectory as traj
-from .errors import run_main
+from .errors import exit_status, run_main
 from .feedback import Markers, TruthFeedback
 from .identify import nominal_geometry
 from .loop import simulate
@@ -466,4 +466,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))

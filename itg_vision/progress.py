@@ -23,6 +23,7 @@ class LineProgress:
         self.steps, self.min_interval_s, self.max_interval_s = steps, min_interval_s, max_interval_s
         self.t0 = self._last_t = time.monotonic()
         self._last_step = self._last_n = 0
+        self._last_postfix = ""
         self.closed = False
 
     def _line(self) -> str:
@@ -33,7 +34,7 @@ class LineProgress:
 
     def _emit(self) -> None:
         print(self._line(), file=self.file, flush=True)
-        self._last_t, self._last_n = time.monotonic(), self.n
+        self._last_t, self._last_n, self._last_postfix = time.monotonic(), self.n, self.postfix
 
     def update(self, n: int = 1) -> None:
         self.n += n
@@ -53,7 +54,7 @@ class LineProgress:
     def close(self) -> None:
         if not self.closed:
             self.closed = True
-            if self.n != self._last_n:
+            if (self.n, self.postfix) != (self._last_n, self._last_postfix):  # the last word
                 self._emit()
 
 

@@ -20,7 +20,8 @@ from pathlib import Path
 
 from . import outputs, plot
 from .camera import MAX_SUPERSAMPLE
-from .errors import MAX_POINTS, ArgumentParser, ConfigError, UserError, points_arg, run_main
+from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
+                     run_main)
 from .feedback import DEFAULT_SUPERSAMPLE
 from .inputs import FILE_TYPES
 from .progress import progress
@@ -329,4 +330,4 @@ def summary_table(s: dict, out: Path) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))

@@ -415,6 +415,18 @@ def test_progress_in_a_log_is_plain_lines(capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_a_logs_last_line_has_the_last_word(capsys):
+    """A count set after the update that printed the 100 % line still ends the log (the noise
+    sweep's log ended '71/72 runs')."""
+    bar = progress(10, "sweep", unit="")
+    bar.min_interval_s = 0.0
+    for n in range(1, 3):
+        bar.update(5)
+        bar.set_postfix_str(f"{n}/2 runs")
+    bar.close()
+    assert capsys.readouterr().err.splitlines()[-1].startswith("sweep: 100%, 2/2 runs")
+
+
 # ----------------------------------------------------------------------------- run's folders
 def test_default_run_folders_tell_rigs_and_files_apart_by_their_whole_names():
     """A calibrated rig is not its true rig: planar.calib.yaml names its folder rigplanar.calib,

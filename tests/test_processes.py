@@ -152,3 +152,40 @@ def test_a_torn_header_is_dropped_and_rewritten_whole(tmp_path):
     with pytest.raises(UserError, match="its columns are not this benchmark.s"):
         Results(path)
     assert path.read_text() == "x_mm,y_mm\n1,2\n"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
+def test_ctrl_c_of_bench_noise_says_how_far_it_got_and_how_to_resume(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = tmp_path / "n"
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.bench", "noise", "--quick",
+                             "--workers", "2", "--quiet", "--out", str(out)],
+                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (
+                (out / "results.csv").is_file() and len((out / "results.csv").read_text().splitlines()) > 2):
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    rows = len(Results(out / "results.csv").rows)
+    assert proc.returncode == 130 and err.splitlines()[-1] == "interrupted", err
+    assert f"{rows} of 72 runs are in {out / 'results.csv'}; the same command runs the rest" in err
+    assert "Traceback" not in err and "Exception ignored" not in err
+
+
+def test_after_an_interruption_a_further_ctrl_c_is_ignored_while_exiting():
+    from itg_vision.errors import exit_status
+
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        assert exit_status(0) == 0 and exit_status(2) == 2
+        assert signal.getsignal(signal.SIGINT) is before
+        assert exit_status(130) == 130
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)

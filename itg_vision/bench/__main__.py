@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+from ..errors import exit_status
 
 #: benchmark name -> its module in this package
 MODULES = {"speed": "speed", "accuracy": "accuracy", "noise": "noise", "itg-plus": "itg_plus"}
@@ -29,4 +30,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..arm import ArmSpec
 from ..camera import Rig
-from ..errors import UserError, run_main
+from ..errors import UserError, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..triangulate import predicted_rms_error_mm
 from ..world import World
@@ -184,4 +184,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))

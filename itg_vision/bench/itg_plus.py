@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
-from ..errors import UserError, at_least_one, points_arg, run_main
+from ..errors import UserError, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, worst
 from .store import Results, check_sweep_file, definition_hash, started
 from .sweep import FF_CORRECTION
@@ -570,4 +570,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from .. import outputs
-from ..errors import UserError, at_least_one, points_arg, run_main
+from ..errors import UserError, at_least_one, exit_status, points_arg, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
@@ -184,8 +184,12 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     failures: dict[str, str] = {}
     try:
         _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
-    except BaseException:
+    except BaseException as exc:
         shutdown(executor, cancel=True, client=client)
+        if isinstance(exc, KeyboardInterrupt):
+            done = sum(1 for s in specs if s.run_id in store.rows)
+            print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same command "
+                  "runs the rest", file=sys.stderr)
         raise
     shutdown(executor, client=client)
     rows = list(store.rows.values())
@@ -238,12 +242,12 @@ def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, fail
             else:
                 store.append(res)
             n_done += 1
+            bar.set_postfix_str(f"{n_done}/{len(todo)} runs")  # before the line update prints
             bar.update(weight[spec.run_id])
-            bar.set_postfix_str(f"{n_done}/{len(todo)} runs")
     finally:
         bar.close()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))
 

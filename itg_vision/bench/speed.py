@@ -18,7 +18,7 @@ import numpy as np
 from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
 from ..controllers import two_link_ik
-from ..errors import UserError, at_least_one, run_main
+from ..errors import UserError, at_least_one, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, Markers, VisionFeedback
 from ..rules import RuleBase, load_rules
 from .. import native, trajectory as traj
@@ -282,4 +282,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main()))
