@@ -96,11 +96,15 @@ def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
     assert "other code" not in capsys.readouterr().err
     rows = _rows(tmp_path)
     assert len(rows) == 4 and len({r["code"] for r in rows}) == 1 and len(rows[0]["code"]) == 12
+    report = (tmp_path / "report.md").read_text()
+    assert f"source): `{rows[0]['code']}` (4 rows)." in report  # the report names its code
     text = (tmp_path / "results.csv").read_text()
     (tmp_path / "results.csv").write_text(text.replace(rows[0]["code"], "000000000000", 2))
     assert main(args + ["--limit", "1"]) == 0
     err = capsys.readouterr().err
     assert "2 of its 4 earlier rows were computed by other code (000000000000; now" in err
+    report = (tmp_path / "report.md").read_text()
+    assert f"`{rows[0]['code']}` (3 rows), `000000000000` (2 rows): more than one" in report
     assert main(args + ["--limit", "1"]) == 0  # the new row is this code's: still 2 of 5
     assert "2 of its 5 earlier rows were computed by other code" in capsys.readouterr().err
     assert len(_rows(tmp_path)) == 6

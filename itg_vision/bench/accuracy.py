@@ -175,9 +175,17 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['centroid_rms_px']:.4f} px ({verdict(r['centroid_rms_px'] <= TARGET_CENTROID_PX)})")
         print(f"  gripper estimate <= {TARGET_GRIPPER_MM} mm RMS: {g:.4f} mm "
               f"({verdict(g <= TARGET_GRIPPER_MM)})")
+        # an RMS over n 3-D errors: its relative sampling error is 1/sqrt(2 k), k between n
+        # (all the error along one axis, as depth dominates) and 3n (isotropic)
+        n = min(row["n"] for row in r["rows"])
+        se_lo, se_hi = 1 / np.sqrt(6 * n), 1 / np.sqrt(2 * n)
+        enough = 2 * se_lo <= TARGET_RATIO - 1
         print(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
               + ", ".join(f"{x:.3f}" for x in ratios)
-              + f" ({verdict(max(worst, 1 / worst) <= TARGET_RATIO)})")
+              + f" ({verdict(max(worst, 1 / worst) <= TARGET_RATIO)}; each ratio from {n} 3-D "
+                f"errors, sampling error {se_lo:.3f}-{se_hi:.3f}"
+              + ("" if enough else f": too few to judge a {TARGET_RATIO - 1:.0%} band, raise --poses")
+              + ")")
         return 0
 
     return run_main(body)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -246,6 +247,13 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
          + (f", {n_gone} of which did not start (listed below)" if n_gone else "")
          + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
          + f"; {len(seeds)} seeds per cell; simulated time in runs {wall:.0f} s.", ""]
+    codes = Counter(r["code"] for r in rows)
+    if codes:
+        L += ["Code that computed the rows (`code` in results.csv, a hash of the package's "
+              "source): " + ", ".join(f"`{c}` ({n} rows)" for c, n in codes.most_common())
+              + ("." if len(codes) == 1 else
+                 ": more than one, so the rows may not be comparable; rerun into a new --out "
+                 "for rows of one code."), ""]
     L += no_start_lines(summary)
     if failures:
         L += [f"**{len(failures)} runs failed** this time (rerun to retry): "

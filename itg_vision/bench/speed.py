@@ -41,7 +41,13 @@ def _per_call_us(methods: dict, repeat: int) -> dict:
     return out | {f"{name}_max": float(np.max(t) * 1e6) for name, t in times.items()}
 
 
-def decision_costs(n_points: int = 720, repeat: int = 7) -> dict:
+#: Interleaved passes of the decision timings (``--passes`` is the stereo loop's).
+DECISION_PASSES = 7
+#: The stereo loop's default sample: states of the replay per pass, and passes.
+DEFAULT_FRAMES, DEFAULT_PASSES = 40, 3
+
+
+def decision_costs(n_points: int = 720, repeat: int = DECISION_PASSES) -> dict:
     """Microseconds per decision for the same set points and arm states (two-link arm)."""
     arm = ArmSpec.from_args("two-link")
     rb = load_rules("table2", 2, arm.links_mm, f=0.5)
@@ -115,8 +121,8 @@ def replay_states(arm, rules, points_mm, settle: int, frames: int) -> list:
     return out
 
 
-def vision_costs(settings=SETTINGS, frames: int = 40, settle: int = SETTLE, passes: int = 3
-                 ) -> list[dict]:
+def vision_costs(settings=SETTINGS, frames: int = DEFAULT_FRAMES, settle: int = SETTLE,
+                 passes: int = DEFAULT_PASSES) -> list[dict]:
     """CPU milliseconds per iteration of the stereo loop (640x480, two LEDs, two cameras,
     the rig's distortion and sensor noise, one OpenCV thread) for each setting, measured
     side by side: at every state of the replay each setting observes in turn (so a busy
@@ -220,11 +226,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m itg_vision.bench speed",
                         description=__doc__.split("\n\n")[0])
     ap.add_argument("--no-vision", action="store_true", help="skip the vision pipeline timings")
-    ap.add_argument("--frames", type=at_least_one, default=40, metavar="N",
-                    help=f"states of the replay per pass, at most {max_frames()} (default "
-                         "%(default)s)")
-    ap.add_argument("--passes", type=at_least_one, default=3, metavar="N",
-                    help="passes over the states, settings interleaved (default %(default)s)")
+    ap.add_argument("--frames", type=at_least_one, default=DEFAULT_FRAMES, metavar="N",
+                    help=f"stereo loop: states of the replay per pass, at most {max_frames()} "
+                         "(default %(default)s)")
+    ap.add_argument("--passes", type=at_least_one, default=DEFAULT_PASSES, metavar="N",
+                    help="stereo loop: passes over the states, settings interleaved (default "
+                         f"%(default)s; the decision timings always take {DECISION_PASSES})")
     return ap
 
 
@@ -244,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
                             f"{REPLAY} after the first {SETTLE}), got {args.frames}")
         c = decision_costs()
         base = c["rules_compiled_us"]
-        print("one decision, two-link arm, same 720 set points (median of 7 interleaved passes, "
-              "and the slowest pass; one core)")
+        print(f"one decision, two-link arm, same 720 set points (median of {DECISION_PASSES} "
+              "interleaved passes, and the slowest pass; one core)")
         print(f"{'method':<44}{'us/step':>10}{'slowest':>10}{'x rules':>10}")
         for key, label in (("rules_compiled_us", "Table 2 rules, compiled to Python"),
                            ("rules_native_us", "Table 2 rules, compiled to C"),
@@ -274,7 +281,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"\nstereo loop per iteration at 640x480 (two LEDs, two cameras, distortion and "
                   f"noise; median ms over {args.passes} passes of {args.frames} states of ellipse "
                   "T1 after its start transient, settings interleaved; CPU time of one core: "
-                  "median, mean, p95 and max of the loop; Hz from the median, wall Hz beside it)")
+                  "median, mean, p95 and max of the loop; Hz from the median, wall Hz beside it)"
+                  + ("" if args.frames >= DEFAULT_FRAMES and args.passes >= DEFAULT_PASSES else
+                     f"; a smaller sample than the default {DEFAULT_FRAMES} states x "
+                     f"{DEFAULT_PASSES} passes: its verdicts are rougher"))
             print("\n".join(vision_report(rows, DEFAULT_SUPERSAMPLE)))
         return 0
 
