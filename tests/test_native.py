@@ -203,3 +203,13 @@ def test_bench_speed_times_the_steps_compiled_to_c():
     assert c["native_error"] is None
     assert all(c[k] > 0 for k in ("rules_native_us", "itg_plus_native_us", "call_native_us",
                                   "itg_plus_compiled_us", "ik_pybullet_us"))
+
+
+def test_bench_speed_names_the_machine_its_timings_ran_on():
+    import os
+
+    from itg_vision.bench.speed import machine_line
+
+    line = machine_line()
+    assert line.startswith("machine: ") and f", {os.cpu_count()} cores, load average " in line
+    assert "; Python " in line and "; C compiler " in line

@@ -10,8 +10,11 @@ issue-11 targets beside the measured values.
 from __future__ import annotations
 
 import argparse
+import os
+import platform
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -235,6 +238,23 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def machine_line() -> str:
+    """What the timings ran on: CPU, cores, the load beside this run, Python, the C compiler."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in
+                   Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    try:
+        cc = native._toolchain(tuple(native.compiler()))[0] or "version unknown"
+    except native.NativeUnavailable:
+        cc = "none"
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
+    return (f"machine: {cpu}, {os.cpu_count()} cores, load average {load} (1, 5, 15 min); "
+            f"Python {platform.python_version()}; C compiler {cc}")
+
+
 def max_frames(settle: int = SETTLE) -> int:
     """Most states the replay gives: the points of ellipse T1 after its ``settle``."""
     return len(traj.named(REPLAY)) - settle
@@ -249,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.frames > most:
             raise UserError(f"--frames: must be at most {most} (the set points of "
                             f"{REPLAY} after the first {SETTLE}), got {args.frames}")
+        print(machine_line())
         c = decision_costs()
         base = c["rules_compiled_us"]
         print(f"one decision, two-link arm, same 720 set points (median of {DECISION_PASSES} "
