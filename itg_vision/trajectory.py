@@ -88,14 +88,15 @@ def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Traj
 
 def is_closed(points_mm: np.ndarray) -> bool:
     """Whether the last point is followed by the first (a loop sampled without repeating its
-    start): their distance is at most 1.5 times the path's spacing there, the larger of its
-    first and last steps, or its median step (a loop sampled densely in its corners and sparsely
-    along its sides closes with a side's step)."""
+    start): their distance is at most 1.5 times a step of the path there, the larger of its first
+    and last steps, and no larger than its largest step in between (a loop sampled densely in its
+    corners and sparsely along its sides closes with a side's step; a path that starts or ends
+    with a jump is not closed by the jump)."""
     p = np.asarray(points_mm, float)
     if len(p) < 4:
         return False
     steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    step = max(float(np.median(steps)), steps[0], steps[-1])
+    step = min(max(steps[0], steps[-1]), float(steps[1:-1].max()))
     return step > 0 and float(np.linalg.norm(p[-1] - p[0])) <= 1.5 * step
 
 

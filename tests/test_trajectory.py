@@ -110,9 +110,14 @@ def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
     assert T.is_closed(loop)  # sampled without repeating its start
     assert not T.is_closed(loop[:50])  # an arc: the gap is 11 steps
     assert not T.is_closed(loop[:3])
+    # a path that jumps from a home point to an arc ending near home is not closed by the jump
+    home = np.array([[100.0, -60.0]])
+    arc = np.c_[100 + 50 * np.cos(t[5:40]), 50 * np.sin(t[5:40])]
+    assert np.linalg.norm(arc[-1] - home[0]) < 1.5 * np.linalg.norm(arc[0] - home[0])
+    assert not T.is_closed(np.vstack([home, arc]))
     data = Path(__file__).resolve().parents[1] / "data" / "trajectories"
     # dense in the corners, sparse along the sides: it closes with a side's step (9.2 mm),
-    # which the median step (1.6 mm) does not cover
+    # which the median step (1.6 mm) and its last step (3.8 mm) do not cover
     square = np.loadtxt(data / "rounded-square.csv", delimiter=",", skiprows=1)
     steps = np.linalg.norm(np.diff(square, axis=0), axis=1)
     assert 1.5 * np.median(steps) < np.linalg.norm(square[-1] - square[0]) <= 1.5 * steps[0]
