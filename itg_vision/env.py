@@ -18,7 +18,9 @@ around the LEDs (the same pixels there, ~50x slower). The encoders' joint angles
 ``reset(seed=...)`` rebuilds the world at the start pose and reseeds the feedback: the same
 seed and the same actions give the same observations and rewards, bit for bit. ``reset()``
 without a seed starts the next episode of a reproducible sequence: the config's ``seed`` at
-the first reset, then one more than the last episode's seed. The lengths the
+the first reset, then a seed drawn from the env's generator (``np_random``, seeded by the
+config's seed and again by every seed given), so that envs seeded 10 and 11 (a vector env's)
+never replay each other's episodes. The lengths the
 start-up measurement found (what a model-free controller may know) are in
 ``info["geometry"]`` (an :class:`itg_vision.identify.ArmGeometry`) after ``reset``. After each
 ``step``, ``info["missed"]`` names the markers the new observation could not measure (their
@@ -109,7 +111,8 @@ class TrackingEnv(gym.Env):
         self._world: World | None = None
         self._session: Session | None = None
         self._feedback = None
-        self._next_seed = cfg.seed
+        self._np_random, _ = gym.utils.seeding.np_random(cfg.seed)
+        self._reset_before = False
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -117,8 +120,11 @@ class TrackingEnv(gym.Env):
         self.close()
         prep = self._prep
         cfg = prep.config  # the config as given, its controller settings set aside
-        run_seed = self._next_seed if seed is None else int(seed)
-        self._next_seed = run_seed + 1
+        if seed is not None:
+            run_seed = int(seed)
+        else:
+            run_seed = int(self.np_random.integers(2**31)) if self._reset_before else cfg.seed
+        self._reset_before = True
         self._feedback = prep.feedback_factory()
         self._feedback.reset(run_seed)
         self._world = World(prep.true_arm)

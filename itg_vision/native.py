@@ -275,6 +275,12 @@ def build(rule_bases) -> list:
     return [getattr(_loaded[name], f"step_{k}") for k in range(len(rule_bases))]
 
 
+def compiler_version() -> str:
+    """The C compiler's version line ("" if it does not say); raises
+    :class:`NativeUnavailable` without a compiler."""
+    return _toolchain(tuple(compiler()))[0]
+
+
 @functools.lru_cache(maxsize=None)
 def _toolchain(cc: tuple) -> tuple[str, ...]:
     """What else decides the module's bytes: the compiler's version line, the machine and its

@@ -52,7 +52,7 @@ def _run(base: RunConfig, **kw):
 def settle_index(e: np.ndarray, threshold_mm: float) -> int:
     """First set point from which E_i stays below the threshold for 10 set points."""
     ok = e < threshold_mm
-    for i in range(len(e) - 10):
+    for i in range(len(e) - 9):  # the last window, e[-10:], included
         if ok[i:i + 10].all():
             return i
     return len(e)
@@ -99,8 +99,9 @@ def exp2(base, out) -> dict:
     i0 = settle_index(e, 10.0)
     plot.paths_figure([("experiment 2: ellipse T1, 180 points", trace)], "Fig. 4.2", out / "exp2_path.png")
     return {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"], "settled_at": i0,
-            "e_av_after_settling_mm": float(np.mean(e[i0:])),
-            "e_max_after_settling_mm": float(np.max(e[i0:]))}
+            # a run that never settles has no settled part: nan, and its verdict disagrees
+            "e_av_after_settling_mm": float(np.mean(e[i0:])) if i0 < len(e) else float("nan"),
+            "e_max_after_settling_mm": float(np.max(e[i0:])) if i0 < len(e) else float("nan")}
 
 
 EXP3_GAINS = (0.1, 0.2, 0.5)
@@ -337,7 +338,7 @@ def report(r: dict, base: RunConfig) -> str:
         f"minimum; agrees if the two ranges overlap | {(v4 := verdict(overlap))} |")
     # experiment 5
     firsts = ", ".join(f"{v['first_lap_max_at_deg']:.0f}" for v in e5.values())
-    peaks = "; ".join(f"n_t={n}: " + ", ".join(f"{m:.0f} mm at {a:.0f} deg (y_d {y:.0f} mm)" for a, m, y in
+    peaks = "; ".join(f"n_t={n}: " + ", ".join(f"{m:.0f} mm at {a:.0f} deg (y_d {round(y)} mm)" for a, m, y in
                                               zip(v["second_lap_peaks_deg"], v["second_lap_peak_e_mm"],
                                                   v["second_lap_peak_yd_mm"]))
                       for n, v in e5.items())

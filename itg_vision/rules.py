@@ -431,8 +431,10 @@ class _Parser:
         if tok.kind == "name":
             self.i += 1
             if self.tok.kind == "op" and self.tok.text == "(":
-                raise self.error(f"{tok.text}(...): the rule language has no functions (only "
-                                 "+ - * / ^, |x| and comparisons)", tok)
+                raise RuleSyntaxError(
+                    f"{self.source}:{tok.line}:{tok.col}: '{tok.text}(' reads as a function call, "
+                    "and the rule language has none (only + - * / ^, |x| and comparisons; "
+                    f"to multiply, write {tok.text} * (...))")
             return self.node(tok, Name(tok.text, tok))
         if tok.kind == "op" and tok.text in ("(", "|"):
             self.enter(tok)
@@ -819,8 +821,12 @@ class RuleBase:
         rules = parser.rules()
         lines = text.split("\n")  # the tokenizer's lines
         rules = [replace(r, text=lines[r.line - 1].strip()) for r in rules]
+        servo_step = bool(SERVO_STEP.search(text))
+        if servo_step and "S" not in params:
+            raise UserError(f"{source}: S is the servo limit here (its '#! S is the servo limit' "
+                            "line): give S, the largest joint step per iteration in deg")
         rb = cls(rules, n_joints, tuple(float(v) for v in links_mm), source=source,
-                 servo_step=bool(SERVO_STEP.search(text)),
+                 servo_step=servo_step,
                  definitions=tuple(parser.definitions), **params)
         rb._check()
         nodes = [d.expr for d in rb.definitions]
@@ -1079,11 +1085,9 @@ def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase
     ``params``: ``f`` (deg/mm), ``S`` (deg), ``w`` (mm), the rules' parameters; those not given
     take :class:`RuleBase`'s defaults (f 0.06, S 0.5, w 0.5), not ``run``'s (0.5, 2, 0.5:
     ``runner.RULE_DEFAULTS``). A rule base whose S is the servo limit (``#! S is the servo
-    limit``, the ITG+ files) needs ``S`` given: the servo's largest step per iteration."""
+    limit``, the ITG+ files) needs ``S`` given, here as in :meth:`RuleBase.from_text`: the servo's
+    largest step per iteration."""
     rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
-    if rb.servo_step and "S" not in params:
-        raise UserError(f"{rb.source}: S is the servo limit here (its '#! S is the servo limit' "
-                        "line): give S, the largest joint step per iteration in deg")
     unmoved = rb.unmoved_joints()
     if unmoved:
         from .arm import ArmSpec, arm_names

@@ -185,8 +185,8 @@ def run_key(prep) -> dict:
     for key in ("rules", "estimate_rig", "render_rig"):
         if key in prep.info:
             files[key] = prep.info[key]
-    if Path(prep.trajectory.name).is_file():
-        files["trajectory"] = prep.trajectory.name
+    if prep.trajectory.file is not None:
+        files["trajectory"] = str(prep.trajectory.file)
     if Path(prep.config.arm).is_file():  # an arm file of the user's (a shipped arm: its name)
         files["arm"] = prep.config.arm
     digests = {}

@@ -340,7 +340,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         "links_mm": list(prep.model.links_mm),
         "true_links_mm": list(prep.true_arm.links_mm),
         "joint_offset_deg": list(prep.true_arm.joint_offset_deg),
-        "trajectory": shown_path(prep.trajectory.name),
+        "trajectory": prep.trajectory.name if prep.trajectory.file is None
+        else shown_path(str(prep.trajectory.file)),
         "controller": cfg.controller,
         "feedback": cfg.feedback,
         "iterations": cfg.iterations,

@@ -45,6 +45,12 @@ class Trajectory:
         return len(self.points_mm)
 
     @property
+    def file(self) -> Path | None:
+        """The CSV file it was read from; None for a named trajectory (shipped names come first,
+        whatever files the current folder holds)."""
+        return None if self.name in NAMES else Path(self.name)
+
+    @property
     def tracking_start(self) -> int:
         """Index of the first set point of the tracking phase: the laps after the first for a
         path run for 2+ laps, else the second half (the start transient is over by then)."""
@@ -62,7 +68,7 @@ class Trajectory:
             raise UserError(f"--laps: must be in 1..1000, got {laps}")
         if laps > 1 and not self.closed:
             raise UserError(f"--laps: trajectory {self.name} is not a closed path (its last "
-                            "point is not next to its first): it runs once")
+                            "point is not next to its first): it can run only once (--laps 1)")
         if laps == 1:
             return self
         period = None
@@ -88,16 +94,17 @@ def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Traj
 
 def is_closed(points_mm: np.ndarray) -> bool:
     """Whether the last point is followed by the first (a loop sampled without repeating its
-    start): their distance is at most 1.5 times a step of the path there, the larger of its first
-    and last steps, and no larger than its largest step in between (a loop sampled densely in its
-    corners and sparsely along its sides closes with a side's step; a path that starts or ends
-    with a jump is not closed by the jump)."""
+    start): their distance, the closing step, is at most 1.5 times the path's median step, or
+    within a factor 1.5 of the step beside it, its first or its last (a loop sampled densely in
+    its corners and sparsely along its sides closes with a side's step; a jump at either end does
+    not close a path whose ends are far apart)."""
     p = np.asarray(points_mm, float)
     if len(p) < 4:
         return False
     steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    step = min(max(steps[0], steps[-1]), float(steps[1:-1].max()))
-    return step > 0 and float(np.linalg.norm(p[-1] - p[0])) <= 1.5 * step
+    gap = float(np.linalg.norm(p[-1] - p[0]))
+    return gap <= 1.5 * float(np.median(steps)) or any(
+        e / 1.5 <= gap <= 1.5 * e for e in (steps[0], steps[-1]) if e > 0)
 
 
 def quintic(s: np.ndarray) -> np.ndarray:

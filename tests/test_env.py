@@ -125,16 +125,20 @@ def test_info_names_the_markers_each_observation_missed():
 
 
 def test_reset_without_a_seed_runs_the_next_episode_of_a_reproducible_sequence():
-    def firsts(seeds):
-        env = TrackingEnv(feedback="truth", noise_mm=0.3, points=5, seed=10)
+    def firsts(seeds, seed=10):
+        env = TrackingEnv(feedback="truth", noise_mm=0.3, points=5, seed=seed)
         out = [env.reset(seed=s)[0]["gripper_mm"] for s in seeds]
         env.close()
         return out
 
-    by_seed = firsts([10, 11, 7, 8])
-    # a fresh env: the config's seed, then the next; a seed given, then the next after it
-    assert all(np.array_equal(a, b) for a, b in zip(firsts([None, None, 7, None]), by_seed))
-    assert not np.array_equal(by_seed[0], by_seed[1])
+    a = firsts([None, None, None, 7, None])
+    assert all(np.array_equal(x, y) for x, y in zip(a, firsts([None, None, None, 7, None])))
+    assert np.array_equal(a[0], firsts([10])[0])  # the first: the config's seed
+    assert np.array_equal(a[3], firsts([7])[0])
+    assert all(not np.array_equal(a[i], a[j]) for i in range(5) for j in range(i))
+    # envs seeded 10 and 11 (as a vector env seeds its envs) do not replay each other's episodes
+    b = firsts([None, None, None], seed=11)
+    assert all(not np.array_equal(x, y) for x in a[:3] for y in b)
 
 
 def test_controller_and_rule_settings_are_not_checked_the_env_has_no_controller():

@@ -15,6 +15,7 @@ def test_settle_index():
     e = np.array([9, 8, 7, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1.0])
     assert settle_index(e, 2.0) == 3
     assert settle_index(np.full(30, 5.0), 2.0) == 30
+    assert settle_index(np.r_[np.full(20, 5.0), np.ones(10)], 2.0) == 20  # the last window
 
 
 @pytest.fixture(scope="module")

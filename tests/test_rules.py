@@ -31,9 +31,9 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q3 += S", ":1:25:", "moves q3, but the arm has 2 joint(s)"),
     ("RULE 1: IF xd > xg THEN q1 += S, q3 HOLD", ":1:34:", "moves q3"),
     ("RULE 1: IF xd > xg THEN q1 += S, OUT_OF_REACH", ":1:34:", "OUT_OF_REACH must be"),
-    ("RULE 1: IF xd > xg THEN q1 += f * sin(xd - xg)", ":1:35:", "sin(...): the rule language "
-     "has no functions"),
-    ("LET r = sqrt(xd * xd)\nRULE 1: IF xd > r THEN q1 += S", ":1:9:", "sqrt(...): the rule"),
+    ("RULE 1: IF xd > xg THEN q1 += f * sin(xd - xg)", ":1:35:", "'sin(' reads as a function "
+     "call, and the rule language has none"),
+    ("LET r = sqrt(xd * xd)\nRULE 1: IF xd > r THEN q1 += S", ":1:9:", "'sqrt(' reads as a function call"),
     ("RULE 1: IF xd $ xg THEN q1 += S", ":1:15", "unexpected character '$'"),
     ("RULE 1 IF xd > xg THEN q1 += S", ":1:8", "expected ':'"),
     ("\n\nRULE 1: IF xd > xg THEN q1 += |xd - xg", ":3:", "closing '|'"),
@@ -598,3 +598,7 @@ def test_a_rule_base_whose_s_is_the_servo_limit_needs_s_given():
     rb = load_rules("itg-plus-two-link", 2, TWO, S=20.0)
     assert rb.servo_step and rb.S == 20.0
     assert load_rules("table2", 2, TWO).S == RuleBase.S  # a fixed S keeps its default
+    text = "#! S is the servo limit\nRULE 1: IF xd > xg THEN q1 += S"  # every entry point
+    with pytest.raises(UserError, match="my.rules: S is the servo limit here"):
+        RuleBase.from_text(text, 2, TWO, source="my.rules")
+    assert RuleBase.from_text(text, 2, TWO, S=5.0).S == 5.0

@@ -258,3 +258,10 @@ def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
     assert s["trajectory"] == str((tmp_path / "path.csv").resolve())
     lines = summary_table(s, tmp_path / "out").splitlines()
     assert [ln.split()[-1] for ln in lines if ln.startswith("rule base")] == [s["rules"]]
+    # a stray file named like a shipped trajectory is not what ran: the name is, and no hash
+    from itg_vision.run import run_key
+
+    (tmp_path / "ellipse-t1").write_text("not a trajectory")
+    prep = prepare(RunConfig(points=20, feedback="model"))
+    assert execute(prep)[1]["trajectory"] == "ellipse-t1"
+    assert "trajectory" not in run_key(prep)["inputs_sha256"]

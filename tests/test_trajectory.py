@@ -115,6 +115,13 @@ def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
     arc = np.c_[100 + 50 * np.cos(t[5:40]), 50 * np.sin(t[5:40])]
     assert np.linalg.norm(arc[-1] - home[0]) < 1.5 * np.linalg.norm(arc[0] - home[0])
     assert not T.is_closed(np.vstack([home, arc]))
+    # nor a home point 30 mm beyond D put before abcd (a jump to A, the B-C jump inside)
+    abcd = T.load("abcd").points_mm[:, :2]
+    with_home = np.vstack([abcd[-1] + [0.0, -30.0], abcd])
+    assert not T.is_closed(with_home) and not T.is_closed(with_home[::-1])
+    # a loop that dwells at its ends (its first and last points repeated) is closed
+    assert T.is_closed(np.vstack([loop[:1], loop, loop[-1:]]))
+    assert T.is_closed(np.vstack([loop[:1], loop[:1], loop]))
     data = Path(__file__).resolve().parents[1] / "data" / "trajectories"
     # dense in the corners, sparse along the sides: it closes with a side's step (9.2 mm),
     # which the median step (1.6 mm) and its last step (3.8 mm) do not cover

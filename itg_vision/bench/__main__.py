@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+
 from ..errors import exit_status
 
 #: benchmark name -> its module in this package

@@ -21,7 +21,7 @@ from ..arm import ArmSpec
 from ..camera import Rig
 from ..errors import UserError, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
-from ..triangulate import predicted_rms_error_mm
+from ..triangulate import predicted_covariance, predicted_rms_error_mm
 from ..world import World
 
 #: The issue's targets: centroid RMS (px, zero added noise), gripper RMS (mm), and the
@@ -99,6 +99,11 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
            "marker_max_mm": {n: t[2] for n, t in tails.items()},
            "rows": []}
     pts = np.array(pts)
+    # the ratio's sampling error: the RMS of independent Gaussian errors of covariances C_j has
+    # relative standard error sqrt(2 sum tr(C_j^2)) / (2 sum tr(C_j)) (the C_j's scale cancels)
+    cov = predicted_covariance(rig, pts, 1.0)
+    tr, tr2 = np.trace(cov, axis1=1, axis2=2), np.einsum("nij,nji->n", cov, cov)
+    out["ratio_se"] = float(np.sqrt(2 * tr2.sum()) / (2 * tr.sum()))
     for s in sigmas:
         e = np.array(errs[s])
         pred = float(np.sqrt(np.mean(predicted_rms_error_mm(
@@ -118,8 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="an arm of data/arms or an arm file (default %(default)s)")
     ap.add_argument("--rig", metavar="NAME|PATH",
                     help="a rig of cameras/ or a rig file (default: the arm file's)")
-    ap.add_argument("--poses", type=int, default=60, metavar="N",
-                    help=f"random poses, {MIN_POSES}..{MAX_POSES} (default %(default)s)")
+    ap.add_argument("--poses", type=int, default=250, metavar="N",
+                    help=f"random poses, {MIN_POSES}..{MAX_POSES} (default %(default)s: enough for "
+                         "the ratio's 10 %% band to hold two standard errors)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the poses and the noise, >= 0 "
                                                         "(default %(default)s)")
     return ap
@@ -175,15 +181,12 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['centroid_rms_px']:.4f} px ({verdict(r['centroid_rms_px'] <= TARGET_CENTROID_PX)})")
         print(f"  gripper estimate <= {TARGET_GRIPPER_MM} mm RMS: {g:.4f} mm "
               f"({verdict(g <= TARGET_GRIPPER_MM)})")
-        # an RMS over n 3-D errors: its relative sampling error is 1/sqrt(2 k), k between n
-        # (all the error along one axis, as depth dominates) and 3n (isotropic)
-        n = min(row["n"] for row in r["rows"])
-        se_lo, se_hi = 1 / np.sqrt(6 * n), 1 / np.sqrt(2 * n)
-        enough = 2 * se_lo <= TARGET_RATIO - 1
+        n, se = min(row["n"] for row in r["rows"]), r["ratio_se"]
+        enough = 2 * se <= TARGET_RATIO - 1  # the band holds two standard errors
         print(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
               + ", ".join(f"{x:.3f}" for x in ratios)
               + f" ({verdict(max(worst, 1 / worst) <= TARGET_RATIO)}; each ratio from {n} 3-D "
-                f"errors, sampling error {se_lo:.3f}-{se_hi:.3f}"
+                f"errors, its sampling error {se:.3f} from the rig's error ellipsoids there"
               + ("" if enough else f": too few to judge a {TARGET_RATIO - 1:.0%} band, raise --poses")
               + ")")
         return 0

@@ -247,7 +247,7 @@ def machine_line() -> str:
     except (OSError, StopIteration):
         pass
     try:
-        cc = native._toolchain(tuple(native.compiler()))[0] or "version unknown"
+        cc = native.compiler_version() or "version unknown"
     except native.NativeUnavailable:
         cc = "none"
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
