@@ -158,10 +158,13 @@ def test_a_torn_header_is_dropped_and_rewritten_whole(tmp_path):
 def test_ctrl_c_of_bench_noise_says_how_far_it_got_and_how_to_resume(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = tmp_path / "n"
+    # a shell's background job (CI's, nohup's) ignores SIGINT, and a child inherits that:
+    # give the sweep Ctrl-C's default, as a terminal would
     proc = subprocess.Popen([sys.executable, "-m", "itg_vision.bench", "noise", "--quick",
                              "--workers", "2", "--quiet", "--out", str(out)],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not (
