@@ -19,8 +19,9 @@ around the LEDs (the same pixels there, ~50x slower). The encoders' joint angles
 seed and the same actions give the same observations and rewards, bit for bit. ``reset()``
 without a seed starts the next episode of a reproducible sequence: the config's ``seed`` at
 the first reset, then a seed drawn from the env's generator (``np_random``, seeded by the
-config's seed and again by every seed given), so that envs seeded 10 and 11 (a vector env's)
-never replay each other's episodes. The lengths the
+config's seed and again by every seed given), so that envs seeded 10 and 11 (a vector env reset
+with ``seed=10``) never replay each other's episodes. Unseeded, copies of one config run the same
+episodes: give the vector env's ``reset`` a seed. The lengths the
 start-up measurement found (what a model-free controller may know) are in
 ``info["geometry"]`` (an :class:`itg_vision.identify.ArmGeometry`) after ``reset``. After each
 ``step``, ``info["missed"]`` names the markers the new observation could not measure (their
@@ -111,7 +112,7 @@ class TrackingEnv(gym.Env):
         self._world: World | None = None
         self._session: Session | None = None
         self._feedback = None
-        self._np_random, _ = gym.utils.seeding.np_random(cfg.seed)
+        self._np_random, self._np_random_seed = gym.utils.seeding.np_random(cfg.seed)
         self._reset_before = False
 
     # ------------------------------------------------------------------ gymnasium API

@@ -433,8 +433,8 @@ class _Parser:
             if self.tok.kind == "op" and self.tok.text == "(":
                 raise RuleSyntaxError(
                     f"{self.source}:{tok.line}:{tok.col}: '{tok.text}(' reads as a function call, "
-                    "and the rule language has none (only + - * / ^, |x| and comparisons; "
-                    f"to multiply, write {tok.text} * (...))")
+                    "and the rule language has none (only + - * / ^, |x| and comparisons; a "
+                    "product needs its *)")
             return self.node(tok, Name(tok.text, tok))
         if tok.kind == "op" and tok.text in ("(", "|"):
             self.enter(tok)

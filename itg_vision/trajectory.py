@@ -31,6 +31,8 @@ class Trajectory:
     closed : True when the path returns to its start (the last point is followed by the
         first): such a path can be run for several laps.
     laps : how many times the points of one lap are repeated in ``points_mm``.
+    file : the CSV file it was read from, absolute (the run's record and its input hash name
+        it wherever the run goes on); None for a named trajectory.
     """
 
     name: str
@@ -40,15 +42,10 @@ class Trajectory:
     planar: bool = True
     closed: bool = False
     laps: int = 1
+    file: Path | None = None  # the CSV read, absolute; None for a named trajectory
 
     def __len__(self) -> int:
         return len(self.points_mm)
-
-    @property
-    def file(self) -> Path | None:
-        """The CSV file it was read from; None for a named trajectory (shipped names come first,
-        whatever files the current folder holds)."""
-        return None if self.name in NAMES else Path(self.name)
 
     @property
     def tracking_start(self) -> int:
@@ -78,7 +75,7 @@ class Trajectory:
                           None if period is None else np.concatenate(
                               [self.t_s + k * period for k in range(laps)]),
                           None if self.param_deg is None else np.tile(self.param_deg, laps),
-                          self.planar, self.closed, self.laps * laps)
+                          self.planar, self.closed, self.laps * laps, self.file)
 
 
 def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Trajectory:
@@ -95,16 +92,20 @@ def ellipse(name, centre_mm, major_mm, minor_mm, orientation_deg, n=180) -> Traj
 def is_closed(points_mm: np.ndarray) -> bool:
     """Whether the last point is followed by the first (a loop sampled without repeating its
     start): their distance, the closing step, is at most 1.5 times the path's median step, or
-    within a factor 1.5 of the step beside it, its first or its last (a loop sampled densely in
-    its corners and sparsely along its sides closes with a side's step; a jump at either end does
-    not close a path whose ends are far apart)."""
+    within a factor 1.5 of the step beside it, its first or its last; repeated points (dwells)
+    are no steps. A loop sampled densely in its corners and sparsely along its sides closes with
+    a side's step; a jump at either end does not close a path whose ends are far apart, unless
+    the closing step matches that jump."""
     p = np.asarray(points_mm, float)
     if len(p) < 4:
         return False
     steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    steps = steps[steps > 0]  # a dwell (a repeated point) is no step
     gap = float(np.linalg.norm(p[-1] - p[0]))
+    if not steps.size:
+        return gap == 0
     return gap <= 1.5 * float(np.median(steps)) or any(
-        e / 1.5 <= gap <= 1.5 * e for e in (steps[0], steps[-1]) if e > 0)
+        e / 1.5 <= gap <= 1.5 * e for e in (steps[0], steps[-1]))
 
 
 def quintic(s: np.ndarray) -> np.ndarray:
@@ -244,7 +245,8 @@ def read_csv(path: str | Path) -> Trajectory:
     if t is not None and np.any(np.diff(t) < 0):
         bad = linenos[int(np.argmax(np.diff(t) < 0)) + 1]
         raise UserError(f"{path}:{bad}: field t_s: times must not decrease")
-    return Trajectory(str(path), pts, t, None, planar, closed=is_closed(pts))
+    return Trajectory(str(path), pts, t, None, planar, closed=is_closed(pts),
+                      file=Path(path).resolve())
 
 
 def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory:

@@ -212,12 +212,12 @@ def test_summary_table_labels_the_errors_against_the_true_rig():
                              ("distortion error, max over image (px)", "distortion_max_px", 3),
                              ("rotation error (deg)", "rotation_deg", 3),
                              ("world position error (mm)", "position_mm", 2)):
-        for got, n in zip(shown(row), names):
-            want = np.atleast_1d(cams[n][key])
-            assert np.allclose(got, want, atol=0.51 * 10.0**-digits), (row, got, want)
+        for got, n in zip(shown(row), names):  # the shapes must match too
+            np.testing.assert_allclose(got, np.atleast_1d(cams[n][key]),
+                                       atol=0.51 * 10.0**-digits, rtol=0, err_msg=row)
     worst = [max(record["per_view_rms_px"][n]) for n in names]
-    assert np.allclose([v for vs in shown("worst view's reprojection RMS (px)") for v in vs],
-                       worst, atol=5.1e-4)
+    np.testing.assert_allclose([v for vs in shown("worst view's reprojection RMS (px)") for v in vs],
+                               worst, atol=5.1e-4, rtol=0)
 
 
 def test_corner_picture_has_a_title_above_the_view():

@@ -147,3 +147,16 @@ def test_controller_and_rule_settings_are_not_checked_the_env_has_no_controller(
     obs, info = env.reset(seed=0)
     assert info["geometry"].source.startswith("measured")  # a model-free user learns the lengths
     env.close()
+
+
+def test_reading_the_seed_gymnasium_reports_keeps_the_sequence():
+    """Gymnasium reseeds from the OS when its recorded seed is unset: the env records it."""
+    def firsts(touch):
+        env = TrackingEnv(feedback="truth", noise_mm=0.3, points=3, seed=10)
+        if touch:
+            assert env.np_random_seed == 10
+        out = [env.reset()[0]["gripper_mm"] for _ in range(3)]
+        env.close()
+        return out
+
+    assert all(np.array_equal(a, b) for a, b in zip(firsts(True), firsts(False)))

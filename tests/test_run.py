@@ -265,3 +265,11 @@ def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
     prep = prepare(RunConfig(points=20, feedback="model"))
     assert execute(prep)[1]["trajectory"] == "ellipse-t1"
     assert "trajectory" not in run_key(prep)["inputs_sha256"]
+    # a user's CSV named like a shipped path, given as ./abcd, is the file, not the name; its
+    # record and hash still name it after the working folder changes
+    (tmp_path / "abcd").write_text("x_mm,y_mm\n100,50\n101,50\n102,50\n")
+    prep = prepare(RunConfig(trajectory="./abcd", feedback="model"))
+    key = run_key(prep)["inputs_sha256"]["trajectory"]
+    monkeypatch.chdir(tmp_path.parent)
+    assert run_key(prep)["inputs_sha256"]["trajectory"] == key is not None
+    assert execute(prep)[1]["trajectory"] == str((tmp_path / "abcd").resolve())

@@ -119,9 +119,11 @@ def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
     abcd = T.load("abcd").points_mm[:, :2]
     with_home = np.vstack([abcd[-1] + [0.0, -30.0], abcd])
     assert not T.is_closed(with_home) and not T.is_closed(with_home[::-1])
-    # a loop that dwells at its ends (its first and last points repeated) is closed
+    # a loop that dwells at its ends (its first and last points repeated), or at every point,
+    # is closed: a repeated point is no step
     assert T.is_closed(np.vstack([loop[:1], loop, loop[-1:]]))
     assert T.is_closed(np.vstack([loop[:1], loop[:1], loop]))
+    assert T.is_closed(np.repeat(loop, 2, axis=0)) and T.is_closed(np.repeat(loop, 3, axis=0))
     data = Path(__file__).resolve().parents[1] / "data" / "trajectories"
     # dense in the corners, sparse along the sides: it closes with a side's step (9.2 mm),
     # which the median step (1.6 mm) and its last step (3.8 mm) do not cover
@@ -129,6 +131,7 @@ def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
     steps = np.linalg.norm(np.diff(square, axis=0), axis=1)
     assert 1.5 * np.median(steps) < np.linalg.norm(square[-1] - square[0]) <= 1.5 * steps[0]
     assert T.load(str(data / "rounded-square.csv")).closed
+    assert T.is_closed(np.vstack([square[:1], square, square[-1:]]))  # dwelling at its ends
     for name in ("peanut", "limacon", "rose", "lemniscate", "ellipse-by-base", "trefoil"):
         assert T.load(str(data / f"{name}.csv")).closed, name
     for name in ("abcd", "line-ab", "line-ab-reach"):
