@@ -1092,7 +1092,8 @@ def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase
     if unmoved:
         from .arm import ArmSpec, arm_names
 
-        shipped = ", ".join(f"{ArmSpec.from_args(a).defaults['rules']} ({a})" for a in arm_names())
+        shipped = ", ".join(f"{ArmSpec.from_args(a).defaults[k]} ({a})" for a in arm_names()
+                            for k in ("rules", "itg_plus_rules"))
         raise UserError(f"{rb.source}: no rule moves {', '.join(unmoved)} of this {n_joints}-joint "
                         f"arm: a rule base for another arm? (shipped: {shipped})")
     return rb

@@ -277,17 +277,21 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def plot_title(s: dict) -> str:
-    """The run's figures' title: what ran on which path and what it saw, then E_av. Files are
-    named by their name less folder and type; an ITG run names its rule base."""
+    """The run's figures' title: what ran on which path, what it saw and under which limits
+    (servo, iterations), then E_av. Files are named by their name less folder and type; an ITG
+    run names its rule base."""
     who = _less_type(Path(s["rules"]).name) if s["controller"] == "itg" else s["controller"]
     seen = s["feedback"]
     noise = s.get("feedback_params", {}).get("noise_px") or 0.0
     if seen == "vision" and noise > 0:
         seen += f", {noise:g} px noise"
     laps = f", {s['laps']} laps" if s.get("laps", 1) > 1 else ""
+    limits = ", ".join(
+        ([f"servo {s['max_step_deg']:g} deg/iteration"] if s.get("max_step_deg") else [])
+        + ([f"{s['iterations']} iterations"] if s.get("iterations", 1) > 1 else []))
     e_av = s["e_av_mm"] if s["e_av_mm"] is not None else float("nan")
-    return (f"{s['arm']} {_less_type(Path(s['trajectory']).name)}{laps} ({who}, {seen}): "
-            f"E_av {e_av:.2f} mm")
+    return (f"{s['arm']} {_less_type(Path(s['trajectory']).name)}{laps} ({who}, {seen}"
+            f"{'; ' + limits if limits else ''}): E_av {e_av:.2f} mm")
 
 
 def summary_table(s: dict, out: Path) -> str:

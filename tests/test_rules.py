@@ -602,3 +602,11 @@ def test_a_rule_base_whose_s_is_the_servo_limit_needs_s_given():
     with pytest.raises(UserError, match="my.rules: S is the servo limit here"):
         RuleBase.from_text(text, 2, TWO, source="my.rules")
     assert RuleBase.from_text(text, 2, TWO, S=5.0).S == 5.0
+
+
+def test_a_rule_base_for_another_arm_names_every_shipped_one_for_each_arm():
+    with pytest.raises(UserError) as exc:
+        load_rules("table2", 3, (100.0, 100.0, 100.0))
+    msg = str(exc.value)
+    assert "no rule moves q3 of this 3-joint arm" in msg
+    assert "three-link (three-link)" in msg and "itg-plus-three-link (three-link)" in msg

@@ -222,6 +222,9 @@ def test_figure_titles_name_the_rule_base_the_path_and_what_the_eye_saw():
             "feedback_params": {"noise_px": 1.0}, "laps": 2, "e_av_mm": 1.4291}
     assert plot_title(base) == ("two-link lemniscate, 2 laps (itg-plus-two-link, vision, 1 px "
                                 "noise): E_av 1.43 mm")
+    limited = {**base, "max_step_deg": 2.0, "iterations": 5}
+    assert plot_title(limited) == ("two-link lemniscate, 2 laps (itg-plus-two-link, vision, 1 px "
+                                   "noise; servo 2 deg/iteration, 5 iterations): E_av 1.43 mm")
     # a baseline names itself, not the arm's rule base; no noise, one lap and no E_av say so
     dls = {**base, "controller": "jacobian", "trajectory": "ellipse-t1", "laps": 1,
            "feedback_params": {"noise_px": 0.0}, "e_av_mm": None}
