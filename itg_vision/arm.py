@@ -167,11 +167,16 @@ class ArmSpec:
 
 
 # ---------------------------------------------------------------------------- arm files
+def names_a_file(name_or_path: str) -> bool:
+    """Whether ``--arm`` names an arm file (a .yaml or a path with a folder), not a shipped arm
+    (whatever files the current folder holds)."""
+    return Path(name_or_path).suffix in (".yaml", ".yml") or "/" in name_or_path
+
+
 def arm_path(name_or_path: str) -> Path:
     """The arm file of a shipped arm's name, or the path given (an unknown name: a UserError)."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or "/" in name_or_path:
-        return p
+    if names_a_file(name_or_path):
+        return Path(name_or_path)
     candidate = ARMS_DIR / f"{name_or_path}.yaml"
     if not candidate.exists():
         raise UserError(f"unknown arm {name_or_path!r} (choose from {', '.join(arm_names())}, "

@@ -120,7 +120,7 @@ class TrackingEnv(gym.Env):
         super().reset(seed=seed)
         self.close()
         prep = self._prep
-        cfg = prep.config  # the config as given, its controller settings set aside
+        cfg = prep.config  # the config as given but its controller settings
         if seed is not None:
             run_seed = int(seed)
         else:

@@ -331,11 +331,12 @@ def report(r: dict, base: RunConfig) -> str:
         + v3 + ": the slope depends on f, so the claim holds at most for some gains |")
     g1, g2 = t1["good_f_range_deg_per_mm"], t2["good_f_range_deg_per_mm"]
     overlap = min(g1[1], g2[1]) >= max(g1[0], g2[0])
+    v4 = verdict(overlap)
     L.append(
         f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f_deg_per_mm']:.3f}, T2 "
         f"{t2['best_f_deg_per_mm']:.3f} deg/mm; good f [{g1[0]:.3f}, {g1[1]:.3f}] (T1), "
         f"[{g2[0]:.3f}, {g2[1]:.3f}] (T2) | good f: E_av within {GOOD_F_FACTOR}x of the "
-        f"minimum; agrees if the two ranges overlap | {(v4 := verdict(overlap))} |")
+        f"minimum; agrees if the two ranges overlap | {v4} |")
     # experiment 5
     firsts = ", ".join(f"{v['first_lap_max_at_deg']:.0f}" for v in e5.values())
     peaks = "; ".join(f"n_t={n}: " + ", ".join(f"{m:.0f} mm at {a:.0f} deg (y_d {round(y)} mm)" for a, m, y in
@@ -346,26 +347,28 @@ def report(r: dict, base: RunConfig) -> str:
                   for a in v["second_lap_peaks_deg"][:1])
     emax = {n: v["second_lap_e_max_mm"] for n, v in e5.items()}
     acceptable = all(m <= ACCEPTABLE_MM for m in emax.values())
+    v5a, v5b = verdict(at_ends), verdict(acceptable)
     L.append(
         f"| 5a | the largest deviation is at radial angles 0, 180, 360 deg (Fig. 4.5) | first lap (from the start pose, as the "
         f"paper): largest at {firsts} deg, the start transient. Settled second lap, the three largest peaks, the largest first: {peaks} | the "
-        f"settled lap's largest peak within {PEAK_ANGLE_TOL_DEG:g} deg of 0, 180 or 360 for every n_t | {(v5a := verdict(at_ends))} |")
+        f"settled lap's largest peak within {PEAK_ANGLE_TOL_DEG:g} deg of 0, 180 or 360 for every n_t | {v5a} |")
     L.append(
         "| 5b | the deviation remains within acceptable limits even for small n_t | settled-lap E_max "
         + ", ".join(f"{m:.0f} mm (n_t {n})" for n, m in emax.items())
         + "; settled-lap E_av " + ", ".join(f"{v['second_lap_e_av_mm']:.1f}" for v in e5.values())
         + f" mm | acceptable: settled-lap E_max <= {ACCEPTABLE_MM:g} mm (5 % of the 200 mm reach) | "
-        f"{(v5b := verdict(acceptable))} |")
+        f"{v5b} |")
     # experiment 6
     n_oor = e6["line-ab"]["n_out_of_reach"]
     ok6 = n_oor == 0 and lim["e_av_mm"] <= EXP6_FACTOR * PAPER_EXP6_E_AV_MM
+    v6 = verdict(ok6)
     L.append(
         f"| 6 | line A(50, 30, 220) to B(250, 200, 400), 100 points, average error about {PAPER_EXP6_E_AV_MM} mm | the paper's line: "
         f"{n_oor} of {e6['line-ab']['n_setpoints']} set points out of reach (B is 439 mm from the shoulder, z = 400 mm above "
         f"the 300 mm the arm reaches; RULE 0 flags {e6['line-ab']['n_flagged']}). Reachable variant (`line-ab-reach`): as the paper, E_av "
         f"{asis['e_av_mm']:.1f} mm; with a 2 deg/iteration servo limit and 5 iterations E_av {lim['e_av_mm']:.2f} mm "
         f"(E_max {lim['e_max_mm']:.0f} mm, the start), {lim['e_av_second_half_mm']:.2f} mm on the second half | agrees if "
-        f"every point is in reach and E_av <= {EXP6_FACTOR:g} x {PAPER_EXP6_E_AV_MM} mm | {(v6 := verdict(ok6))} as given |")
+        f"every point is in reach and E_av <= {EXP6_FACTOR:g} x {PAPER_EXP6_E_AV_MM} mm | {v6} as given |")
     L += ["", "## Experiment 5: where the settled lap flails, and why", ""]
     L.append(
         "A first explanation (ours, earlier) blamed Table 2's choice of q1's direction from the sign of y_d instead of "

@@ -71,12 +71,13 @@ def error_figure(trace, title: str, path) -> None:
     marks = _reach_marks(trace)
     for which, _, color, label in marks:
         ax.plot(np.flatnonzero(which), np.zeros(which.sum()), "|", color=color, label=label)
-    late = trace.tracking_errors_mm()
-    if late.size:
+    m = trace.metrics()  # the summary's numbers, not a second computation of them
+    tracked = m["track_max_mm"] is not None
+    if tracked:
         ax.axvline(trace.tracking_start - 0.5, color="0.4", ls="--", lw=0.8,
-                   label=f"tracking phase: median {np.median(late):.3g} / "
-                         f"p95 {np.percentile(late, 95):.3g} / max {late.max():.3g} mm")
-    if marks or late.size:
+                   label=f"tracking phase: median {m['track_median_mm']:.3g} / "
+                         f"p95 {m['track_p95_mm']:.3g} / max {m['track_max_mm']:.3g} mm")
+    if marks or tracked:
         ax.legend(fontsize=8)
     ax.set_xlabel("set point i")
     ax.set_ylabel("E_i (mm)")

@@ -19,6 +19,7 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from . import outputs, plot
+from .arm import names_a_file
 from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
@@ -187,7 +188,7 @@ def run_key(prep) -> dict:
             files[key] = prep.info[key]
     if prep.trajectory.file is not None:
         files["trajectory"] = str(prep.trajectory.file)
-    if Path(prep.config.arm).is_file():  # an arm file of the user's (a shipped arm: its name)
+    if names_a_file(prep.config.arm):  # an arm file of the user's (a shipped arm: its name)
         files["arm"] = prep.config.arm
     digests = {}
     for key, path in files.items():

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..arm import ArmSpec
 from ..camera import Rig
-from ..errors import UserError, exit_status, run_main
+from ..errors import ArgumentParser, UserError, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..triangulate import predicted_covariance, predicted_rms_error_mm
 from ..world import World
@@ -115,8 +115,6 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..errors import ArgumentParser  # one-line option errors
-
     ap = ArgumentParser(prog="python -m itg_vision.bench accuracy",
                         description=__doc__.split("\n\n")[0])
     ap.add_argument("--arm", default="two-link", metavar="NAME|PATH",

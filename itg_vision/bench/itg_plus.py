@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
-from ..errors import UserError, at_least_one, exit_status, points_arg, run_main
+from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, worst
 from .store import Results, check_sweep_file, definition_hash, started
 from .sweep import FF_CORRECTION
@@ -459,7 +459,6 @@ def table(targets: list[Target], what: str = "target") -> list[str]:
 
 # ---------------------------------------------------------------------------- command line
 def build_parser() -> argparse.ArgumentParser:
-    from ..errors import ArgumentParser
 
     ap = ArgumentParser(prog="python -m itg_vision.bench itg-plus",
                         description="Issue 13's targets for ITG+: runs the itg-plus and "

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from .. import outputs
-from ..errors import UserError, at_least_one, exit_status, points_arg, run_main
+from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
@@ -54,7 +54,6 @@ def check_out(out: Path, command: str = COMMAND) -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..errors import ArgumentParser  # one-line option errors
 
     ap = ArgumentParser(
         prog="python -m itg_vision.bench noise",
@@ -182,14 +181,17 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
           f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
           f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
     failures: dict[str, str] = {}
+
+    def stored() -> int:  # runs of this sweep with their row in results.csv
+        return sum(1 for s in specs if s.run_id in store.rows)
+
     try:
         _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
     except BaseException as exc:
         shutdown(executor, cancel=True, client=client)
         if isinstance(exc, KeyboardInterrupt):
-            done = sum(1 for s in specs if s.run_id in store.rows)
-            print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same command "
-                  "runs the rest", file=sys.stderr)
+            print(f"\n{stored()} of {len(specs)} runs are in {out / 'results.csv'}; the same "
+                  "command runs the rest", file=sys.stderr)
         raise
     shutdown(executor, client=client)
     rows = list(store.rows.values())
@@ -200,7 +202,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
                            "".join(f"{k}\t{v}\n" for k, v in failures.items()))
     elif (out / "failures.log").exists():  # every run it listed has its row now
         (out / "failures.log").unlink()
-    done = sum(1 for s in specs if s.run_id in store.rows)
+    done = stored()
     gone = len(rows) - len(started(rows))
     print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
           + (f" ({gone} did not start: see the report)" if gone else "")

@@ -21,7 +21,7 @@ import numpy as np
 from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
 from ..controllers import two_link_ik
-from ..errors import UserError, at_least_one, exit_status, run_main
+from ..errors import ArgumentParser, UserError, at_least_one, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, Markers, VisionFeedback
 from ..rules import RuleBase, load_rules
 from .. import native, trajectory as traj
@@ -224,8 +224,6 @@ def vision_report(rows: list[dict], default_supersample: int) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..errors import ArgumentParser  # one-line option errors
-
     ap = ArgumentParser(prog="python -m itg_vision.bench speed",
                         description=__doc__.split("\n\n")[0])
     ap.add_argument("--no-vision", action="store_true", help="skip the vision pipeline timings")
