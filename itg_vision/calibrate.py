@@ -91,8 +91,19 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
     probe_folder(out.parent)
 
 
-def summary_table(r: dict) -> str:
-    """The calibration figures as a short text table."""
+def measured_links(base_frame: dict) -> str:
+    """'measured L2 99.90, L3 99.97 mm': the link lengths the joint-axis fits measured, named
+    (a calibration file written before the names were recorded: 'measured links ...')."""
+    values = base_frame["measured_links_mm"]
+    names = base_frame.get("measured_links")
+    if names is None or len(names) != len(values):
+        return "measured links " + ", ".join(f"{v:.2f}" for v in values) + " mm"
+    return "measured " + ", ".join(f"{n} {v:.2f}" for n, v in zip(names, values)) + " mm"
+
+
+def summary_table(r: dict, tail=()) -> str:
+    """The calibration figures as a short text table; ``tail``: (label, value) rows after them
+    (the files written, the wall time), in the same columns."""
     e = r["error_vs_true"]
     names = list(e["cameras"])
     rows = [("", *names)]
@@ -122,14 +133,14 @@ def summary_table(r: dict) -> str:
             ("base frame error: origin (mm), rotation (deg)",
              f"{e['base_frame']['origin_mm']:.2f}, {e['base_frame']['rotation_deg']:.3f}"),
             ("base frame: joint-axis circle fits RMS (mm)",
-             f"{r['base_frame']['fit_rms_mm']:.3f} (measured links "
-             + ", ".join(f"{v:.2f}" for v in r["base_frame"]["measured_links_mm"]) + " mm)"),
+             f"{r['base_frame']['fit_rms_mm']:.3f} ({measured_links(r['base_frame'])})"),
             ("LED triangulation RMS (mm)", f"true rig {led['true_rig_rms_mm']:.3f}, calibrated "
                                            f"{led['calibrated_rig_rms_mm']:.3f}, ratio "
                                            f"{led['ratio']:.2f} ({led['points']} points)"),
             ("LED triangulation p95 / max (mm)",
              f"true rig {led['true_rig_p95_mm']:.3f} / {led['true_rig_max_mm']:.3f}, calibrated "
              f"{led['calibrated_rig_p95_mm']:.3f} / {led['calibrated_rig_max_mm']:.3f}")]
+    pair += list(tail)  # (label, value) rows after the figures, in the same columns
     w0 = max(len(x[0]) for x in rows + pair)
     w = [max(len(row[i]) for row in rows) for i in range(1, len(rows[0]))]
     lines = ["  ".join([f"{row[0]:<{w0}}"] + [f"{v:>{w[i]}}" for i, v in enumerate(row[1:])])
@@ -245,12 +256,11 @@ class Job:
 
 def report(result: Result, out: Path, picture: Path | None) -> str:
     """What the command prints: the figures, the files written and the wall time."""
-    lines = [summary_table(result.record), f"{'calibrated rig':<31}  {out}"]
+    tail = [("calibrated rig", str(out))]
     if picture is not None:
-        view = f"detected corners (view {result.record['picture_view']})"
-        lines.append(f"{view:<31}  {picture}")
-    lines.append(f"{'wall time':<31}  {result.timing_s['total_s']:.1f} s")
-    return "\n".join(lines)
+        tail.append((f"detected corners (view {result.record['picture_view']})", str(picture)))
+    tail.append(("wall time", f"{result.timing_s['total_s']:.1f} s"))
+    return summary_table(result.record, tail)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -349,6 +349,8 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np
     y = np.cross(z, x)
     R_w = np.column_stack([x, y, z])
     record["measured_links_mm"] = measured
+    first = len(arm.links_mm) - len(measured) + 1  # three-link: L1 is the base height, unseen
+    record["measured_links"] = [f"L{first + i}" for i in range(len(measured))]
     return R_w, origin, record
 
 

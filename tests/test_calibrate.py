@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from itg_vision import calibration as cal
-from itg_vision.calibrate import summary_table
+from itg_vision.calibrate import measured_links, summary_table
 from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig
 from itg_vision.errors import UserError
@@ -76,8 +76,11 @@ def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name)
         assert angle < 0.1, (scale, angle)
         assert np.linalg.norm(origin_shift - expect) < 1.0, (scale, origin_shift)
         assert rec["fit_rms_mm"] < 1.0
-        assert rec["measured_links_mm"][0] == pytest.approx(
-            true_arm.links_mm[0 if arm_name == "two-link" else 1], abs=0.5)
+        # each measured length is the simulated link its name says (three-link: L2, L3; the
+        # base height L1 is not seen)
+        assert rec["measured_links"] == (["L1", "L2"] if arm_name == "two-link" else ["L2", "L3"])
+        for name, got in zip(rec["measured_links"], rec["measured_links_mm"]):
+            assert got == pytest.approx(true_arm.links_mm[int(name[1:]) - 1], abs=0.5), name
 
 
 # ---------------------------------------------------------------------------- full calibration
@@ -192,6 +195,14 @@ def test_summary_table_lists_the_figures(planar_result):
     for word in ("reprojection RMS", "focal length", "principal point", "baseline",
                  "rotation", "world position", "LED triangulation", "worst view", "p95 / max"):
         assert word in text
+
+
+def test_summary_table_names_the_measured_links():
+    """Three-link: the fits measure L2 and L3 (L1 is the base height, not seen); the table
+    names them, and reads an older file without the names as before."""
+    bf = {"measured_links_mm": [99.8983, 99.9691], "measured_links": ["L2", "L3"]}
+    assert measured_links(bf) == "measured L2 99.90, L3 99.97 mm"
+    assert measured_links({"measured_links_mm": [99.9]}) == "measured links 99.90 mm"
 
 
 def test_summary_table_labels_the_errors_against_the_true_rig():
