@@ -25,6 +25,10 @@ import numpy as np
 
 from .contracts import Controller, Markers, Step
 
+#: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
+#: two- and three-link arms' 200 mm reach; tracking runs sit below 5 mm, diverged ones above 100.
+DIVERGED_MM = 20.0
+
 
 def aim_mm(desired_mm, previous_mm, gripper_mm, correction: float, planar: bool) -> np.ndarray:
     """Where the controller is asked to go: the set point, less ``1 - correction`` of the error
@@ -181,7 +185,8 @@ class Trace:
 
     def metrics(self) -> dict:
         """E_av, E_max, E_rms over the set points in reach (the paper's metric, start transient
-        included), and the tracking phase's median, mean, 95th percentile and max.
+        included), and the tracking phase's median, mean, 95th percentile and max;
+        ``diverged``: that median is above :data:`DIVERGED_MM` (None without a tracking phase).
         ``n_out_of_reach``: set points the simulated arm cannot reach (left out of them all);
         ``n_flagged``: set points the controller flagged out of reach; ``n_aim_out_of_reach``:
         set points whose aim (moved by a correction or a preview) the controller flagged, and
@@ -208,6 +213,7 @@ class Trace:
             "track_mean_mm": stat(np.mean, late),
             "track_p95_mm": stat(lambda v: np.percentile(v, 95), late),
             "track_max_mm": stat(np.max, late),
+            "diverged": None if not late.size else bool(np.median(late) > DIVERGED_MM),
             "n_setpoints": int(len(e)),
             "n_out_of_reach": int((~ok).sum()),
             "n_flagged": int(self.out_of_reach.sum()),

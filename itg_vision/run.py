@@ -25,6 +25,7 @@ from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_st
                      run_main)
 from .feedback import DEFAULT_SUPERSAMPLE
 from .inputs import FILE_TYPES
+from .loop import DIVERGED_MM
 from .progress import progress
 from .rules import shipped_rules
 from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
@@ -312,6 +313,8 @@ def summary_table(s: dict, out: Path) -> str:
             (f"tracking from set point {s['tracking_from']}: median / mean / p95 / max",
              " / ".join(f(s[k]) for k in ("track_median_mm", "track_mean_mm", "track_p95_mm",
                                           "track_max_mm")) + " mm"),
+            *([(f"diverged (tracking median > {DIVERGED_MM:g} mm)",
+                "yes (README, 'Diverged runs')")] if s.get("diverged") else []),
             ("servo limit", "none" if s["max_step_deg"] is None else f"{s['max_step_deg']:g} deg/iteration"),
             ("controller parameters", ", ".join(f"{k} {v}" for k, v in s["controller_params"].items())
              or "none"),

@@ -45,7 +45,7 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
         "est_elbow_rms_mm", "est_gripper_rms_mm", "feedback", "feedback_params", "geometry",
         "iterations", "joint_offset_deg", "laps", "links_mm", "max_step_deg", "correction", "preview", "n_missed",
         "n_out_of_reach", "n_flagged", "n_aim_out_of_reach", "n_setpoints", "rules", "seed", "start_error_mm", "first_error_mm",
-        "timing_ms", "track_max_mm",
+        "timing_ms", "track_max_mm", "diverged",
         "track_mean_mm", "track_median_mm", "track_p95_mm", "tracking_from", "trajectory",
         "true_links_mm", "wall_s"}
     # only what was used is recorded: Table 2 reads f alone; model feedback takes no parameter
@@ -276,3 +276,18 @@ def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path.parent)
     assert run_key(prep)["inputs_sha256"]["trajectory"] == key is not None
     assert execute(prep)[1]["trajectory"] == str((tmp_path / "abcd").resolve())
+
+
+def test_a_diverged_run_says_so_from_the_benchmark_threshold(tmp_path):
+    """The paper's three-link composition from its straight-up start, seen by the eye and with
+    no servo limit, diverges (README: the tie at the start); the default two-link run tracks.
+    ``diverged`` is the tracking median against DIVERGED_MM, the noise benchmark's threshold,
+    and the table carries a row only for the run that diverged."""
+    from itg_vision.loop import DIVERGED_MM
+    from itg_vision.run import summary_table
+
+    for arm, expect in (("three-link", True), ("two-link", False)):
+        _, s = execute(prepare(RunConfig(arm=arm)))
+        assert s["diverged"] is (s["track_median_mm"] > DIVERGED_MM) is expect, (arm, s["track_median_mm"])
+        rows = [ln for ln in summary_table(s, tmp_path).splitlines() if ln.startswith("diverged")]
+        assert len(rows) == expect

@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import outputs
+from ..loop import DIVERGED_MM
 from .store import started
-from .sweep import ALL_CONTROLLERS, CONDITIONS, CONTROLLER_TITLES, DIVERGED_MM, TRAJECTORIES, Condition, RunSpec
+from .sweep import ALL_CONTROLLERS, CONDITIONS, CONTROLLER_TITLES, TRAJECTORIES, Condition, RunSpec
 
 def _float(v: str) -> float:
     try:

@@ -26,7 +26,8 @@ from pathlib import Path
 
 from .. import outputs
 from ..errors import UserError
-from .sweep import DIVERGED_MM, SCHEMA, RunSpec
+from ..loop import DIVERGED_MM
+from .sweep import SCHEMA, RunSpec
 
 #: Per-run metrics from the run's summary (see itg_vision.loop.Trace.metrics).
 RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median_mm",

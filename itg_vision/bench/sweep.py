@@ -119,9 +119,6 @@ RIG_ANGLE_DEG = 1.0
 RIG_SHIFT_MM = 5.0
 #: Closed paths run this many laps; the tracking phase is the laps after the first.
 LAPS = 2
-#: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
-#: two- and three-link arms' 200 mm reach; tracking runs sit below 5 mm, diverged ones above 100.
-DIVERGED_MM = 20.0
 FULL_SEEDS = 5
 QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
