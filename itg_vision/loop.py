@@ -26,7 +26,7 @@ import numpy as np
 from .contracts import Controller, Markers, Step
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
-#: two- and three-link arms' 200 mm reach; tracking runs sit below 5 mm, diverged ones above 100.
+#: two- and three-link arms' 200 mm reach (a line, not a gap in the data: README, "Diverged runs").
 DIVERGED_MM = 20.0
 
 
