@@ -144,8 +144,8 @@ def test_motion_rules_use_no_link_length(name):
 OTHER_LINKS = {"one-link": [(1.003,)], "two-link": [(0.8, 1.3), (1.3, 1.3)],
                "three-link": [(1.0, 1.3, 0.7), (1.0, 1.3, 1.3)]}
 #: Rules the sample below must have fired: all the one-link steps, the singular rules of the
-#: others (two-link RULES 7-11, three-link 5-9: the elbow within 1 deg of straight or folded).
-SAMPLED_RULES = {"one-link": {2, 3, 4, 5, 6}, "two-link": set(range(7, 12)),
+#: others (two-link RULES 8-12, three-link 5-9: the elbow within 1 deg of straight or folded).
+SAMPLED_RULES = {"one-link": {2, 3, 4, 5, 6}, "two-link": set(range(8, 13)),
                  "three-link": set(range(5, 10))}
 
 
@@ -169,7 +169,7 @@ def test_motion_steps_do_not_change_with_the_link_lengths_the_rules_are_told(nam
     """The steps do not change when the rules are told other lengths (the shoulder height L1 of
     the three-link arm kept): random poses and set points, poses with the elbow within 1 deg of
     straight or folded (the singular rules), and set points within 3 mm of full reach (where
-    RULES 7-8 of the two-link arm test the set point against the gripper's circle)."""
+    RULES 8-9 of the two-link arm test the set point against the gripper's circle)."""
     arm = ArmSpec.from_args(name)
     a = itg_plus(arm)
     others = [itg_plus(arm, links=tuple(v * f for v, f in zip(arm.links_mm, fs)))
@@ -342,12 +342,13 @@ def test_near_the_base_with_the_set_point_at_it_the_step_is_the_dls_trackers_ste
 
 
 def test_near_the_base_the_step_never_ends_farther_and_beats_the_dls_step():
-    """Gripper within 25 mm of the base, set point 2-30 mm from it in any direction (RULES 3-6:
+    """Gripper within 25 mm of the base, set point 2-30 mm from it in any direction (RULES 3-7:
     the gripper's line through the base turned towards the set point the shorter way, or the
-    damped step, whichever lands nearer by the levers' prediction): one step never ends farther
-    from the set point than it started, and lands nearer the best servo-limited step (the exact
-    model's, by grid search) than the DLS step does, in median over 400 cases; both kinds of
-    step are taken."""
+    damped step, whichever lands nearer by the levers' prediction, or the slide line turned to
+    the line through g and d, the line of travel when err is the path's step): one step never
+    ends farther from the set point than it started, and lands nearer the best servo-limited
+    step (the exact model's, by grid search) than the DLS step does, in median over 400 cases;
+    every kind of step is taken."""
     from itg_vision.bench.itg_plus import greedy_step_deg
 
     arm = ArmSpec.from_args("two-link")
@@ -366,7 +367,7 @@ def test_near_the_base_the_step_never_ends_farther_and_beats_the_dls_step():
         step_dls = step(tracker, arm, p, q)
         excess.append(after - best)
         excess_dls.append(distance(arm, p, q + step_dls) - best)
-    assert fired == {3, 4, 5, 6}
+    assert fired == {3, 4, 5, 6, 7}
     assert np.median(excess) < np.median(excess_dls), (np.median(excess), np.median(excess_dls))
 
 
@@ -446,8 +447,8 @@ def test_the_straight_start_tie_is_settled_the_same_way_whatever_the_noise(name)
 
 
 #: The elbow's rules at a singular pose (the dead band) and elsewhere (the radial step).
-SINGULAR_RULES = {"two-link": set(range(7, 12)), "three-link": set(range(5, 10))}
-RADIAL_RULES = {"two-link": {12, 13, 14}, "three-link": {10, 11, 12}}
+SINGULAR_RULES = {"two-link": set(range(8, 13)), "three-link": set(range(5, 10))}
+RADIAL_RULES = {"two-link": {13, 14, 15}, "three-link": {10, 11, 12}}
 
 
 @pytest.mark.parametrize("name", ["two-link", "three-link"])
@@ -525,8 +526,8 @@ def test_converges_to_any_reachable_set_point_from_the_start(name, iterations):
 
 def test_near_the_base_the_predicted_landings_are_the_forward_kinematics():
     """The two-link rules choose near the base by where each step would land, predicted from the
-    levers alone (P0: the damped step, P1 and P2: the line turned one way or the other, each a
-    squared distance to the set point). The file's definitions, probed by rules of our own,
+    levers alone (P0: the damped step, P1 and P2: the line turned one way or the other, P3: the
+    slide line turned to the line of travel, each a squared distance to the set point). The file's definitions, probed by rules of our own,
     against the forward kinematics of the model after each step: within 0.01 mm (the half-angle
     tangent's series is within 1e-4 rad of the turn up to 40 deg; the forearm is 100 mm)."""
     from itg_vision.rules import resolve_rules_path
@@ -536,7 +537,8 @@ def test_near_the_base_the_predicted_landings_are_the_forward_kinematics():
     probes = {k: RuleBase.from_text(f"{text}\nRULE 1: IF 1 > 0 THEN q1 += {a}, q2 += {b}\n"
                                     f"RULE 2: IF 1 > 0 THEN q3 += P{k}", 3, arm.links_mm,
                                     S=SERVO["two-link"], w=0.5)
-              for k, (a, b) in enumerate((("a0", "b0"), ("th1", "s1"), ("th2", "s2")))}
+              for k, (a, b) in enumerate((("a0", "b0"), ("th1", "s1"), ("th2", "s2"),
+                                          ("th3", "s3")))}
     rng = np.random.default_rng(12)
     for q, _ in zip(_near_base_poses(arm, rng), range(200)):
         a = rng.uniform(-np.pi, np.pi)
@@ -545,3 +547,66 @@ def test_near_the_base_the_predicted_landings_are_the_forward_kinematics():
             dq = rb.step(p, observe(arm, q), [*q, 0.0]).dq_deg
             assert np.all(np.abs(dq[:2]) <= SERVO["two-link"] + 1e-9)
             assert abs(np.sqrt(dq[2]) - distance(arm, p, q + dq[:2])) < 0.01, (q, p, dq)
+
+
+def test_passing_by_turns_the_slide_line_to_the_line_of_travel():
+    """RULE 3 of the two-link rules, against a computation of our own. th3 is the angle from the
+    forearm's normal n (the way q2 slides the gripper) to the line through g and d, the shorter
+    way (mod 180 deg), clipped to +-S: within 2e-4 deg of atan2's (the rules' tan and atan
+    series: 1.5e-6 rad). The rule fires exactly where no earlier rule does (the gripper within w
+    of d, d within 4 w of the base), the gripper is within 25 mm of the base, the line through g
+    and d passes within 4 w = 2 mm of the base, d's bearing turns by more than S were d - g the
+    path's step (|d x (d - g)| / |d|^2 > S in rad), and the step lands nearer d than the gripper
+    is, by the forward kinematics (cases within 0.01 mm of that, the predictions' accuracy, left
+    out). Set points near a point c 0-4 mm from the base, on the line from g through c or (with
+    the gripper within 2.1 mm of the base) on one 60-90 deg off n, or anywhere 2-30 mm from the
+    base, so that both sides of the gate, of the rate and of the landing are sampled."""
+    from itg_vision.rules import resolve_rules_path
+
+    arm = ArmSpec.from_args("two-link")
+    S, w = SERVO["two-link"], 0.5
+    rb = itg_plus(arm)
+    text = resolve_rules_path(ARMS["two-link"]).read_text().split("\nRULE 1:")[0]
+    probe = RuleBase.from_text(f"{text}\nRULE 1: IF 1 > 0 THEN q1 += th3, q2 += s3", 2,
+                               arm.links_mm, S=S, w=w)
+    rng = np.random.default_rng(21)
+    fired, counted = {True: 0, False: 0}, {"gate, slow bearing": 0, "gate, lands farther": 0}
+    for q, k in zip(_near_base_poses(arm, rng), range(1500)):
+        if k % 3 == 1:  # the gripper within 2.1 mm of the base, where a clipped turn may not do
+            q = np.array([q[0], np.sign(q[1]) * rng.uniform(178.8, 180.0)])
+        m = forward_kinematics(arm, q)
+        g, e = m["gripper"][:2], m["elbow"][:2]
+        a = rng.uniform(-np.pi, np.pi)
+        c = rng.uniform(0.0, 4.0) * np.array([np.cos(a), np.sin(a)])  # the line passes c
+        v = (c - g) / np.linalg.norm(c - g)
+        u = g - e
+        n = np.array([-u[1], u[0]])
+        if k % 3 == 1:  # or on a line through c 60-90 deg off n (the turn clipped to S)
+            b = np.radians(rng.uniform(60.0, 90.0)) * rng.choice([-1, 1])
+            v = np.array([[np.cos(b), -np.sin(b)], [np.sin(b), np.cos(b)]]) @ (n / np.linalg.norm(n))
+        d = c + rng.uniform(-8.0, 8.0) * v + rng.normal(0.0, 0.3, 2)  # near c, on g's line
+        if k % 3 == 2:  # or anywhere 2-30 mm from the base (the line of travel rarely passes by)
+            d = rng.uniform(2.0, 30.0) * np.array([np.cos(a), np.sin(a)])
+        err = d - g
+        angle = np.degrees(np.arctan2(n[0] * err[1] - n[1] * err[0], n @ err))
+        angle = (angle + 90.0) % 180.0 - 90.0  # to the line, the shorter way
+        p = np.array([*d, 0.0])
+        th3 = probe.step(p, observe(arm, q), q).dq_deg
+        assert th3[0] == pytest.approx(np.clip(angle, -S, S), abs=2e-4), (q, d, angle)
+        cross = abs(d[0] * err[1] - d[1] * err[0])
+        gate = cross / np.linalg.norm(err) < 4 * w
+        fast = cross / (d @ d) > np.radians(S)
+        nearer = distance(arm, p, q + th3) - np.linalg.norm(err)
+        if (abs(cross / np.linalg.norm(err) - 4 * w) < 1e-6 or abs(nearer) < 0.01
+                or abs(cross / (d @ d) - np.radians(S)) < 1e-9):
+            continue
+        earlier = np.linalg.norm(err) <= w or np.linalg.norm(d) < 4 * w
+        expect = bool(not earlier and 16 * (g @ g) < u @ u and gate and fast and nearer < 0)
+        got = rb.step(p, observe(arm, q), q)
+        assert (got.fired[:1] == (3,)) is expect, (q, d, got.fired, gate, fast, nearer)
+        fired[expect] += 1
+        if gate and not earlier and not fast:
+            counted["gate, slow bearing"] += 1
+        if gate and fast and not earlier and nearer > 0:
+            counted["gate, lands farther"] += 1
+    assert min(fired.values()) >= 50 and min(counted.values()) >= 3, (fired, counted)

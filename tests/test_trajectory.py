@@ -132,7 +132,8 @@ def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
     assert 1.5 * np.median(steps) < np.linalg.norm(square[-1] - square[0]) <= 1.5 * steps[0]
     assert T.load(str(data / "rounded-square.csv")).closed
     assert T.is_closed(np.vstack([square[:1], square, square[-1:]]))  # dwelling at its ends
-    for name in ("peanut", "limacon", "rose", "lemniscate", "ellipse-by-base", "trefoil"):
+    for name in ("peanut", "limacon", "rose", "lemniscate", "ellipse-by-base", "trefoil",
+                 "gerono", "lemniscate-2", "limacon-2", "thin-ellipse"):
         assert T.load(str(data / f"{name}.csv")).closed, name
     for name in ("abcd", "line-ab", "line-ab-reach"):
         assert not T.load(name).closed, name

@@ -5,7 +5,8 @@ own folder under ``--out``, resumable):
 
 - ``tracking/``: sweep ``itg-plus``: the two-link arm under vision feedback on T1, T2, ``abcd``
   and the closed curves ``peanut``, ``limacon``, ``rose``, ``lemniscate``,
-  ``ellipse-by-base`` and ``trefoil`` (2 laps; each passes within 1.6 mm of the base), clean
+  ``ellipse-by-base``, ``trefoil``, ``gerono``, ``lemniscate-2``, ``limacon-2`` and
+  ``thin-ellipse`` (2 laps; each passes within 1.8 mm of the base), clean
   and with 1 px centroid noise, ITG+ against the DLS Jacobian tracker and the paper's Table 2,
   same seeds, same servo limit; ITG+ and DLS with the same memory (``run --correction 0.5``),
   whose runs test the explanation of the 1 px target's misses (:func:`memory_checks`); and

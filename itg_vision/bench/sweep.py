@@ -90,8 +90,8 @@ CONTROLLER_TITLES = {
     "jacobian-vision-preview": "Jacobian tracker fed by vision, with preview",
 }
 #: Trajectory -> arm. ``line-ab-reach`` is the reachable variant of the paper's line A-B;
-#: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base``, ``trefoil`` (closed,
-#: two-link) and
+#: ``peanut``, ``limacon``, ``rose``, ``lemniscate``, ``ellipse-by-base``, ``trefoil``,
+#: ``gerono``, ``lemniscate-2``, ``limacon-2``, ``thin-ellipse`` (closed, two-link) and
 #: ``helix`` (three-link) are files in data/trajectories; the README says which of them each
 #: ITG+ form was measured on unseen.
 TRAJECTORIES: dict[str, str] = {
@@ -106,10 +106,16 @@ TRAJECTORIES: dict[str, str] = {
     "lemniscate": "two-link",
     "ellipse-by-base": "two-link",
     "trefoil": "two-link",
+    "gerono": "two-link",
+    "lemniscate-2": "two-link",
+    "limacon-2": "two-link",
+    "thin-ellipse": "two-link",
 }
 TRAJECTORY_FILES = {"peanut": "peanut.csv", "helix": "helix.csv", "limacon": "limacon.csv",
                     "rose": "rose.csv", "lemniscate": "lemniscate.csv",
-                    "ellipse-by-base": "ellipse-by-base.csv", "trefoil": "trefoil.csv"}
+                    "ellipse-by-base": "ellipse-by-base.csv", "trefoil": "trefoil.csv",
+                    "gerono": "gerono.csv", "lemniscate-2": "lemniscate-2.csv",
+                    "limacon-2": "limacon-2.csv", "thin-ellipse": "thin-ellipse.csv"}
 NOISE_PX = (0.1, 0.3, 1.0, 2.0, 4.0)
 DROPOUTS = (0.05, 0.2)
 LINK_ERRORS = (0.02, 0.05)
@@ -206,7 +212,8 @@ SWEEPS = {
                                  "itg-plus-vision-ff", "jacobian-vision-ff",
                                  *WITH_PREVIEW),
                  "trajectories": ("ellipse-t1", "ellipse-t2", "abcd", "peanut", "limacon",
-                                  "rose", "lemniscate", "ellipse-by-base", "trefoil"),
+                                  "rose", "lemniscate", "ellipse-by-base", "trefoil",
+                                  "gerono", "lemniscate-2", "limacon-2", "thin-ellipse"),
                  "conditions": ("clean", "noise-1px"), "seeds": 3},
     # three-link from the straight-up start: links -5/0/+5 % x joint offset 0/1 deg
     "itg-plus-three-link": {"controllers": ("itg-plus-vision", "jacobian-vision"),
