@@ -610,3 +610,37 @@ def test_passing_by_turns_the_slide_line_to_the_line_of_travel():
         if gate and fast and not earlier and nearer > 0:
             counted["gate, lands farther"] += 1
     assert min(fired.values()) >= 50 and min(counted.values()) >= 3, (fired, counted)
+
+
+def test_passing_by_slides_by_the_error_across_the_turned_forearm():
+    """RULE 3's slide b3 (before its clip): q2's first-order step after q1 turns th3, the error
+    across the forearm over |u|^2, as it will be after the turn. The turn carries u and g
+    alike, so u x err becomes u x (R(-th3) d - g) exactly; the rules take it to first order in
+    th3 (T - th3 (u . d)), which leaves at most th3^2 / 2 |u| |d| / |u|^2 rad of the exact
+    value (the rotation's second-order term). The fifth form's derivation error, T - th (g . u),
+    or no correction at all (T alone) is off by th3 (u . d) / |u|^2: up to 2 / th3 times the
+    bound (5.7 at th3 = 20 deg), and more than twice it in the median case here."""
+    from itg_vision.rules import resolve_rules_path
+
+    arm = ArmSpec.from_args("two-link")
+    S, w = SERVO["two-link"], 0.5
+    text = resolve_rules_path(ARMS["two-link"]).read_text().split("\nRULE 1:")[0]
+    probe = RuleBase.from_text(f"{text}\nRULE 1: IF 1 > 0 THEN q1 += th3, q2 += b3", 2,
+                               arm.links_mm, S=S, w=w)
+    rng = np.random.default_rng(8)
+    off = []
+    for q, _ in zip(_near_base_poses(arm, rng), range(300)):
+        m = forward_kinematics(arm, q)
+        g, e = m["gripper"][:2], m["elbow"][:2]
+        a = rng.uniform(-np.pi, np.pi)
+        d = rng.uniform(2.0, 30.0) * np.array([np.cos(a), np.sin(a)])
+        th, b = probe.step(np.array([*d, 0.0]), observe(arm, q), q).dq_deg
+        t = np.radians(th)
+        u = g - e
+        back = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]]) @ d  # R(-th) d
+        err = back - g
+        exact = np.degrees((u[0] * err[1] - u[1] * err[0]) / (u @ u))
+        bound = np.degrees(t * t / 2 * np.linalg.norm(d) / np.linalg.norm(u)) + 1e-6
+        assert abs(b - exact) <= bound, (q, d, th, b, exact, bound)
+        off.append(abs(np.degrees(t * (u @ d) / (u @ u))) / bound)
+    assert np.median(off) > 2  # the cases tell the first-order correction from none
