@@ -329,8 +329,11 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np
         x = zero_direction(c, z, on_link1["points"], on_link1["angles_deg"])
         origin = c - arm.led_standoff_mm * z
         measured = [on_link1["radius_mm"]]
+        # the elbow's circle about the base is L1 (one link: the gripper's); else the gripper's
+        names = ["L1" if "elbow" in base or len(arm.links_mm) == 1 else "|gripper|"]
         if 1 in fits:
             measured.append(fits[1]["gripper"]["radius_mm"])
+            names.append("L2")
         record["nominal_used"] = f"LED stand-off {arm.led_standoff_mm:g} mm (the LEDs' height above the links)"
     else:
         shoulder = fits[1]
@@ -344,13 +347,13 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np
         record["standoff_mm"] = float(np.linalg.norm(C2 - S))
         measured = [shoulder["elbow"]["radius_mm"], float(np.median(np.linalg.norm(
             shoulder["gripper"]["points"] - shoulder["elbow"]["points"], axis=1)))]
+        names = ["L2", "L3"]  # L1 is the base height, not seen
         record["nominal_used"] = (f"base height L1 = {arm.links_mm[0]:g} mm below the measured "
                                   "shoulder (the floor is not seen)")
     y = np.cross(z, x)
     R_w = np.column_stack([x, y, z])
     record["measured_links_mm"] = measured
-    first = len(arm.links_mm) - len(measured) + 1  # three-link: L1 is the base height, unseen
-    record["measured_links"] = [f"L{first + i}" for i in range(len(measured))]
+    record["measured_links"] = names
     return R_w, origin, record
 
 

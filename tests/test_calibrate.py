@@ -52,7 +52,8 @@ def _camera1_frame(rig):
     return Rig("c1", tuple(cams))
 
 
-@pytest.mark.parametrize("arm_name, rig_name", [("two-link", "planar"), ("three-link", "three-link")])
+@pytest.mark.parametrize("arm_name, rig_name", [("one-link", "planar"), ("two-link", "planar"),
+                                                ("three-link", "three-link")])
 def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name):
     """The base frame from the joint axes the LEDs trace, with the true pair: within 1 mm /
     0.1 deg of the truth, whether the simulated links are nominal or 5 % long. The three-link
@@ -78,7 +79,8 @@ def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name)
         assert rec["fit_rms_mm"] < 1.0
         # each measured length is the simulated link its name says (three-link: L2, L3; the
         # base height L1 is not seen)
-        assert rec["measured_links"] == (["L1", "L2"] if arm_name == "two-link" else ["L2", "L3"])
+        assert rec["measured_links"] == {"one-link": ["L1"], "two-link": ["L1", "L2"],
+                                         "three-link": ["L2", "L3"]}[arm_name]
         for name, got in zip(rec["measured_links"], rec["measured_links_mm"]):
             assert got == pytest.approx(true_arm.links_mm[int(name[1:]) - 1], abs=0.5), name
 
