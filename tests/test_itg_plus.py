@@ -644,3 +644,22 @@ def test_passing_by_slides_by_the_error_across_the_turned_forearm():
         assert abs(b - exact) <= bound, (q, d, th, b, exact, bound)
         off.append(abs(np.degrees(t * (u @ d) / (u @ u))) / bound)
     assert np.median(off) > 2  # the cases tell the first-order correction from none
+
+
+def test_passing_by_is_left_to_the_other_rules_beyond_the_series_range():
+    """th3's tan and atan series serve S up to about 30 deg (at S = 40 deg the clip is 40.4 deg,
+    at 60 meaningless): RULE 3 fires at S = 20 on set points where the line of travel passes
+    by the base, and never at S = 40 on the same cases."""
+    arm = ArmSpec.from_args("two-link")
+    rules = {S: load_rules(ARMS["two-link"], 2, arm.links_mm, S=S, w=0.5) for S in (20.0, 40.0)}
+    rng = np.random.default_rng(4)
+    fired = {20.0: 0, 40.0: 0}
+    for q, _ in zip(_near_base_poses(arm, rng), range(600)):
+        m = forward_kinematics(arm, q)
+        g = m["gripper"][:2]
+        a = rng.uniform(-np.pi, np.pi)
+        c = rng.uniform(0.0, 2.0) * np.array([np.cos(a), np.sin(a)])
+        d = c + rng.uniform(-8.0, 8.0) * (c - g) / np.linalg.norm(c - g)
+        for S, rb in rules.items():
+            fired[S] += 3 in rb.step(np.array([*d, 0.0]), observe(arm, q), q).fired
+    assert fired[20.0] >= 50 and fired[40.0] == 0, fired
