@@ -195,6 +195,7 @@ class Trace:
         ok = self.in_reach
         ein = e[ok]
         late = self.tracking_errors_mm()
+        median = float(np.median(late)) if late.size else None
 
         def stat(fn, v):
             return float(fn(v)) if v.size else None
@@ -209,11 +210,11 @@ class Trace:
             "e_max_mm": stat(np.max, ein),
             "e_rms_mm": rms(ein),
             "tracking_from": int(self.tracking_start),
-            "track_median_mm": stat(np.median, late),
+            "track_median_mm": median,
             "track_mean_mm": stat(np.mean, late),
             "track_p95_mm": stat(lambda v: np.percentile(v, 95), late),
             "track_max_mm": stat(np.max, late),
-            "diverged": None if not late.size else bool(np.median(late) > DIVERGED_MM),
+            "diverged": None if median is None else median > DIVERGED_MM,
             "n_setpoints": int(len(e)),
             "n_out_of_reach": int((~ok).sum()),
             "n_flagged": int(self.out_of_reach.sum()),

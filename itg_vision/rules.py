@@ -232,7 +232,7 @@ class _Parser:
 
     def _too_deep(self, tok: Token) -> RuleLimitError:
         return RuleLimitError(
-            f"{self.source}:{tok.line}:{tok.col}: nested too deeply: more than {MAX_DEPTH} levels "
+            f"{self.at(tok)}: nested too deeply: more than {MAX_DEPTH} levels "
             "(each parenthesis, |...|, NOT, sign, operator and each further operand of a chain "
             "like a + b + c adds one)")
 
@@ -254,10 +254,14 @@ class _Parser:
     def tok(self) -> Token:
         return self.t[self.i]
 
+    def at(self, tok: Token) -> str:
+        """Where a token is, as messages name it: ``file:line:col``."""
+        return f"{self.source}:{tok.line}:{tok.col}"
+
     def error(self, msg: str, tok: Token | None = None) -> RuleSyntaxError:
         tok = tok or self.tok
         found = "end of file" if tok.kind == "end" else repr(clip(tok.text))
-        return RuleSyntaxError(f"{self.source}:{tok.line}:{tok.col}: {msg} (found {found})")
+        return RuleSyntaxError(f"{self.at(tok)}: {msg} (found {found})")
 
     def accept(self, kind: str, text: str | None = None) -> Token | None:
         tok = self.tok
@@ -301,7 +305,7 @@ class _Parser:
             end += 1
             if end - self.i >= MAX_RULE_TOKENS:
                 tok = self.t[end]
-                raise RuleLimitError(f"{self.source}:{tok.line}:{tok.col}: RULE is longer than "
+                raise RuleLimitError(f"{self.at(tok)}: RULE is longer than "
                                      f"{MAX_RULE_TOKENS} tokens (it starts on line {start.line})")
         num = self.expect("num", what="a rule number")
         if not re.fullmatch(r"\d+", num.text):
@@ -432,7 +436,7 @@ class _Parser:
             self.i += 1
             if self.tok.kind == "op" and self.tok.text == "(":
                 raise RuleSyntaxError(
-                    f"{self.source}:{tok.line}:{tok.col}: '{tok.text}(' reads as a function call, "
+                    f"{self.at(tok)}: '{tok.text}(' reads as a function call, "
                     "and the rule language has none (only + - * / ^, |x| and comparisons; a "
                     "product needs its *)")
             return self.node(tok, Name(tok.text, tok))

@@ -460,7 +460,6 @@ def table(targets: list[Target], what: str = "target") -> list[str]:
 
 # ---------------------------------------------------------------------------- command line
 def build_parser() -> argparse.ArgumentParser:
-
     ap = ArgumentParser(prog="python -m itg_vision.bench itg-plus",
                         description="Issue 13's targets for ITG+: runs the itg-plus and "
                                     "itg-plus-three-link sweeps of the noise benchmark (resumable) "

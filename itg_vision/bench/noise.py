@@ -54,7 +54,6 @@ def check_out(out: Path, command: str = COMMAND) -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
-
     ap = ArgumentParser(
         prog="python -m itg_vision.bench noise",
         description="Noise-robustness benchmark: ITG (the paper's rules and ITG+) fed by vision "

@@ -26,7 +26,6 @@ from pathlib import Path
 
 from .. import outputs
 from ..errors import UserError
-from ..loop import DIVERGED_MM
 from .sweep import SCHEMA, RunSpec
 
 #: Per-run metrics from the run's summary (see itg_vision.loop.Trace.metrics).
@@ -76,8 +75,7 @@ def make_row(spec: RunSpec, s: dict | None, no_start: str = "") -> dict:
                 + RUN_METRICS})
     row["controller_params"] = params_cell(s["controller_params"])
     row["measured_links_mm"] = s["geometry"]["links_mm"]
-    med = s.get("track_median_mm")
-    row["diverged"] = "" if med is None else int(med > DIVERGED_MM)
+    row["diverged"] = "" if s["diverged"] is None else int(s["diverged"])  # loop.Trace.metrics
     return {c: _cell(row.get(c)) for c in COLUMNS}
 
 
