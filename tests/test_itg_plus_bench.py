@@ -388,24 +388,43 @@ def test_speed_target_threshold_is_fifty_times(native_us, ratio, met):
 
 @pytest.mark.slow
 def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys):
-    """A small run (1 seed, 20 points): every printed verdict agrees with its own numbers."""
-    import re
-
+    """A small run (1 seed, 20 points; three two-link paths: a named closed path, the jump of
+    `abcd` and a curve file, whose preview plan moves aims): every printed verdict agrees with
+    its own numbers, and the tracking targets cover exactly the paths asked for."""
+    paths = ("ellipse-t1", "abcd", "peanut")
     out = tmp_path / "ip"
     assert itg_plus.main(["--out", str(out), "--seeds", "1", "--seeds-three-link", "1",
-                          "--points", "20", "--quiet"]) in (0, 1)
+                          "--points", "20", "--trajectories", ",".join(paths), "--quiet"]) in (0, 1)
     text = (out / "targets.md").read_text()
     rows = [line for line in text.splitlines() if line.startswith("| ") and " | case |" not in line]
     assert len(rows) >= 20
+    table = [[c.strip() for c in line.strip("|").split("|")] for line in rows]
+    assert {c[1] for c in table if c[0] == "tracking-phase max E_i (worst seed)"} == set(paths)
     ops = itg_plus.Target.OPS
-    for line in rows:
-        cells = [c.strip() for c in line.strip("|").split("|")]
+    for line, cells in zip(rows, table):
         measured = float(cells[2].split()[0])
         op, threshold = cells[3].split()[:2]
         # the table prints 3 significant digits: the verdict is checked where they decide it
         if abs(measured - float(threshold)) > 0.01 * max(abs(measured), abs(float(threshold))):
             assert (cells[4] == "met") == ops[op](measured, float(threshold)), line
     assert (out / "tracking" / "report.md").exists() and (out / "three-link" / "report.md").exists()
+
+
+@pytest.mark.parametrize("given, named", [("helix", "'helix'"), ("ellipse-t1,,", None),
+                                           (",", "at least one")])
+def test_bench_itg_plus_trajectories_are_checked_before_anything_is_made(tmp_path, capsys, given,
+                                                                        named):
+    """--trajectories takes only the two-link sweep's paths (the three-link `helix` is not one):
+    one line naming the option, exit 2, nothing made; a trailing comma is no name."""
+    out = tmp_path / "o"
+    if named is None:
+        args = itg_plus.build_parser().parse_args(["--trajectories", given])
+        assert itg_plus.two_link_paths(args) == ("ellipse-t1",)
+        return
+    assert itg_plus.main(["--out", str(out), "--trajectories", given, "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--trajectories" in err and named in err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("make", ["file", "foreign"])

@@ -38,7 +38,7 @@ from .. import outputs
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, worst
 from .store import Results, check_sweep_file, definition_hash, started
-from .sweep import FF_CORRECTION
+from .sweep import FF_CORRECTION, SWEEPS, _parse_names
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -473,9 +473,19 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seeds of the three-link sweep (default: its 40)")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points of the named trajectories (default: each one's own)")
+    ap.add_argument("--trajectories", metavar="A,B,...",
+                    help="only these of the two-link paths (default: all of them: "
+                         + ", ".join(SWEEPS["itg-plus"]["trajectories"]) + ")")
     ap.add_argument("--workers", type=at_least_one, metavar="N", help="local worker processes")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
+
+
+def two_link_paths(args: argparse.Namespace) -> tuple[str, ...]:
+    """The two-link paths the run covers: ``--trajectories`` (checked against the sweep's), else
+    all of the ``itg-plus`` sweep's."""
+    every = SWEEPS["itg-plus"]["trajectories"]
+    return _parse_names(args.trajectories, every, "trajectories", "trajectory") or tuple(every)
 
 
 def build_sweeps(args: argparse.Namespace) -> list[tuple]:
@@ -483,10 +493,11 @@ def build_sweeps(args: argparse.Namespace) -> list[tuple]:
     anything is made or run: [(sweep, its folder under --out, its --seeds, its specs)]."""
     from .sweep import build_sweep
 
-    plan = (("itg-plus", "tracking", args.seeds),
-            ("itg-plus-three-link", "three-link", args.seeds_three_link))
-    return [(sweep, sub, seeds, build_sweep(sweep=sweep, seeds=seeds, points=args.points))
-            for sweep, sub, seeds in plan]
+    plan = (("itg-plus", "tracking", args.seeds, two_link_paths(args)),
+            ("itg-plus-three-link", "three-link", args.seeds_three_link, None))
+    return [(sweep, sub, seeds, build_sweep(sweep=sweep, seeds=seeds, points=args.points,
+                                           trajectories=trajs))
+            for sweep, sub, seeds, trajs in plan]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -496,10 +507,11 @@ def main(argv: list[str] | None = None) -> int:
         from .. import preview
         from ..arm import ArmSpec
         from . import noise
-        from .sweep import SWEEPS, load_trajectory
+        from .sweep import load_trajectory
 
         args = build_parser().parse_args(argv)
         sweeps = build_sweeps(args)  # every run spec, before anything is made or run
+        two_link = two_link_paths(args)
         out = noise.check_out(args.out, COMMAND)  # resumable: no --force
         for _, sub, _, specs in sweeps:  # and each sweep's folder in it, as run_sweep will
             noise.check_out(out / sub)
@@ -513,7 +525,8 @@ def main(argv: list[str] | None = None) -> int:
         for sweep, sub, seeds, specs in sweeps:
             if sweep == "itg-plus":  # a spec per path: its points, laps and servo limit
                 paths = {s.trajectory: s for s in specs}
-            options = {"sweep": sweep, "seeds": seeds, "points": args.points}
+            options = {"sweep": sweep, "seeds": seeds, "points": args.points,
+                       "trajectories": args.trajectories if sweep == "itg-plus" else None}
             done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command.strip(),
                                                 workers=args.workers, quiet=args.quiet)
             status = max(status, done)
@@ -527,8 +540,7 @@ def main(argv: list[str] | None = None) -> int:
             plans[t] = preview.plan(run.points_mm, servo * spec.iterations)
             e = greedy_tracking_mm(run.points_mm, arm.links_mm, servo, arm.start_pose_deg)
             greedy[t] = float(e[run.tracking_start:].max())
-        targets = tracking_targets(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], bounds,
-                                   greedy)
+        targets = tracking_targets(rows["itg-plus"], two_link, bounds, greedy)
         targets.append(first_step_target(rows["itg-plus"], SUBJECT, "every ITG+ run, two-link, vision"))
         targets += three_link_targets(rows["itg-plus-three-link"],
                                       SWEEPS["itg-plus-three-link"]["trajectories"])
@@ -554,10 +566,10 @@ def main(argv: list[str] | None = None) -> int:
         text += [f"{sum(t.met for t in targets)} of {len(targets)} targets met. Runs that did not "
                  f"start: {n_gone}" + (" (a target over any of them is not met; the sweeps' "
                                        "report.md name them)" if n_gone else "") + ".", ""]
-        checks, lines = memory_checks(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"])
+        checks, lines = memory_checks(rows["itg-plus"], two_link)
         if checks:
             text += MEMORY_INTRO + table(checks, "check") + [""] + lines + [""]
-        checks = preview_checks(rows["itg-plus"], SWEEPS["itg-plus"]["trajectories"], plans)
+        checks = preview_checks(rows["itg-plus"], two_link, plans)
         if checks:
             text += PREVIEW_INTRO + table(checks, "check") + [""]
         outputs.write_text(out / "targets.md", "\n".join(text))
