@@ -511,7 +511,10 @@ def main(argv: list[str] | None = None) -> int:
 
         args = build_parser().parse_args(argv)
         sweeps = build_sweeps(args)  # every run spec, before anything is made or run
-        two_link = two_link_paths(args)
+        # a spec per two-link path, in the sweep's order: its points, laps and servo limit
+        paths = {s.trajectory: s for sweep, _, _, specs in sweeps if sweep == "itg-plus"
+                 for s in specs}
+        two_link = tuple(paths)
         out = noise.check_out(args.out, COMMAND)  # resumable: no --force
         for _, sub, _, specs in sweeps:  # and each sweep's folder in it, as run_sweep will
             noise.check_out(out / sub)
@@ -521,10 +524,8 @@ def main(argv: list[str] | None = None) -> int:
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
         command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
         status = 0
-        rows, paths = {}, {}
+        rows = {}
         for sweep, sub, seeds, specs in sweeps:
-            if sweep == "itg-plus":  # a spec per path: its points, laps and servo limit
-                paths = {s.trajectory: s for s in specs}
             options = {"sweep": sweep, "seeds": seeds, "points": args.points,
                        "trajectories": args.trajectories if sweep == "itg-plus" else None}
             done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command.strip(),
