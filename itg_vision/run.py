@@ -37,7 +37,8 @@ _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"
           ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
           ("strobe", "strobe"), ("supersample", "ss"), ("full_frame", "fullframe"),
           ("true_links", "truelinks"), ("joint_offset", "offset"),
-          ("correction", "corr"), ("preview", "preview"), ("seed", "seed"))
+          ("correction", "corr"), ("preview", "preview"), ("video", "video"),
+          ("allow_unseen", "unseen"), ("seed", "seed"))
 #: RunConfig field -> the option that sets it (errors name the option).
 OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
            "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
@@ -145,8 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--force", action="store_true",
                     help="replace --out even if it is a folder this command did not make")
     ap.add_argument("--video", action="store_true",
-                    help="also write a video of both camera views (vision): H.264 video.mp4 or, "
-                         "where OpenCV cannot encode H.264, VP9 video.webm")
+                    help="also write a video of both camera views (vision): H.264 video.mp4, "
+                         "where OpenCV cannot encode H.264 VP9 video.webm, else MPEG-4 Part 2 "
+                         "video.mp4")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no table")
     return ap
 

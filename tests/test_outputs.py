@@ -445,6 +445,10 @@ def test_default_run_folders_tell_rigs_and_files_apart_by_their_whole_names():
     assert folder("--rig", "planar") == "two-link-ellipse-t1-itg-vision-rigplanar"
     assert folder("--rig", "cameras/planar.calib.yaml") == "two-link-ellipse-t1-itg-vision-rigplanar.calib"
     assert folder("--rules", "my/v1.2.rules") == "two-link-ellipse-t1-itg-vision-rulesv1.2"
+    # --video renders whole frames and --allow-unseen runs what is refused by default: each is
+    # a run of its own, not the default run's folder (which it would be refused to replace)
+    assert folder("--video") == "two-link-ellipse-t1-itg-vision-video"
+    assert folder("--allow-unseen") == "two-link-ellipse-t1-itg-vision-unseen"
 
 
 def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
