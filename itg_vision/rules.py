@@ -444,10 +444,11 @@ class _Parser:
             self.enter(tok)
             self.i += 1
             node = self.expr()
+            opened = f"opened at line {tok.line}, column {tok.col}"
             if tok.text == "(":
-                self.expect("op", ")", "')'")
+                self.expect("op", ")", f"')' ({opened})")
             else:
-                self.expect("op", "|", "closing '|'")
+                self.expect("op", "|", f"closing '|' ({opened})")
                 node = self.node(tok, Unary("abs", node))
             self.nesting -= 1
             return node

@@ -36,7 +36,10 @@ def table2(f=0.5):
     ("LET r = sqrt(xd * xd)\nRULE 1: IF xd > r THEN q1 += S", ":1:9:", "'sqrt(' reads as a function call"),
     ("RULE 1: IF xd $ xg THEN q1 += S", ":1:15", "unexpected character '$'"),
     ("RULE 1 IF xd > xg THEN q1 += S", ":1:8", "expected ':'"),
-    ("\n\nRULE 1: IF xd > xg THEN q1 += |xd - xg", ":3:", "closing '|'"),
+    ("\n\nRULE 1: IF xd > xg THEN q1 += |xd - xg", ":3:", "closing '|' (opened at line 3, column 31)"),
+    # the end of a file that ends its last line is the next line's start: the opener says where
+    ("RULE 1: IF xd > xg THEN q1 += (xd - xg\n", ":2:1:", "expected ')' (opened at line 1, "
+     "column 31) (found end of file)"),
     ("RULE 1: IF xd > xg THEN q1 += S\n  RULE 1: IF xd < xg THEN q1 -= S", ":2:3:", "defined twice"),
     ("# only a comment\n", "", "no rules found"),
     ("RULE 1: IF xd > xg THEN q1 = q2", ":1:30", "only 'q1 = q1'"),
