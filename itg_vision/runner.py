@@ -190,10 +190,11 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
     trajectory = traj.load(cfg.trajectory_name, cfg.points, arm=model).repeated(cfg.laps)
     if not trajectory.planar and model.planar:
-        raise UserError(f"trajectory {trajectory.name} has z values but arm {model.name} is planar")
+        raise UserError(f"--trajectory {trajectory.name} has z values, but --arm {model.name} is "
+                        "planar (x_mm,y_mm)")
     if trajectory.planar and not model.planar:
-        raise UserError(f"arm {model.name} needs a 3-D trajectory (x_mm,y_mm,z_mm), "
-                        f"{trajectory.name} is planar")
+        raise UserError(f"--arm {model.name} needs a 3-D trajectory (x_mm,y_mm,z_mm), but "
+                        f"--trajectory {trajectory.name} is planar")
     info: dict = {}
     given = {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
     if cfg.controller == "itg":
