@@ -19,7 +19,7 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from . import outputs, plot
-from .arm import names_a_file
+from .arm import arm_path
 from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
@@ -191,8 +191,7 @@ def run_key(prep) -> dict:
             files[key] = prep.info[key]
     if prep.trajectory.file is not None:
         files["trajectory"] = str(prep.trajectory.file)
-    if names_a_file(prep.config.arm):  # an arm file of the user's (a shipped arm: its name)
-        files["arm"] = prep.config.arm
+    files["arm"] = str(arm_path(prep.config.arm))  # a shipped arm's file too: it may be edited
     digests = {}
     for key, path in files.items():
         try:

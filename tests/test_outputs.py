@@ -509,6 +509,34 @@ def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     assert "other settings (content of the arm file)" in capsys.readouterr().err
 
 
+def test_an_edited_shipped_arm_file_is_not_replaced_silently(tmp_path, monkeypatch, capsys):
+    """A shipped arm is read from its file too (data/arms/two-link.yaml, which a user of a clone
+    may edit): its content is hashed like an arm file of the user's."""
+    import shutil
+
+    from itg_vision import arm as arm_module
+    from itg_vision import run
+
+    arms = tmp_path / "arms"
+    arms.mkdir()
+    shutil.copy(arm_module.ARMS_DIR / "two-link.yaml", arms)
+    monkeypatch.setattr(arm_module, "ARMS_DIR", arms)
+    monkeypatch.chdir(tmp_path)
+    base = ["--quiet", "--feedback", "model", "--points", "6"]
+    assert run.main(base) == 0
+    folder = tmp_path / "runs" / "two-link-ellipse-t1-itg-model-n6"
+    made = json.loads((folder / outputs.MANIFEST).read_text())
+    assert made["key"]["inputs_sha256"]["arm"] is not None
+    kept = _tree(folder)
+    arm = arms / "two-link.yaml"
+    arm.write_text(arm.read_text().replace("led_standoff_mm: 12", "led_standoff_mm: 15"))
+    capsys.readouterr()
+    assert run.main(base) == 2
+    assert "other settings (content of the arm file)" in capsys.readouterr().err
+    assert _tree(folder) == kept
+    assert run.main(base + ["--force"]) == 0
+
+
 def test_run_out_empty_is_an_error_not_the_default_folder(tmp_path, monkeypatch, capsys):
     from itg_vision import run
 
