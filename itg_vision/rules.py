@@ -364,22 +364,35 @@ class _Parser:
             node = self.node(tok, Unary("not", self.negation()))
             self.nesting -= 1
             return node
+        failed = None  # (token index, error) of the condition tried first
         if self.tok.kind == "op" and self.tok.text == "(":
             # '(' opens either a condition or an expression: try the condition first.
-            save, nesting = self.i, self.nesting
-            self.enter(self.tok)
+            save, nesting, opener = self.i, self.nesting, self.tok
+            self.enter(opener)
             self.i += 1
             try:
                 node = self.condition()
-                if self.accept("op", ")") and not self._at_expression_operator():
-                    self.nesting = nesting
-                    return node
+                if self.accept("op", ")"):
+                    if not self._at_expression_operator():
+                        self.nesting = nesting
+                        return node
+                else:
+                    failed = (self.i, self.error(
+                        f"expected ')' (opened at line {opener.line}, column {opener.col})"))
             except RuleLimitError:
                 raise
-            except RuleSyntaxError:
-                pass
+            except RuleSyntaxError as exc:
+                failed = (self.i, exc)
             self.i, self.nesting = save, nesting
-        return self.comparison()
+        try:
+            return self.comparison()
+        except RuleLimitError:
+            raise
+        except RuleSyntaxError:
+            # both readings fail: report the one that read farther (the user's likelier meaning)
+            if failed is not None and failed[0] > self.i:
+                raise failed[1] from None
+            raise
 
     def _at_expression_operator(self) -> bool:
         return self.tok.kind == "op" and self.tok.text in {"+", "-", "*", "/", "^", "<", "<=", ">",

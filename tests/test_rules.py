@@ -27,7 +27,13 @@ def table2(f=0.5):
 @pytest.mark.parametrize("text, where, what", [
     ("RULE 1: IF xd > xg THEN q1 += f * |xd - xq|", ":1:41", "unknown name 'xq'"),
     ("RULE 1: IF xd > xg q1 += S", ":1:20", "expected 'THEN'"),
-    ("RULE 1: IF (xd > xg THEN q1 += S", ":1:", "expected"),
+    # a condition's missing ')' is reported where it is missing, not where the reading of the
+    # '(' as an expression gave up (the '>')
+    ("RULE 1: IF (xd > xg THEN q1 += S", ":1:21:", "expected ')' (opened at line 1, column 12) "
+     "(found 'THEN')"),
+    ("RULE 1: IF (xd > xg AND (yd < yg OR xd < 0) THEN q1 += S", ":1:45:", "expected ')' (opened "
+     "at line 1, column 12) (found 'THEN')"),
+    ("RULE 1: IF (xd - xg) * > 1 THEN q1 += S", ":1:24:", "expected a number, a name"),
     ("RULE 1: IF xd > xg THEN q3 += S", ":1:25:", "moves q3, but the arm has 2 joint(s)"),
     ("RULE 1: IF xd > xg THEN q1 += S, q3 HOLD", ":1:34:", "moves q3"),
     ("RULE 1: IF xd > xg THEN q1 += S, OUT_OF_REACH", ":1:34:", "OUT_OF_REACH must be"),
