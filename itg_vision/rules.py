@@ -276,6 +276,11 @@ class _Parser:
             raise self.error(f"expected {what or text or kind}")
         return tok
 
+    def close(self, opener: Token) -> Token:
+        """The token closing ``opener`` ('(' or '|'); its error says where ``opener`` stands."""
+        closing, what = (")", "')'") if opener.text == "(" else ("|", "closing '|'")
+        return self.expect("op", closing, f"{what} (opened at line {opener.line}, column {opener.col})")
+
     # grammar
     def rules(self) -> list[Rule]:
         out = []
@@ -372,13 +377,10 @@ class _Parser:
             self.i += 1
             try:
                 node = self.condition()
-                if self.accept("op", ")"):
-                    if not self._at_expression_operator():
-                        self.nesting = nesting
-                        return node
-                else:
-                    failed = (self.i, self.error(
-                        f"expected ')' (opened at line {opener.line}, column {opener.col})"))
+                self.close(opener)
+                if not self._at_expression_operator():
+                    self.nesting = nesting
+                    return node
             except RuleLimitError:
                 raise
             except RuleSyntaxError as exc:
@@ -457,11 +459,8 @@ class _Parser:
             self.enter(tok)
             self.i += 1
             node = self.expr()
-            opened = f"opened at line {tok.line}, column {tok.col}"
-            if tok.text == "(":
-                self.expect("op", ")", f"')' ({opened})")
-            else:
-                self.expect("op", "|", f"closing '|' ({opened})")
+            self.close(tok)
+            if tok.text == "|":
                 node = self.node(tok, Unary("abs", node))
             self.nesting -= 1
             return node

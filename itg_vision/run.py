@@ -19,7 +19,6 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from . import outputs, plot
-from .arm import arm_path
 from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
@@ -191,7 +190,7 @@ def run_key(prep) -> dict:
             files[key] = prep.info[key]
     if prep.trajectory.file is not None:
         files["trajectory"] = str(prep.trajectory.file)
-    files["arm"] = str(arm_path(prep.config.arm))  # a shipped arm's file too: it may be edited
+    files["arm"] = str(prep.model.source)  # the file read, a shipped arm's too: it may be edited
     digests = {}
     for key, path in files.items():
         try:
