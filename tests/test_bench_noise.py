@@ -409,10 +409,11 @@ def test_perturbed_rig_is_off_by_exactly_one_degree_and_five_mm(tmp_path):
             assert c1.K.tolist() == c0.K.tolist() and c1.dist == c0.dist
             if each:
                 assert np.linalg.norm(c1.position_mm - c0.position_mm) == pytest.approx(5.0, abs=1e-6)
-        if not each:  # one body: the baseline between the cameras is unchanged
-            base0 = true.cameras[1].position_mm - true.cameras[0].position_mm
-            base1 = back.cameras[1].position_mm - back.cameras[0].position_mm
-            assert np.linalg.norm(base1) == pytest.approx(np.linalg.norm(base0), abs=1e-6)
+        if not each:  # one body: a rigid motion, so each camera sees the other where it did
+            (a0, a1), (b0, b1) = true.cameras, back.cameras
+            assert np.allclose(b0.R @ (b1.position_mm - b0.position_mm),
+                               a0.R @ (a1.position_mm - a0.position_mm), rtol=0, atol=1e-9)
+            assert np.allclose(b1.R @ b0.R.T, a1.R @ a0.R.T, rtol=0, atol=1e-12)
     a, b = perturb_rig(true, 1), perturb_rig(true, 1)
     assert a.cameras == b.cameras and perturb_rig(true, 2).cameras != a.cameras
 

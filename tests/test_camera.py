@@ -175,6 +175,21 @@ def test_bad_rig_file_names_the_field(tmp_path, keys, value, expected):
     assert msg.startswith(f"{path}: ") and expected in msg and "\n" not in msg
 
 
+def test_a_mirrored_rotation_matrix_is_refused(tmp_path):
+    """A rotation_matrix with det -1 (one row negated, and its translation, so the camera
+    centre -R^T t is where it was) is a mirror image, not a camera pose: one line naming it."""
+    doc = yaml.safe_load((ROOT / "cameras" / "planar.calib.yaml").read_text())
+    pose = doc["cameras"][0]["pose"]
+    pose["rotation_matrix"]["data"][3:6] = [-v for v in pose["rotation_matrix"]["data"][3:6]]
+    pose["translation_mm"][1] = -pose["translation_mm"][1]
+    path = tmp_path / "mirror.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(UserError) as exc:
+        Rig.from_yaml(path)
+    assert str(exc.value) == (f"{path}: cameras[0].pose.rotation_matrix: must be a rotation "
+                              "(orthonormal, det +1)")
+
+
 def _mappings(doc):
     """Where a key can go in a rig document: (place in the message, the mapping)."""
     yield "", doc
