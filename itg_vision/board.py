@@ -64,6 +64,13 @@ class Board:
     margin_mm: float = 15.0
     px_per_mm: float = 8.0
 
+    def __post_init__(self):
+        if self.cols < 2 or self.rows < 2 or (self.cols + self.rows) % 2 == 0:
+            raise ValueError(
+                f"Board: {self.cols} x {self.rows} inner corners; need at least 2 x 2 and "
+                "cols + rows odd (else the outer squares beyond the first and the last corner "
+                "are both black and a 180-degree turn of the board cannot be told)")
+
     @property
     def pattern_size(self) -> tuple[int, int]:
         return self.cols, self.rows
@@ -115,7 +122,9 @@ class Board:
         cv2.imwrite(str(png), self.texture())
         x0, y0, x1, y1 = (v * 1e-3 for v in self.extent_mm())
         # Texture v runs from the image's bottom row (v = 0) to its top row (v = 1): row 0 of
-        # the texture (board y0) has v = 1. Checked by test_board_texture_orientation.
+        # the texture (board y0) has v = 1. Checked by
+        # test_rendered_corners_match_the_projection_of_the_true_board (an 8 x 7 board's
+        # pattern is not symmetric under a flip of v; the default 9 x 6 board's is).
         lines = ["# calibration board (itg_vision.board)",
                  f"v {x0:.6f} {y0:.6f} 0", f"v {x1:.6f} {y0:.6f} 0",
                  f"v {x1:.6f} {y1:.6f} 0", f"v {x0:.6f} {y1:.6f} 0",

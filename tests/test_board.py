@@ -2,6 +2,7 @@
 the projection of the true board."""
 
 import numpy as np
+import pytest
 
 from itg_vision import board as brd
 from itg_vision.arm import ArmSpec
@@ -37,12 +38,15 @@ def test_board_texture_has_the_pattern_and_an_asymmetric_corner():
     assert b.object_points().shape == (b.cols * b.rows, 3)
 
 
-def test_rendered_corners_match_the_projection_of_the_true_board():
+@pytest.mark.parametrize("cols, rows", [(9, 6), (8, 7)])
+def test_rendered_corners_match_the_projection_of_the_true_board(cols, rows):
     """Texture orientation, UVs and the TinyRenderer pixel convention in one check: detected
     corners against the true board corners projected through the camera (with distortion).
-    Measured 0.07 to 0.19 px RMS per view; a flipped texture or a UV offset gives tens of px."""
+    Measured 0.06 to 0.21 px RMS per view; a flipped texture or a UV offset gives tens of px.
+    The 9 x 6 pattern is symmetric under a flip of the texture's v (its 7 rows of squares
+    alternate evenly), so only the 8 x 7 board checks v."""
     rig = Rig.from_yaml(PLANAR)
-    board = brd.Board()
+    board = brd.Board(cols, rows)
     rng = np.random.default_rng(3)
     poses = brd.sample_board_poses(rig, board, 4, rng, target_mm=[0, 0, 0])[::2]  # stereo views
     with World(ArmSpec.from_args("two-link")) as world:
@@ -53,3 +57,28 @@ def test_rendered_corners_match_the_projection_of_the_true_board():
             truth = cam.project(pose.points(board.object_points()))
             rms = np.sqrt(np.mean(np.sum((c.reshape(-1, 2) - truth) ** 2, axis=1)))
             assert rms < 0.25, (cam.name, rms)
+
+
+@pytest.mark.parametrize("cols, rows", [(9, 7), (8, 6), (1, 6)])
+def test_a_board_whose_turn_cannot_be_told_is_refused(cols, rows):
+    """cols + rows even puts black squares beyond both the first and the last corner (the
+    texture's rule: square (a, b) black when a + b is even), so a 180-degree turn of the board
+    would be read as the board itself: refused, as is a board with no 2 x 2 grid."""
+    with pytest.raises(ValueError, match=f"Board: {cols} x {rows} inner corners"):
+        brd.Board(cols, rows)
+
+
+def test_a_board_showing_its_back_is_not_visible():
+    """The back of the board shows the pattern mirrored (its corners would be matched in the
+    wrong order): a pose that shows the front is visible, the same board turned over about its
+    own x axis (normal reversed, centre kept) is not."""
+    rig = Rig.from_yaml(PLANAR)
+    board = brd.Board()
+    pose = brd.sample_board_poses(rig, board, 1, np.random.default_rng(0), target_mm=[0, 0, 0])[0]
+    cam = rig.cameras[0]
+    assert brd.board_visible(cam, board, pose)
+    R = pose.R @ np.diag([1.0, -1.0, -1.0])
+    centre = pose.points(board.centre_mm())
+    back = brd.BoardPose(R, centre - R @ board.centre_mm())
+    assert np.allclose(back.points(board.centre_mm()), centre)
+    assert not brd.board_visible(cam, board, back)
