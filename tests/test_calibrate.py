@@ -4,6 +4,7 @@ calibrated rig. The board itself: test_board.py."""
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -11,7 +12,7 @@ import yaml
 from itg_vision import calibration as cal
 from itg_vision.calibrate import measured_links, summary_table
 from itg_vision.arm import ArmSpec
-from itg_vision.camera import Rig
+from itg_vision.camera import Camera, Rig
 from itg_vision.errors import UserError
 from itg_vision.world import World
 
@@ -85,6 +86,67 @@ def test_base_frame_from_joint_axes_ignores_the_link_lengths(arm_name, rig_name)
             assert got == pytest.approx(true_arm.links_mm[int(name[1:]) - 1], abs=0.5), name
 
 
+def _synthetic_views(rig, board, tilts_deg, noise_px, seed=0):
+    """Board views as exact projections of the true corners plus Gaussian pixel noise, no
+    rendering: the board faces the cameras, tilted by (about its x, about its y) in deg."""
+    from itg_vision import board as brd
+    rng = np.random.default_rng(seed)
+    front = brd.sample_board_poses(rig, board, 1, rng, target_mm=[0, 0, 0], tilt_deg=0,
+                                   spin_deg=0)[0]
+    centre = front.points(board.centre_mm())
+    poses, corners = [], []
+    for a, b in tilts_deg:
+        R = front.R @ cv2.Rodrigues(np.radians([a, b, 0.0]))[0]
+        pose = brd.BoardPose(R, centre - R @ board.centre_mm())
+        assert all(brd.board_visible(c, board, pose, border_px=0) for c in rig.cameras)
+        uv = [c.project(pose.points(board.object_points())) for c in rig.cameras]
+        poses.append(pose)
+        corners.append(tuple((x + rng.normal(0, noise_px, x.shape)).astype(np.float32)
+                             .reshape(-1, 1, 2) for x in uv))
+    return brd.Views(poses, corners)
+
+
+def test_poses_tilted_about_one_axis_only_are_refused():
+    """Zhang's method needs board planes turned about two axes. Twelve views tilted over 60 deg
+    about the board's x axis alone (0.05 px corner noise, the detector's order) are refused by
+    the tilt-span gate, whose smaller span is 0: the focal std (0.19 %) would pass its own 1 %
+    gate. The same views spread over both axes (60 x 50 deg) calibrate."""
+    from itg_vision.board import Board
+    rig, board = Rig.from_yaml(PLANAR), Board()
+    one_axis = [(a, 0.0) for a in np.linspace(-30, 30, 12)]
+    with pytest.raises(UserError, match=r"degenerate board poses: the board's tilt spans only "
+                                        r"60 x 0 deg over 12 views"):
+        cal.calibrate_views(_synthetic_views(rig, board, one_axis, 0.05), board,
+                            rig.cameras[0].size)
+    two_axes = ([(a, 0.0) for a in np.linspace(-30, 30, 6)]
+                + [(0.0, b) for b in np.linspace(-25, 25, 6)])
+    res = cal.calibrate_views(_synthetic_views(rig, board, two_axes, 0.05), board,
+                              rig.cameras[0].size)
+    assert min(res.tilt_span_deg) >= cal.MIN_TILT_SPAN_DEG
+    # the fit leaves the noise: 0.05 px per axis over n = 12 * 54 * 2 coordinates, less the
+    # p = 8 + 6 * 12 parameters fitted (fx, fy, cx, cy, k1, k2, p1, p2; a pose per view); the
+    # RMS's own scatter is ~1 / sqrt(2 n) = 2 % of it
+    n, p_fit = 12 * board.rows * board.cols * 2, 8 + 6 * 12
+    expected = 0.05 * np.sqrt(2 * (1 - p_fit / n))
+    assert res.rms_px == pytest.approx((expected, expected), rel=0.06)
+
+
+def test_distortion_field_error_is_the_radial_change_at_the_farthest_ray():
+    """Changing k1 by d moves a ray at undistorted normalised radius r by d r^2 (x, y) in the
+    normalised plane, (fx x, fy y) d r^2 in pixels: largest at an image corner. Identical lens
+    models give 0."""
+    cam = Rig.from_yaml(PLANAR).cameras[0]
+    assert cal.distortion_field_error_px(cam, cam) == 0.0
+    d = 0.01
+    other = Camera.from_arrays(cam.name, cam.size, cam.K, cam.dist_coeffs + [d, 0, 0, 0, 0],
+                               cam.R, cam.t_mm, cam.noise_sigma_gray, cam.exposure)
+    W, H = cam.size
+    corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
+    x, y = cv2.undistortPoints(corners.reshape(-1, 1, 2), cam.K, cam.dist_coeffs).reshape(-1, 2).T
+    expected = np.max(d * (x**2 + y**2) * np.hypot(cam.fx * x, cam.fy * y))
+    assert cal.distortion_field_error_px(cam, other) == pytest.approx(expected, rel=1e-6)
+
+
 # ---------------------------------------------------------------------------- full calibration
 def _base_frame_bounds(res, true_rig):
     """Bounds on the base frame's error, (rotation deg, origin mm), from the calibration's own
@@ -137,6 +199,9 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
         assert max(abs(v) for v in c["principal_point_px"]) <= 2.5
         assert c["rotation_deg"] <= 0.5
         assert c["position_mm"] <= 4.0
+        # the lens models' largest difference (test_distortion_field_error_...), at the image
+        # corners, which the board reaches least: measured 0.48 and 0.82 px (seed 0)
+        assert 0 < c["distortion_max_px"] <= 2.5
     assert abs(e["baseline_mm"]) <= 0.5                                     # target
     led = r["led_triangulation"]
     assert led["points"] >= 20
@@ -145,6 +210,8 @@ def test_calibration_recovers_the_true_rig_within_the_targets(planar_result):
     # the calibration now adds ~0.03-0.07 mm in quadrature to a 0.05 mm eye (ratio 1.2-1.7
     # over seeds 0-2 at 60 and 120 views), so the ratio is reported, not asserted.
     assert led["true_rig_rms_mm"] <= 0.1 and led["calibrated_rig_rms_mm"] <= 0.1  # target
+    # the two rigs triangulate differently (a focal error of >= 1e-4 moves depths ~0.06 mm)
+    assert abs(led["ratio"] - 1) > 1e-6
     assert r["base_frame"]["fit_rms_mm"] < 1.0
     rot_bound_deg, origin_bound_mm = _base_frame_bounds(res, true_rig)
     assert e["base_frame"]["rotation_deg"] < rot_bound_deg, rot_bound_deg
