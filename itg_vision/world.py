@@ -112,11 +112,18 @@ class World:
         p.changeVisualShape(self.body, self._leds[name], rgbaColor=[*rgb, 1.0],
                             physicsClientId=self.client)
 
-    def inverse_kinematics(self, target_mm, marker: str = "gripper") -> np.ndarray:
-        """PyBullet's numerical IK: joint angles (deg) putting ``marker`` at ``target_mm``."""
+    def inverse_kinematics(self, target_mm, marker: str = "gripper",
+                           start_q_deg=None) -> np.ndarray:
+        """One call of PyBullet's numerical IK, with its defaults (20 damped-least-squares
+        iterations, stopping at a 0.1 mm residual): joint angles (deg, as :meth:`set_q` takes
+        them) that move ``marker`` towards ``target_mm``, iterating from ``start_q_deg`` (default:
+        the arm's present angles). Not a solution from far away: from the straight start pose
+        (singular) a call leaves ~200 mm; ``bench speed`` prints its accuracy when tracking."""
+        start = {} if start_q_deg is None else {
+            "currentPositions": [float(v) for v in np.radians(start_q_deg) + self._offset_rad]}
         q = p.calculateInverseKinematics(self.body, self._leds[marker],
                                          [float(v) * _MM for v in target_mm],
-                                         physicsClientId=self.client)
+                                         physicsClientId=self.client, **start)
         return np.degrees(q) - np.degrees(self._offset_rad)
 
     # ------------------------------------------------------------------ extra bodies

@@ -8,7 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from itg_vision import native
+from itg_vision import native, trajectory as traj
 from itg_vision.arm import ArmSpec
 from itg_vision.rules import RuleBase, load_rules, shipped_rules
 from test_rules import (_ARM_OF, PARAMETER_SETS, SPECIAL_VALUES, _assert_compiled_is_reference,
@@ -203,6 +203,11 @@ def test_bench_speed_times_the_steps_compiled_to_c():
     assert c["native_error"] is None
     assert all(c[k] > 0 for k in ("rules_native_us", "itg_plus_native_us", "call_native_us",
                                   "itg_plus_compiled_us", "ik_pybullet_us"))
+    # each IK call starts at the previous set point's solution and lands nearer its own set
+    # point than that start (the spacing of the 30 set points)
+    pts = traj.named("ellipse-t1", 30).points_mm
+    spacing = np.linalg.norm(pts - np.roll(pts, 1, axis=0), axis=1)
+    assert c["ik_pybullet_miss_mm"].shape == (30,) and np.all(c["ik_pybullet_miss_mm"] < spacing)
 
 
 def test_bench_speed_names_the_machine_its_timings_ran_on():
