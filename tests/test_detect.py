@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from itg_vision.camera import Camera, Rig
-from itg_vision.detect import blob_centroid, expected_area_px, find_led, score_image
-from itg_vision.imaging import capture
+from itg_vision.detect import (MIN_AREA_PX, blob_centroid, expected_area_px, find_led, locate_led,
+                               score_image)
+from itg_vision.imaging import Patch, capture
 from itg_vision.urdf import LED_RADIUS_MM, LED_RGB
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,6 +21,10 @@ RED, GREEN = LED_RGB["gripper"], LED_RGB["elbow"]
 @pytest.fixture(scope="module")
 def rig() -> Rig:
     return Rig.from_yaml(ROOT / "cameras" / "planar.yaml")
+
+
+#: A bar (a link) across the centre of a disc of radius 6 px at (80, 60): a cap 4 px tall shows.
+_HIDDEN = dict(centres=[(80, 60)], radius=6, cover=(60, 58, 100, 66))
 
 
 def _disc_image(centres, radius=5.0, colour=(230, 10, 10), size=(120, 160), rng=None,
@@ -73,12 +78,41 @@ def test_rejections():
     edge = _disc_image([(2, 60)])
     d = find_led(edge, cam, RED)
     assert not d.ok and "border" in d.reason and np.all(np.isnan(d.uv_px))
-    hidden = _disc_image([(80, 60)], radius=6, cover=(60, 58, 100, 66))  # bar across centre
-    d = find_led(hidden, cam, RED)
+    d = find_led(_disc_image(**_HIDDEN), cam, RED)
     assert not d.ok and "round" in d.reason
     ok = find_led(_disc_image([(80.3, 60.6)]), cam, RED)
     assert ok.ok and np.allclose(ok.uv_px, [80.3, 60.6], atol=0.12)  # as above
     assert find_led(_disc_image([(80.3, 60.6)]), cam, GREEN).reason == "not found"
+
+
+def test_a_blob_smaller_than_min_area_is_noise():
+    """A blob of fewer than MIN_AREA_PX (3) pixels at full score 255 is "too small" (noise, not
+    an LED); one of exactly MIN_AREA_PX pixels is accepted (the rule's boundary)."""
+    n = int(MIN_AREA_PX)
+    for pixels, reason in ((n - 1, "too small"), (n, "")):
+        score = np.zeros((20, 20), np.uint8)
+        score[10, 8:8 + pixels] = 255
+        assert blob_centroid(score)[3] == reason, pixels
+
+
+@pytest.mark.parametrize("centre", [(80, 2), (157, 60), (80, 117)], ids=["top", "right", "bottom"])
+def test_a_disc_cut_by_the_top_right_or_bottom_border_is_rejected(centre):
+    """The border rejection on the three sides test_rejections does not reach: a disc of radius
+    5 px centred 2 px inside the 160 x 120 frame is cut by that side. Cut by 2.5 px of its 5 its
+    half-peak mask is still 0.76 round, above find_led's 0.75, so only the border rule rejects
+    it."""
+    cam = Camera.from_arrays("c", (160, 120), [[100, 0, 80], [0, 100, 60], [0, 0, 1]],
+                             np.zeros(5), np.eye(3), [0, 0, 500])
+    d = find_led(_disc_image([centre]), cam, RED)
+    assert not d.ok and d.reason == "at the image border"
+
+
+def test_locate_led_rejects_a_partly_hidden_disc_by_default():
+    """locate_led's own default min_roundness (the vision loop calls it without one): the
+    bar-covered disc of test_rejections leaves a cap 4 px tall and ~11 px wide, roundness 0.35
+    (minor/major axis ratio), well below the default 0.75."""
+    d = locate_led(Patch(_disc_image(**_HIDDEN), (0, 0), (160, 120)), RED)
+    assert not d.ok and d.reason.startswith("not round")
 
 
 def test_window_and_fallback():

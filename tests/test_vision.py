@@ -151,6 +151,29 @@ def test_wrong_estimate_rig_is_rejected_by_the_residual(planar):
     assert m.missed == ("gripper",) and m.residual_px["gripper"] > 2.0
 
 
+@pytest.mark.parametrize("area_ratios, accepted", [((1.0, 0.3), False), ((0.3, 1.0), False),
+                                                    ((0.8, 1.25), True)])
+def test_a_blob_too_small_in_either_camera_is_rejected_by_its_area(planar, area_ratios, accepted):
+    """The area check takes the smaller of the two cameras' area ratios: a blob 0.3 of its
+    sphere's expected area in one camera (0.6 x the default min_area_ratio, 0.5) rejects the
+    marker whatever the other shows; 0.8 and 1.25 (the ends of the ratios measured on rendered
+    LEDs, test_detect.py) pass. The detections are exact projections of one point, so the
+    residual (~1e-14 px) and the roundness play no part: only the area can reject it."""
+    from itg_vision.detect import Detection, expected_area_px
+    from itg_vision.urdf import LED_RADIUS_MM
+
+    X = np.array([40.0, 120.0, 12.0])
+    fb = VisionFeedback(planar, planar, ArmSpec.from_args("one-link"))
+    dets = tuple(Detection(True, c.project(X, distort=False), c.project(X),
+                           k * expected_area_px(c, X, LED_RADIUS_MM))
+                 for c, k in zip(planar.cameras, area_ratios))
+    points, _, reasons = fb.triangulate({"gripper": dets})
+    if accepted:
+        assert reasons["gripper"] == "" and np.allclose(points["gripper"], X, atol=1e-6)
+    else:
+        assert reasons["gripper"] == "blob area 0.30 of expected: partly hidden"
+
+
 def test_seeded_noise_is_reproducible_and_sized(planar):
     """1 px of added centroid noise: the same seed gives the same estimates, and their spread
     matches the first-order prediction sigma^2 (J^T J)^-1 for sigma = 1 px (the rendering's own
