@@ -91,8 +91,9 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
         uv = camera.project(X)
     out = []
     for k in range(len(X)):
-        if not z[k] > near_mm:
-            out.append(f"behind the camera or nearer than {near_mm:g} mm (depth {z[k]:.0f} mm)")
+        if not z[k] - LED_RADIUS_MM > near_mm:  # the LED's near side, as led_windows asks
+            out.append(f"behind the camera or nearer than {near_mm:g} mm (depth {z[k]:.0f} mm, "
+                       f"the LED's near side {z[k] - LED_RADIUS_MM:.0f} mm)")
         elif z[k] > far_mm:
             out.append(f"farther than the renderer's {far_mm:g} mm (depth {z[k]:.0f} mm)")
         elif not r_px[k] >= MIN_LED_RADIUS_PX:

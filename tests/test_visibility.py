@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 
 from itg_vision.arm import ArmSpec, forward_kinematics
-from itg_vision.camera import Rig, default_rig_path
+from itg_vision.camera import Camera, Rig, default_rig_path
+from itg_vision.detect import MIN_SCORE
 from itg_vision.errors import UserError
 from itg_vision.trajectory import named
-from itg_vision.visibility import check_visible, led_points
+from itg_vision.urdf import LED_RADIUS_MM
+from itg_vision.visibility import MARGIN_PX, _render_range_mm, _visible, check_visible, led_points
 
 
 @pytest.mark.parametrize("arm, trajectory", [("one-link", "arc"), ("two-link", "ellipse-t1"),
@@ -69,3 +71,94 @@ def test_long_links_take_the_elbow_out_of_view():
         check_visible(rig, ArmSpec.from_args("two-link", (1000.0, 1000.0)), pts)
     # the same trajectory with links the rig frames is fine
     check_visible(rig, ArmSpec.from_args("two-link", (110.0, 90.0)), pts)
+
+
+def _down(x_mm, y_mm, depth_mm, size=(200, 200), f_px=600.0):
+    """A distortion-free camera named "down", ``depth_mm`` straight above (x, y) on the planar
+    arms' LED plane (z = 12 mm), image up = world +y: at depth 600 mm and f = 600 px one pixel
+    is 1 mm and an LED (radius 6 mm) images with radius 6 px."""
+    W, H = size
+    R = np.diag([1.0, -1.0, -1.0])
+    t = -R @ [x_mm, y_mm, 12.0 + depth_mm]
+    return Camera.from_arrays("down", size, [[f_px, 0, (W - 1) / 2], [0, f_px, (H - 1) / 2],
+                                             [0, 0, 1]], np.zeros(5), R, t)
+
+
+def _two_link(camera=None):
+    """The two-link arm, ellipse-t1 (20 points) and its rig, camera 0 replaced by ``camera``."""
+    rig = Rig.from_yaml(default_rig_path("two-link"))
+    if camera is not None:
+        rig = dataclasses.replace(rig, cameras=(camera, rig.cameras[1]))
+    return rig, ArmSpec.from_args("two-link"), named("ellipse-t1", 20).points_mm
+
+
+def test_the_image_margin_grows_with_the_led_s_projected_radius():
+    """An LED's centre must stay its projected radius r + MARGIN_PX inside the frame. At 600 mm
+    with f = 600 px, r = 6 px: the margin is 8 px. Half a pixel inside it (7.5 px from either
+    side) is refused, half a pixel beyond it (8.5 px) accepted; a margin of MARGIN_PX alone
+    would accept all four."""
+    cam = _down(0.0, 0.0, 600.0, size=(640, 480))
+    m = cam.fx * LED_RADIUS_MM / 600.0 + MARGIN_PX
+    us = (m - 0.5, 639 - m + 0.5, m + 0.5, 639 - m - 0.5)
+    why = _visible(cam, [cam.back_project([u, cam.cy], 600.0) for u in us], *_render_range_mm())
+    assert all(w and w.endswith("outside the 640 x 480 px image less a 8 px margin")
+               for w in why[:2]), why
+    assert why[2:] == [None, None], why
+
+
+def test_sensor_noise_raises_the_exposure_an_led_needs():
+    """The exposure must lift an LED's score (255 x exposure) to the detector's threshold
+    MIN_SCORE plus 3 sigma of sensor noise: 40 + 30 = 70 grey levels at sigma = 10. Exposure
+    0.25 (63.75, above the threshold alone) is refused; 0.3 (76.5) passes."""
+    rig, arm, pts = _two_link()
+    need = MIN_SCORE + 3 * 10.0
+    assert MIN_SCORE < 255 * 0.25 < need < 255 * 0.3
+    with pytest.raises(UserError, match=rf"exposure 0.25 makes an LED at most 63.8 grey levels "
+                                        rf"bright; the detector needs {need:g} \(threshold "
+                                        rf"{MIN_SCORE} \+ 3 x noise 10\)"):
+        check_visible(_moved(rig, 0, exposure=0.25, noise_sigma_gray=10.0), arm, pts)
+    check_visible(_moved(rig, 0, exposure=0.3, noise_sigma_gray=10.0), arm, pts)
+
+
+def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
+    """At set point (0, 150) mm the two-link arm's elbow LED is at (66.1, 75) or (-66.1, 75)
+    (the two IK branches): one of them must be in view, not both. A camera 600 mm above the LED
+    plane (1 mm per px, LED radius 6 px, so the usable image is the frame less 8 px each side):
+    200 px wide centred on x = 35 mm sees x in [-56.5, 126.5] mm, the + branch only: accepted.
+    130 px wide centred on x = 0 sees [-56.5, 56.5], neither branch: refused. Both are 200 px
+    high around y = 130 mm ([38.5, 221.5] mm), framing the start pose's LEDs (0, 100), (0, 200)
+    and the gripper at the set point."""
+    p = np.array([[0.0, 150.0, 0.0]])
+    check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], p)
+    with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the elbow LED at set "
+                                        r"point 1 of those in reach: \(66.1, 75.0, 12.0\) mm"):
+        check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2], p)
+
+
+def test_a_camera_beyond_the_renderer_s_far_plane_is_refused():
+    """The renderer draws nothing beyond its far plane (imaging.FAR_M, 5000 mm). A camera 6000 mm
+    above the LEDs with f = 2000 px would otherwise do: LEDs of radius 2000 x 6 / 6000 = 2 px
+    (>= MIN_LED_RADIUS_PX), the image 1920 x 1440 mm around the arm. At 4900 mm it is accepted."""
+    with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the gripper LED at 21 "
+                                        r"of 21 positions; at the start pose, .* mm farther than "
+                                        r"the renderer's 5000 mm \(depth 6000 mm\)"):
+        check_visible(*_two_link(_down(0.0, 0.0, 6000.0, (640, 480), 2000.0)))
+    check_visible(*_two_link(_down(0.0, 0.0, 4900.0, (640, 480), 2000.0)))
+
+
+def test_the_check_and_the_windows_share_the_near_plane():
+    """The renderer clips at its near plane (imaging.NEAR_M, 50 mm), and both the check and
+    led_windows ask it of the LED's near side: an LED centred 40 mm, or 53 mm (its near side
+    47 mm), in front of a camera is refused by the check and gets no window to render; at 70 mm
+    (its near side 64 mm away, its image r = 600 x 6 / 70 = 51 px, inside the frame with its
+    margin) both take it."""
+    from itg_vision.imaging import led_windows
+
+    cam = _down(0.0, 0.0, 600.0, size=(640, 480))
+    X = [cam.back_project([cam.cx, cam.cy], z) for z in (40.0, 53.0, 70.0)]
+    why = _visible(cam, X, *_render_range_mm())
+    assert why[0] == ("behind the camera or nearer than 50 mm (depth 40 mm, the LED's near side "
+                      "34 mm)")
+    assert why[1].startswith("behind the camera or nearer than 50 mm (depth 53 mm")
+    assert why[2] is None
+    assert [w is None for w in led_windows(cam, X, LED_RADIUS_MM)] == [True, True, False]
