@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from itg_vision.arm import ArmSpec
+from itg_vision.arm import REACH_TOL_MM, ArmSpec
 from itg_vision.feedback import TruthFeedback
-from itg_vision.loop import simulate
-from itg_vision.contracts import Controller, Step
+from itg_vision.loop import Trace, simulate
+from itg_vision.contracts import Controller, Markers, Step
+from itg_vision.runner import RunConfig, execute, prepare
 from itg_vision.world import World
 
 
@@ -71,6 +72,28 @@ def test_trace_records_one_entry_per_set_point_with_the_truth_after_it():
     assert m["est_gripper_rms_mm"] == 0.0
 
 
+def test_tracking_statistics_by_hand():
+    """The held two-link gripper sits at (0, 200) (start pose straight up); set points e = 1,
+    2, 3, 4, 100 mm below it leave E_i = e. Median: the 3rd of 5 (3; the mean is 22); p95:
+    linear interpolation at rank 0.95 x 4 = 3.8, 4 + 0.8 x 96 = 80.8. 1e-4 mm: the simulator's
+    float32 positions (ulp at 200 mm: 1.5e-5 mm)."""
+    e = np.array([1.0, 2.0, 3.0, 4.0, 100.0])
+    pts = np.c_[np.zeros(5), 200.0 - e, np.zeros(5)]
+    with World(ArmSpec.from_args("two-link")) as world:
+        m = simulate(world, Constant([0.0, 0.0]), TruthFeedback(), pts, tracking_start=0).metrics()
+    got = [m[f"track_{k}_mm"] for k in ("median", "mean", "p95", "max")]
+    assert got == pytest.approx([3.0, 22.0, 80.8, 100.0], abs=1e-4)
+
+
+def test_a_missed_marker_adds_no_estimation_error():
+    """A missed marker's estimate is the held last one, not a measurement: it is counted as
+    missed and left out of its estimation RMS (here 50 mm off the truth)."""
+    trace = Trace(True, 2)
+    truth = {"gripper": np.zeros(3), "elbow": np.zeros(3)}
+    trace.observed(Markers(np.zeros(3), np.full(3, 50.0), missed=("elbow",)), truth)
+    assert trace.est_err_mm == {"gripper": [0.0], "elbow": []} and trace.n_missed == 1
+
+
 # ----------------------------------------------------------------- correction (loop.aim_mm)
 def test_aim_is_the_set_point_at_full_correction_and_at_the_first_decision():
     from itg_vision.loop import aim_mm
@@ -115,8 +138,6 @@ def test_reach_is_judged_on_the_set_point_not_on_the_aim(rules):
     by more than that now and then. Judged on the aim, those reachable set points were flagged
     and skipped (10 and 7 of the arc's set points at this seed, before the fix); judged on the
     set point, none is, as at correction 1."""
-    from itg_vision.runner import RunConfig, execute, prepare
-
     counts = []
     for k in (1.0, 0.5):
         _, s = execute(prepare(RunConfig(arm="one-link", rules=rules, feedback="truth",
@@ -124,6 +145,32 @@ def test_reach_is_judged_on_the_set_point_not_on_the_aim(rules):
         counts.append((s["n_flagged"], s["n_aim_out_of_reach"]))
     assert counts[0] == (0, 0) and counts[1][0] == 0
     assert counts[1][1] > 0  # the aims the rules refused are counted, and asked again
+
+
+def test_set_points_on_the_circle_count_whatever_aims_off_it_the_tracker_keeps():
+    """DLS never flags, so it keeps every aim. At correction 0.5 an aim is the set point less
+    half the measured error, the eye's 2 mm per axis included: 1 mm of radial spread, so most
+    aims leave the one-link arm's circle by more than REACH_TOL_MM. Its set points all lie on
+    the circle: every one is in reach and counts."""
+    trace, s = execute(prepare(RunConfig(arm="one-link", controller="jacobian", feedback="truth",
+                                         noise_mm=2.0, correction=0.5, seed=3)))
+    off = np.abs(np.hypot(trace.aim_mm[:, 0], trace.aim_mm[:, 1]) - 100.0)
+    assert (off > REACH_TOL_MM).sum() > len(off) / 4
+    assert s["n_out_of_reach"] == 0 and trace.in_reach.all()
+
+
+def test_trace_rows_give_the_aim_beside_the_set_point():
+    """trace.csv's xa_mm and ya_mm columns are where the controller was asked to go (here moved
+    off the set point by a correction of 0.5 under 0.5 mm of eye noise), to the 4 decimals
+    written (5e-5 mm)."""
+    trace, _ = execute(prepare(RunConfig(feedback="truth", noise_mm=0.5, correction=0.5,
+                                         points=60)))
+    cols, rows = trace.rows()
+    xy = np.array([[float(r[cols.index(c)]) for c in ("xa_mm", "ya_mm", "xd_mm", "yd_mm")]
+                   for r in rows])
+    np.testing.assert_allclose(xy[:, :2], trace.aim_mm[:, :2], atol=5e-5)
+    np.testing.assert_allclose(xy[:, 2:], trace.desired_mm[:, :2], atol=5e-5)
+    assert np.abs(xy[:, :2] - xy[:, 2:]).max() > 0.1
 
 
 class ReachTest:
@@ -173,8 +220,6 @@ def test_metrics_count_the_set_points_the_arm_reaches_whatever_the_controller_fl
     """Table 2 told links of 40/40 mm (reach 80) drives the 100/100 mm arm along T1 (radius 24
     to 101 mm from the base): its RULE 0 flags the set points beyond 80 mm, which the arm
     reaches. They count, with the error the held arm left there."""
-    from itg_vision.runner import RunConfig, execute, prepare
-
     trace, s = execute(prepare(RunConfig(feedback="model", links_mm=(40.0, 40.0),
                                          true_links_mm=(100.0, 100.0), points=60)))
     d = trace.desired_mm
@@ -187,10 +232,8 @@ def test_metrics_count_the_set_points_the_arm_reaches_whatever_the_controller_fl
 def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_reach():
     """An arm of 60/30 mm reaches 30 to 90 mm from the base; T1 runs 24 to 101 mm. Table 2 told
     the nominal 100/100 mm flags none; DLS flags nothing ever. Both leave out exactly the set
-    points the arm cannot reach, counted by hand from the annulus (widened by REACH_TOL_MM)."""
-    from itg_vision.arm import REACH_TOL_MM
-    from itg_vision.runner import RunConfig, execute, prepare
-
+    points the arm cannot reach, counted by hand from the annulus (widened by REACH_TOL_MM);
+    the tracking statistics too (T1's second half, the tracking phase, has some)."""
     out = {}
     for ctl in ("itg", "jacobian"):
         trace, s = execute(prepare(RunConfig(controller=ctl, feedback="truth" if ctl == "jacobian"
@@ -201,6 +244,10 @@ def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_re
         assert outside.any() and not outside.all()
         assert np.array_equal(~trace.in_reach, outside)
         assert s["e_av_mm"] == pytest.approx(trace.error_mm()[~outside].mean())
+        k = trace.tracking_start
+        late = trace.error_mm()[k:][~outside[k:]]
+        assert outside[k:].any() and s["track_max_mm"] == pytest.approx(late.max())
+        assert s["track_median_mm"] == pytest.approx(np.median(late))
         out[ctl] = s["n_out_of_reach"]
     assert out["itg"] == out["jacobian"] == outside.sum()
 
@@ -208,7 +255,7 @@ def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_re
 def test_the_three_link_led_reaches_what_its_pose_puts_it_at_and_no_farther():
     """The LED sits h = 12 mm beside the arm's plane: from the shoulder it reaches between
     sqrt((L2 - L3)^2 + h^2) and sqrt((L2 + L3)^2 + h^2), and never within h of the base axis."""
-    from itg_vision.arm import REACH_TOL_MM, forward_kinematics
+    from itg_vision.arm import forward_kinematics
 
     arm = ArmSpec.from_args("three-link")
     h, (L1, L2, L3) = arm.led_standoff_mm, arm.links_mm
@@ -226,9 +273,6 @@ def test_a_one_link_path_rounded_in_its_file_is_in_reach_and_one_a_mm_off_is_not
     """The one-link arm reaches only its 100 mm circle. A circle written with 2 decimals lies
     off it by up to 0.007 mm: in reach (REACH_TOL_MM, the paper's w = 0.5 mm). A circle of
     101 mm is 1 mm off: out of reach for every set point."""
-    from itg_vision.arm import REACH_TOL_MM
-    from itg_vision.runner import RunConfig, execute, prepare
-
     a = np.radians(np.linspace(0.0, 90.0, 30))
     counts = []
     for radius in (100.0, 100.0 + 2 * REACH_TOL_MM):
