@@ -312,6 +312,18 @@ def test_the_conclusion_counts_ties_within_5_percent_plus_0_01_mm_and_names_the_
                 "(largest loss: rig-perturbed-cams on ellipse-t1, 2 against 1 mm, 2x).") in line
 
 
+def test_a_cells_statistic_over_seeds_is_its_median_then_its_quartiles():
+    """Each statistic of a cell is (median, q1, q3) over its seeds: runs of 1, 2, 3, 4 and
+    10 mm give 3, and numpy's linear quartiles 2 and 4 (the mean, 4, plays no part)."""
+    from itg_vision.bench.report import STATS, summarize
+
+    rows = [{"trajectory": "t", "condition": "clean", "controller": "ik", "seed": str(i),
+             "diverged": "0", "no_start": "", **{col: str(v) for col, _ in STATS}}
+            for i, v in enumerate((1, 2, 3, 4, 10))]
+    cell = summarize(rows)["t", "clean", "ik"]
+    assert [cell[col.removesuffix("_mm")] for col, _ in STATS] == [(3.0, 2.0, 4.0)] * len(STATS)
+
+
 # ---------------------------------------------------------------------------- Dask
 @pytest.mark.slow
 def test_dask_path_on_a_local_cluster(tmp_path):
@@ -501,6 +513,21 @@ def test_rows_record_the_controller_parameters_the_run_used():
     assert used and set(used) <= set(RULE_DEFAULTS)  # table2 uses its gain and tolerance
     assert itg["controller_params"] == ";".join(f"{k}={v:g}" for k, v in used.items())
     assert run_one(specs["ik"])["controller_params"] == ""  # open-loop IK takes none
+
+
+def test_a_row_counts_the_points_of_one_lap_and_keeps_six_digits():
+    """results.csv: ``points`` is the set points of one lap (the quick sweep runs T1 for 2 laps,
+    here of 4), and the metrics keep 6 significant digits: within half a unit of the 6th (5e-6
+    relative) of the same run's summary (Table 2 on the exact model: no randomness)."""
+    from itg_vision.runner import execute as run, prepare
+
+    spec = next(iter(build_sweep(quick=True, seeds=1, conditions=("clean",),
+                                 controllers=("itg-model",), points=4)))
+    row = run_one(spec)
+    _, s = run(prepare(run_config(spec)))
+    assert (spec.laps, row["points"], row["n_setpoints"]) == (2, "4", "8")
+    for col in ("e_av_mm", "e_max_mm", "e_rms_mm", "track_median_mm", "track_p95_mm"):
+        assert float(row[col]) == pytest.approx(s[col], rel=5e-6), col
 
 
 def test_a_sweep_where_every_run_fails_reports_and_exits_1(tmp_path, capsys, monkeypatch):

@@ -115,6 +115,22 @@ def test_clean_ik_run_is_exact_on_every_arm(name):
     assert s["track_max_mm"] < 0.01
 
 
+def test_clean_ik_under_the_servo_limit_turns_the_short_way_and_is_exact():
+    """Open-loop IK on the exact model under the two-link arm file's servo limit (20 deg per
+    iteration, 1 iteration): the loop clips IK's step too (each set point's joint change, from
+    the start pose on, is within limit x iterations), and the tracking phase is still exact (the
+    clean IK bound, 0.01 mm), as it can be only if IK turns the short way round (wrapped to
+    +-180 deg) on the branch nearer the current pose: a turn the long way round or onto the other
+    branch takes many set points at 20 deg each."""
+    arm = ArmSpec.from_args("two-link")
+    limit, iterations = arm.benchmark["max_step_deg"], arm.benchmark["iterations"]
+    trace, s = execute(prepare(RunConfig(controller="ik", feedback="model", max_step_deg=limit,
+                                         iterations=iterations)))
+    moves = np.abs(np.diff(np.vstack([arm.start_q_deg, trace.q_deg]), axis=0))
+    assert moves.max() <= limit * iterations + 1e-9
+    assert s["track_max_mm"] < 0.01
+
+
 @pytest.mark.parametrize("name", ARMS)
 def test_jacobian_tracker_tracks_a_clean_run_on_every_arm(name):
     """Ideal sensors, the loop's servo limit: DLS follows each trajectory closely once started."""

@@ -67,6 +67,18 @@ def test_env_and_command_line_loop_run_the_same_steps(arm):
     env.close()
 
 
+def test_an_episode_of_laps_tracks_from_the_second_lap():
+    """The env runs the laps it is given, and its tracking phase is the laps after the first,
+    as in a run: 20 set points a lap, 3 laps, tracked from set point 20 of 60."""
+    env = TrackingEnv(feedback="model", points=20, laps=3)
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, done, _, info = env.step([0.0, 0.0])
+    env.close()
+    assert (info["metrics"]["n_setpoints"], info["metrics"]["tracking_from"]) == (60, 20)
+
+
 @pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
 def test_images_on_request_are_the_frames_the_estimate_came_from():
     """With images=True the observation holds both cameras' whole frames; each shows the

@@ -69,6 +69,16 @@ def test_line_ab_is_straight_and_b_is_out_of_reach():
     assert all(arm.reachable(q) for q in r.points_mm)
 
 
+def test_a_path_run_for_laps_is_tracked_from_its_second_lap():
+    """A closed path run for laps repeats its set points, and its tracking phase is every lap
+    after the first: T1's 180 set points, 3 laps, from set point 180 of 540. Run once: its
+    second half, from 90."""
+    t = T.load("ellipse-t1")
+    three = t.repeated(3)
+    assert len(three) == 540 and np.array_equal(three.points_mm[360:], t.points_mm)
+    assert (t.tracking_start, three.tracking_start) == (90, 180)
+
+
 def test_csv_reader_good(tmp_path):
     f = tmp_path / "t.csv"
     f.write_text("x_mm,y_mm,z_mm,t_s\n1,2,3,0\n4,5,6,0.5\n\n")
