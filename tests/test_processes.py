@@ -192,3 +192,26 @@ def test_after_an_interruption_a_further_ctrl_c_is_ignored_while_exiting():
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+def test_a_cancelled_pool_leaves_no_manager_thread_for_the_exit_hook():
+    """After Ctrl-C the sweep cancels its pool (workers terminated, runs in flight dropped). Its
+    manager thread must have ended by then: one still running at exit can close its wake-up
+    pipe between the exit hook's check and write, printing an EBADF traceback after
+    "interrupted" (seen once in a full CI=true run; a CPython race, gh-125451). The pool is
+    cancelled while its two workers sleep in a 30 s task."""
+    import concurrent.futures.process as cfp
+
+    from itg_vision.bench.execute import local_executor, shutdown
+
+    pool = local_executor(2)
+    futures = [pool.submit(time.sleep, 30) for _ in range(4)]
+    deadline = time.monotonic() + 60
+    while not any(f.running() for f in futures) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    thread = pool._executor_manager_thread
+    t0 = time.monotonic()
+    shutdown(pool, cancel=True)
+    # the exit hook skips a closed wake-up; only a running thread can close it under the hook
+    assert not thread.is_alive() and cfp._threads_wakeups[thread]._closed
+    assert time.monotonic() - t0 < 10  # the terminated workers are not waited for 30 s

@@ -174,4 +174,7 @@ def shutdown(executor: Executor, cancel: bool = False, client=None) -> None:
     if cancel:
         for proc in list((getattr(executor, "_processes", None) or {}).values()):
             proc.terminate()
-    executor.shutdown(wait=not cancel, cancel_futures=cancel)
+    # wait even when cancelled (the workers are gone, so the pool's manager thread ends at once):
+    # a manager thread still running at exit can close its wake-up pipe between the exit hook's
+    # check and its write, a traceback after "interrupted" (EBADF; a CPython race, gh-125451)
+    executor.shutdown(wait=True, cancel_futures=cancel)
