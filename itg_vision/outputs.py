@@ -462,3 +462,29 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
             old.unlink()
         else:  # ours (the manifest goes last), or a folder replaced with force
             _remove_ours(old)
+
+
+# ---------------------------------------------------------------------------- printed reports
+class Transcript:
+    """Print a report's lines as they come and keep them, so that a command which prints its
+    figures can also save exactly what it printed (:func:`save_report`)."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def __call__(self, text: str = "") -> None:
+        print(text, flush=True)
+        self.lines.append(text)
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines) + "\n"
+
+
+def save_report(out: str | Path, command: str, text: str, results, *, force: bool = False) -> Path:
+    """Write ``report.txt`` (what the command printed) and ``results.json`` (its figures) as
+    the folder ``out``, replacing it only as :func:`staged_dir` allows; return the folder."""
+    with staged_dir(out, command, force=force) as tmp:
+        write_files({tmp / "results.json": json_text(results).encode(),
+                     tmp / "report.txt": text.encode()})
+    return Path(out)

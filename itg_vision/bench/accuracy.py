@@ -19,6 +19,7 @@ import numpy as np
 
 from ..arm import ArmSpec
 from ..camera import Rig
+from .. import outputs
 from ..errors import ArgumentParser, UserError, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..triangulate import predicted_covariance, predicted_rms_error_mm
@@ -27,6 +28,8 @@ from ..world import World
 #: The issue's targets: centroid RMS (px, zero added noise), gripper RMS (mm), and the
 #: measured / predicted triangulation RMS within this factor for 0.1..1 px.
 TARGET_CENTROID_PX, TARGET_GRIPPER_MM, TARGET_RATIO = 0.04, 0.1, 1.1
+#: The name --out's manifest gives this benchmark (what it may replace).
+COMMAND = "bench accuracy"
 #: Fewest and most random poses measured (the tails need a few; each renders 8 stereo pairs).
 MIN_POSES, MAX_POSES = 5, 100_000
 #: Zero-noise settings compared: (label, supersample, full_frame).
@@ -126,6 +129,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "the ratio's 10 %% band to hold two standard errors)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the poses and the noise, >= 0 "
                                                         "(default %(default)s)")
+    ap.add_argument("--out", metavar="DIR",
+                    help="also save what is printed (report.txt) and the figures (results.json) "
+                         "as this folder; it replaces only a folder this benchmark made")
+    ap.add_argument("--force", action="store_true",
+                    help="let --out replace a folder this benchmark did not make")
     return ap
 
 
@@ -143,30 +151,35 @@ def main(argv: list[str] | None = None) -> int:
             raise UserError(f"--seed: must be >= 0, got {args.seed}")
         arm = ArmSpec.from_args(args.arm)
         rig = Rig.from_yaml(resolve_rig(args.rig or arm.defaults["rig"]))
-        print(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
-              "zero added noise")
+        if args.out is not None:  # refuse a bad --out before the renders, not after
+            outputs.check_out_dir(args.out, COMMAND, force=args.force)
+        say = outputs.Transcript()
+        say(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
+            "zero added noise")
         names = arm.marker_names
-        print(f"{'setting':<17}{'centroid px RMS/p95/max':>24}{'mean u, v px':>18}"
-              + "".join(f"{n + ' mm RMS/p95/max':>26}" for n in names) + f"{'missed':>8}")
+        say(f"{'setting':<17}{'centroid px RMS/p95/max':>24}{'mean u, v px':>18}"
+            + "".join(f"{n + ' mm RMS/p95/max':>26}" for n in names) + f"{'missed':>8}")
         with opencv_threads(1):
             # the default setting once, with every added noise (its zero-noise row is the same)
+            measured = {}
             default = measure(arm, rig, (0.0, 0.1, 0.3, 1.0), args.poses, args.seed)
             for label, s, full in SETTINGS:
                 r = default if (s, full) == (DEFAULT_SUPERSAMPLE, False) else measure(
                     arm, rig, (0.0,), args.poses, args.seed, supersample=s, full_frame=full)
+                measured[label] = r
                 mu = r["centroid_mean_px"]
                 tail_px = f"{r['centroid_rms_px']:.4f}/{r['centroid_p95_px']:.3f}/{r['centroid_max_px']:.3f}"
-                print(f"{label:<17}{tail_px:>24}{mu[0]:>+9.3f},{mu[1]:>+8.3f}"
-                      + "".join(f"{r['marker_rms_mm'][n]:.4f}/{r['marker_p95_mm'][n]:.3f}/"
-                                f"{r['marker_max_mm'][n]:.3f}".rjust(26) for n in names)
-                      + f"{r['n_missed']:>8}")
+                say(f"{label:<17}{tail_px:>24}{mu[0]:>+9.3f},{mu[1]:>+8.3f}"
+                    + "".join(f"{r['marker_rms_mm'][n]:.4f}/{r['marker_p95_mm'][n]:.3f}/"
+                              f"{r['marker_max_mm'][n]:.3f}".rjust(26) for n in names)
+                    + f"{r['n_missed']:>8}")
             r = default
-        print(f"\nwindows s={DEFAULT_SUPERSAMPLE} (the default) with added centroid noise "
-              f"(sigma_render {r['sigma_render_px']:.4f} px per axis):")
-        print(f"{'added sigma px':>15}{'measured mm':>13}{'predicted mm':>14}{'ratio':>8}{'n':>6}")
+        say(f"\nwindows s={DEFAULT_SUPERSAMPLE} (the default) with added centroid noise "
+            f"(sigma_render {r['sigma_render_px']:.4f} px per axis):")
+        say(f"{'added sigma px':>15}{'measured mm':>13}{'predicted mm':>14}{'ratio':>8}{'n':>6}")
         for row in r["rows"]:
-            print(f"{row['sigma_px']:>15.2f}{row['measured_rms_mm']:>13.4f}{row['predicted_rms_mm']:>14.4f}"
-                  f"{row['ratio']:>8.3f}{row['n']:>6}")
+            say(f"{row['sigma_px']:>15.2f}{row['measured_rms_mm']:>13.4f}{row['predicted_rms_mm']:>14.4f}"
+                f"{row['ratio']:>8.3f}{row['n']:>6}")
 
         def verdict(ok):
             return "met" if ok else "NOT met"
@@ -174,19 +187,27 @@ def main(argv: list[str] | None = None) -> int:
         ratios = [row["ratio"] for row in r["rows"] if 0.1 <= row["sigma_px"] <= 1.0]
         worst = max(ratios, key=lambda x: max(x, 1 / x))
         g = r["marker_rms_mm"]["gripper"]
-        print(f"\ntargets (default: windows s={DEFAULT_SUPERSAMPLE}):")
-        print(f"  centroid RMS at zero added noise <= {TARGET_CENTROID_PX} px: "
-              f"{r['centroid_rms_px']:.4f} px ({verdict(r['centroid_rms_px'] <= TARGET_CENTROID_PX)})")
-        print(f"  gripper estimate <= {TARGET_GRIPPER_MM} mm RMS: {g:.4f} mm "
-              f"({verdict(g <= TARGET_GRIPPER_MM)})")
+        say(f"\ntargets (default: windows s={DEFAULT_SUPERSAMPLE}):")
+        say(f"  centroid RMS at zero added noise <= {TARGET_CENTROID_PX} px: "
+            f"{r['centroid_rms_px']:.4f} px ({verdict(r['centroid_rms_px'] <= TARGET_CENTROID_PX)})")
+        say(f"  gripper estimate <= {TARGET_GRIPPER_MM} mm RMS: {g:.4f} mm "
+            f"({verdict(g <= TARGET_GRIPPER_MM)})")
         n, se = min(row["n"] for row in r["rows"]), r["ratio_se"]
         enough = 2 * se <= TARGET_RATIO - 1  # the band holds two standard errors
-        print(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
-              + ", ".join(f"{x:.3f}" for x in ratios)
-              + f" ({verdict(max(worst, 1 / worst) <= TARGET_RATIO)}; each ratio from {n} 3-D "
-                f"errors, its sampling error {se:.3f} from the rig's error ellipsoids there"
-              + ("" if enough else f": too few to judge a {TARGET_RATIO - 1:.0%} band, raise --poses")
-              + ")")
+        say(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
+            + ", ".join(f"{x:.3f}" for x in ratios)
+            + f" ({verdict(max(worst, 1 / worst) <= TARGET_RATIO)}; each ratio from {n} 3-D "
+              f"errors, its sampling error {se:.3f} from the rig's error ellipsoids there"
+            + ("" if enough else f": too few to judge a {TARGET_RATIO - 1:.0%} band, raise --poses")
+            + ")")
+        if args.out is not None:
+            results = {"arm": arm.name, "rig": rig.name, "poses": args.poses, "seed": args.seed,
+                       "default": f"windows s={DEFAULT_SUPERSAMPLE}", "settings": measured,
+                       "targets": {"centroid_rms_px_at_most": TARGET_CENTROID_PX,
+                                   "gripper_rms_mm_at_most": TARGET_GRIPPER_MM,
+                                   "ratio_within": TARGET_RATIO}}
+            outputs.save_report(args.out, COMMAND, say.text, results, force=args.force)
+            print(f"written to {args.out}", file=sys.stderr)
         return 0
 
     return run_main(body)

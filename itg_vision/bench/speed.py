@@ -25,7 +25,7 @@ from ..controllers import two_link_ik
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, run_main
 from ..feedback import DEFAULT_SUPERSAMPLE, Markers, VisionFeedback
 from ..rules import RuleBase, load_rules
-from .. import native, trajectory as traj
+from .. import native, outputs, trajectory as traj
 from ..world import World
 
 
@@ -106,6 +106,8 @@ REPLAY, SETTLE = "ellipse-t1", 20
 TARGET_DEFAULT_HZ, TARGET_RATIO, TARGET_FASTEST_HZ, TARGET_DET_TRI_MS = 300.0, 10.0, 500.0, 0.5
 #: Issue 13: a compiled ITG+ step at least this many times cheaper than PyBullet's IK.
 SPEED_FACTOR = 50.0
+#: The name --out's manifest gives this benchmark (what it may replace).
+COMMAND = "bench speed"
 
 
 def itg_plus_speed(costs: dict) -> tuple[float, str]:
@@ -241,6 +243,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--passes", type=at_least_one, default=DEFAULT_PASSES, metavar="N",
                     help="stereo loop: passes over the states, settings interleaved (default "
                          f"%(default)s; the decision timings always take {DECISION_PASSES})")
+    ap.add_argument("--out", metavar="DIR",
+                    help="also save what is printed (report.txt) and the figures (results.json) "
+                         "as this folder; it replaces only a folder this benchmark made")
+    ap.add_argument("--force", action="store_true",
+                    help="let --out replace a folder this benchmark did not make")
     return ap
 
 
@@ -275,12 +282,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.frames > most:
             raise UserError(f"--frames: must be at most {most} (the set points of "
                             f"{REPLAY} after the first {SETTLE}), got {args.frames}")
-        print(machine_line())
+        if args.out is not None:  # refuse a bad --out before the timings, not after
+            outputs.check_out_dir(args.out, COMMAND, force=args.force)
+        say = outputs.Transcript()
+        machine = machine_line()
+        say(machine)
         c = decision_costs()
         base = c["rules_compiled_us"]
-        print(f"one decision, two-link arm, same 720 set points (median of {DECISION_PASSES} "
-              "interleaved passes, and the slowest pass; one core)")
-        print(f"{'method':<44}{'us/step':>10}{'slowest':>10}{'x rules':>10}")
+        say(f"one decision, two-link arm, same 720 set points (median of {DECISION_PASSES} "
+            "interleaved passes, and the slowest pass; one core)")
+        say(f"{'method':<44}{'us/step':>10}{'slowest':>10}{'x rules':>10}")
         for key, label in (("rules_compiled_us", "Table 2 rules, compiled to Python"),
                            ("rules_native_us", "Table 2 rules, compiled to C"),
                            ("rules_step_us", "Table 2 rules, RuleBase.step (with wrapping)"),
@@ -290,35 +301,49 @@ def main(argv: list[str] | None = None) -> int:
                            ("ik_closed_form_us", "closed-form inverse kinematics (math)"),
                            ("ik_pybullet_us", "pybullet.calculateInverseKinematics")):
             if key in c:
-                print(f"{label:<44}{c[key]:>10.3f}{c[key + '_max']:>10.3f}{c[key] / base:>10.2f}")
+                say(f"{label:<44}{c[key]:>10.3f}{c[key + '_max']:>10.3f}{c[key] / base:>10.2f}")
         if c["native_error"]:
-            print(f"rules compiled to C: not timed ({c['native_error']})")
+            say(f"rules compiled to C: not timed ({c['native_error']})")
         miss = c["ik_pybullet_miss_mm"]
-        print("pybullet.calculateInverseKinematics is one call with its defaults (20 iterations, "
-              "stopping within 0.1 mm), started from the previous set point's solution, as a "
-              f"tracking loop would: it lands median {np.median(miss):.3f} / p95 "
-              f"{np.percentile(miss, 95):.3f} / max {miss.max():.3f} mm from its set point; "
-              "each rules row is one decision, not a solution")
+        say("pybullet.calculateInverseKinematics is one call with its defaults (20 iterations, "
+            "stopping within 0.1 mm), started from the previous set point's solution, as a "
+            f"tracking loop would: it lands median {np.median(miss):.3f} / p95 "
+            f"{np.percentile(miss, 95):.3f} / max {miss.max():.3f} mm from its set point; "
+            "each rules row is one decision, not a solution")
         ik = c["ik_pybullet_us"]
         for key, label in (("itg_plus_compiled_us", "ITG+ step compiled to Python"),
                            ("itg_plus_native_us", "ITG+ step compiled to C"),
                            ("rules_compiled_us", "Table 2 step compiled to Python"),
                            ("rules_native_us", "Table 2 step compiled to C")):
             if key in c:
-                print(f"PyBullet IK / {label}: {ik / c[key]:.1f}x")
+                say(f"PyBullet IK / {label}: {ik / c[key]:.1f}x")
         ratio, compiled = itg_plus_speed(c)
-        print(f"target: PyBullet IK / ITG+ step compiled to {compiled} >= {SPEED_FACTOR:g}x: "
-              f"{ratio:.1f}x ({'met' if ratio >= SPEED_FACTOR else 'NOT met'})")
+        say(f"target: PyBullet IK / ITG+ step compiled to {compiled} >= {SPEED_FACTOR:g}x: "
+            f"{ratio:.1f}x ({'met' if ratio >= SPEED_FACTOR else 'NOT met'})")
+        rows = []
         if not args.no_vision:
             rows = vision_costs(frames=args.frames, passes=args.passes)
-            print(f"\nstereo loop per iteration at 640x480 (two LEDs, two cameras, distortion and "
-                  f"noise; median ms over {args.passes} passes of {args.frames} states of ellipse "
-                  "T1 after its start transient, settings interleaved; CPU time of one core: "
-                  "median, mean, p95 and max of the loop; Hz from the median, wall Hz beside it)"
-                  + ("" if args.frames >= DEFAULT_FRAMES and args.passes >= DEFAULT_PASSES else
-                     f"; a smaller sample than the default {DEFAULT_FRAMES} states x "
-                     f"{DEFAULT_PASSES} passes: its verdicts are rougher"))
-            print("\n".join(vision_report(rows, DEFAULT_SUPERSAMPLE)))
+            say(f"\nstereo loop per iteration at 640x480 (two LEDs, two cameras, distortion and "
+                f"noise; median ms over {args.passes} passes of {args.frames} states of ellipse "
+                "T1 after its start transient, settings interleaved; CPU time of one core: "
+                "median, mean, p95 and max of the loop; Hz from the median, wall Hz beside it)"
+                + ("" if args.frames >= DEFAULT_FRAMES and args.passes >= DEFAULT_PASSES else
+                   f"; a smaller sample than the default {DEFAULT_FRAMES} states x "
+                   f"{DEFAULT_PASSES} passes: its verdicts are rougher"))
+            for line in vision_report(rows, DEFAULT_SUPERSAMPLE):
+                say(line)
+        if args.out is not None:
+            results = {"machine": machine, "decision_passes": DECISION_PASSES,
+                       "decision_us": {k: v for k, v in c.items()
+                                       if k.endswith(("_us", "_us_max"))},
+                       "native_error": c["native_error"],
+                       "ik_pybullet_miss_mm": c["ik_pybullet_miss_mm"],
+                       "target": {"ratio": ratio, "compiled_to": compiled,
+                                  "at_least": SPEED_FACTOR, "met": ratio >= SPEED_FACTOR},
+                       "stereo_loop": {"frames": args.frames, "passes": args.passes,
+                                       "rows": rows}}
+            outputs.save_report(args.out, COMMAND, say.text, results, force=args.force)
+            print(f"written to {args.out}", file=sys.stderr)
         return 0
 
     return run_main(body)

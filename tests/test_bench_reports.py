@@ -1,0 +1,83 @@
+"""`bench speed --out` and `bench accuracy --out`: the folder holds exactly what was printed
+(report.txt) and the printed figures (results.json), and replaces only what it made."""
+
+import json
+
+import pytest
+
+from itg_vision.bench import accuracy, speed
+from itg_vision.outputs import MANIFEST
+
+
+def _run(main, argv, capsys):
+    rc = main(argv)
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_accuracy_out_saves_what_it_printed(tmp_path, capsys):
+    out = tmp_path / "acc"
+    rc, printed, err = _run(accuracy.main, ["--poses", "5", "--out", str(out)], capsys)
+    assert rc == 0, err
+    assert (out / "report.txt").read_text() == printed
+    r = json.loads((out / "results.json").read_text())
+    assert (r["poses"], r["seed"], r["arm"]) == (5, 0, "two-link")
+    # every setting's row in the printout is the figure in results.json
+    for label, s in r["settings"].items():
+        row = next(line for line in printed.splitlines() if line.startswith(label))
+        assert f"{s['centroid_rms_px']:.4f}/{s['centroid_p95_px']:.3f}" in row, (label, row)
+        assert s["n_poses"] == 5
+    assert set(r["settings"]) == {label for label, *_ in accuracy.SETTINGS}
+    default = r["settings"][r["default"]]
+    for row in default["rows"]:
+        assert f"{row['measured_rms_mm']:.4f}" in printed
+    # a second run replaces its own folder; the same seed gives the same figures
+    rc, printed2, err = _run(accuracy.main, ["--poses", "5", "--out", str(out)], capsys)
+    assert rc == 0, err
+    assert json.loads((out / "results.json").read_text())["settings"] == r["settings"]
+
+
+def test_accuracy_out_refuses_a_users_folder_before_rendering(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    rc, printed, err = _run(accuracy.main, ["--poses", "5", "--out", str(mine)], capsys)
+    assert rc == 2 and printed == "" and err.count("\n") == 1 and "--out" in err, err
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    assert (mine / "notes.txt").read_text() == "keep me"
+    rc, printed, err = _run(accuracy.main, ["--poses", "5", "--out", str(mine), "--force"],
+                            capsys)
+    assert rc == 0, err
+    assert sorted(p.name for p in mine.iterdir()) == sorted([MANIFEST, "report.txt",
+                                                             "results.json"])
+
+
+def test_speed_out_saves_what_it_printed(tmp_path, capsys):
+    out = tmp_path / "speed"
+    rc, printed, err = _run(speed.main, ["--no-vision", "--out", str(out)], capsys)
+    assert rc == 0, err
+    assert (out / "report.txt").read_text() == printed
+    r = json.loads((out / "results.json").read_text())
+    us = r["decision_us"]
+    assert r["machine"] == printed.splitlines()[0]
+    # the target's ratio is the two saved times' ratio, and its verdict the threshold's
+    key = "itg_plus_native_us" if r["target"]["compiled_to"] == "C" else "itg_plus_compiled_us"
+    assert r["target"]["ratio"] == pytest.approx(us["ik_pybullet_us"] / us[key], rel=1e-12)
+    assert r["target"]["met"] == (r["target"]["ratio"] >= r["target"]["at_least"])
+    assert f"{us['ik_pybullet_us']:.3f}" in printed
+    assert len(r["ik_pybullet_miss_mm"]) == 720 and r["stereo_loop"]["rows"] == []
+
+
+@pytest.mark.parametrize("made_by", ["user", "bench accuracy"])
+def test_speed_out_refuses_a_folder_it_did_not_make_before_timing(tmp_path, capsys, made_by):
+    other = tmp_path / "other"
+    if made_by == "user":
+        other.mkdir()
+        (other / "notes.txt").write_text("keep me")
+    else:
+        assert accuracy.main(["--poses", "5", "--out", str(other)]) == 0
+        capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in other.iterdir()}
+    rc, printed, err = _run(speed.main, ["--no-vision", "--out", str(other)], capsys)
+    assert rc == 2 and printed == "" and err.count("\n") == 1 and "--out" in err, err
+    assert {p.name: p.read_bytes() for p in other.iterdir()} == before
