@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from itg_vision.bench import execute
+from itg_vision.bench import execute, noise
 from itg_vision.bench.execute import run_one
 from itg_vision.bench.noise import main
 from itg_vision.bench.store import definition_hash
@@ -120,6 +120,27 @@ def test_an_inline_executor_hands_each_row_over_as_it_is_made_in_order(monkeypat
     for spec, _ in execute.results(execute.InlineExecutor(), specs, in_flight=2):
         calls.append(("yield", spec.run_id))
     assert calls == [(kind, s.run_id) for s in specs for kind in ("run", "yield")]
+
+
+def test_results_csv_keeps_the_sweeps_order_whatever_order_the_runs_finish_in(tmp_path,
+                                                                            monkeypatch):
+    """Parallel runs finish in any order; the same sweep must give the same file (and the
+    targets built from its rows the same lines)."""
+    args = ["--quick", "--controllers", "itg-model,ik", "--quiet", "--workers", "1"]
+    specs = build_sweep(quick=True, controllers=("itg-model", "ik"))
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+
+    def finish_backwards(executor, todo, in_flight):
+        yield from reversed(list(execute.results(executor, todo, in_flight)))
+
+    monkeypatch.setattr(noise, "results", finish_backwards)
+    assert main(args + ["--out", str(tmp_path / "b")]) == 0
+    a, b = _rows(tmp_path / "a"), _rows(tmp_path / "b")
+    assert [r["run_id"] for r in b] == [s.run_id for s in specs]
+    assert [{**r, "wall_s": ""} for r in b] == [{**r, "wall_s": ""} for r in a]
+    # the report's time is the runs' wall-clock seconds summed (not simulated time)
+    wall = sum(float(r["wall_s"]) for r in b)
+    assert f"wall-clock time of the runs, summed {wall:.0f} s" in (tmp_path / "b" / "report.md").read_text()
 
 
 def test_run_ids_are_stable_and_distinct():

@@ -193,6 +193,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
                   "command runs the rest", file=sys.stderr)
         raise
     shutdown(executor, client=client)
+    store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
     rows = list(store.rows.values())
     plots = write_report(out, rows, specs, command, failures, plot_metrics)
     failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}

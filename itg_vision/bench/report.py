@@ -247,7 +247,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
          f"{len(rows)} of {len(specs)} runs in `results.csv`"
          + (f", {n_gone} of which did not start (listed below)" if n_gone else "")
          + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
-         + f"; {len(seeds)} seeds per cell; simulated time in runs {wall:.0f} s.", ""]
+         + f"; {len(seeds)} seeds per cell; wall-clock time of the runs, summed {wall:.0f} s "
+         "(with several workers the sweep took less).", ""]
     codes = Counter(r["code"] for r in rows)
     if codes:
         L += ["Code that computed the rows (`code` in results.csv, a hash of the package's "

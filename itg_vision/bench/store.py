@@ -18,6 +18,7 @@ import csv
 import dataclasses
 import functools
 import hashlib
+import io
 import json
 import math
 import os
@@ -148,6 +149,21 @@ class Results:
         if self._repaired is not None:
             outputs.write_text(self.path, self._repaired)
             self._repaired = None
+
+    def reorder(self, run_ids: list[str]) -> None:
+        """Rewrite the file (atomically) with the rows of ``run_ids`` first, in that order, then
+        any others in their file order: parallel runs finish in any order, and the same sweep
+        must give the same file."""
+        order = {r: i for i, r in enumerate(run_ids)}
+        rows = sorted(self.rows.values(), key=lambda r: order.get(r["run_id"], len(order)))
+        if [r["run_id"] for r in rows] == list(self.rows):
+            return
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COLUMNS)
+        w.writerows([r[c] for c in COLUMNS] for r in rows)
+        outputs.write_text(self.path, buf.getvalue())
+        self.rows = {r["run_id"]: r for r in rows}
 
     def append(self, row: dict) -> None:
         """Append one row and make it durable (flush + fsync) before returning."""
