@@ -278,6 +278,16 @@ def _fmt(v, d=2) -> str:
     return "n/a" if v is None or not np.isfinite(v) else f"{v:.{d}f}"
 
 
+def settings(base: RunConfig) -> dict:
+    """The options a paper run was made with, as results.json and the manifest record them."""
+    return {"feedback": base.feedback, "gain_deg_per_mm": base.gain_deg_per_mm, "seed": base.seed}
+
+
+def _options(base: RunConfig) -> str:
+    opts = {"--feedback": base.feedback, "--gain": base.gain_deg_per_mm, "--seed": base.seed}
+    return " ".join(f"{k} {v}" for k, v in opts.items() if v is not None)
+
+
 def report(r: dict, base: RunConfig) -> str:
     e1, e2, e3, e4, e5, e6 = (r[k] for k in ("exp1", "exp2", "exp3", "exp4", "exp5", "exp6"))
     t1, t2 = e4["ellipse-t1"], e4["ellipse-t2"]
@@ -287,7 +297,7 @@ def report(r: dict, base: RunConfig) -> str:
     L = [
         "# The paper's experiments, reproduced",
         "",
-        f"Command: `python -m itg_vision.paper --out DIR` (feedback `{base.feedback}`, gain f = {base.gain_deg_per_mm} deg/mm "
+        f"Command: `python -m itg_vision.paper --out DIR {_options(base)}` (feedback `{base.feedback}`, gain f = {base.gain_deg_per_mm} deg/mm "
         f"unless swept, {base.iterations} iteration per set point, no servo limit, start fully extended, "
         "two-link 100/100 mm, three-link 100/100/100 mm). All numbers below were measured by this run; each "
         "verdict is computed from the threshold written beside it.",
@@ -451,8 +461,8 @@ def main(argv: list[str] | None = None) -> int:
             base.validate()
         except ConfigError as exc:
             raise exc.as_option({"gain_deg_per_mm": "--gain", "seed": "--seed"}) from None
-        results = {}
-        with outputs.staged_dir(args.out, "paper", force=args.force) as tmp:  # text: "" is an error
+        results = {"settings": settings(base)}
+        with outputs.staged_dir(args.out, "paper", force=args.force, key=settings(base)) as tmp:  # text: "" is an error
             for name, fn in (("exp1", exp1), ("exp2", exp2), ("exp3", exp3), ("exp4", exp4),
                              ("exp5", exp5), ("exp6", exp6)):
                 if not args.quiet:

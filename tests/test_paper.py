@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from itg_vision import paper
+from itg_vision import outputs, paper
 from itg_vision.paper import settle_index
 from itg_vision.runner import RunConfig
 
@@ -28,9 +28,13 @@ def paper_run(tmp_path_factory):
 @pytest.mark.slow
 def test_paper_writes_every_figure_and_a_report(paper_run):
     out, r = paper_run
-    assert set(r) == {"exp1", "exp2", "exp3", "exp4", "exp5", "exp6"}
+    assert set(r) == {"settings", "exp1", "exp2", "exp3", "exp4", "exp5", "exp6"}
+    # the options it ran with are recorded where a reader of the folder finds them
+    assert r["settings"] == {"feedback": "model", "gain_deg_per_mm": 0.5, "seed": 0}
+    assert json.loads((out / outputs.MANIFEST).read_text())["key"] == r["settings"]
     assert r["exp6"]["line-ab"]["n_out_of_reach"] == r["exp6"]["line-ab"]["n_flagged"] > 0  # B is out of reach; RULE 0 flags the same
     text = (out / "report.md").read_text()
+    assert "`python -m itg_vision.paper --out DIR --feedback model --gain 0.5 --seed 0`" in text
     for k in ("1", "2", "3", "4", "5a", "5b", "6"):
         assert f"| {k} |" in text
     for png in ("exp1_path", "exp3_eav_vs_nt", "exp4_eav_vs_f", "exp5_second_lap", "exp6_line_ab"):
