@@ -11,6 +11,7 @@ and the field. :func:`clip` shortens a user's text quoted in a message.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from pathlib import Path
@@ -79,6 +80,39 @@ def position(data: bytes | str, offset: int) -> tuple[int, int]:
     return line, col
 
 
+@functools.cache
+def _loader():
+    """PyYAML's safe loader, made strict where it is silently lax: a key given twice in one
+    mapping is refused at its line (PyYAML keeps the last), and a number in exponent form is a
+    number as in YAML 1.2 and JSON (PyYAML, after YAML 1.1, reads 1e5 and 1.0e5 as text and
+    only 1.0e+5 as a number)."""
+    import yaml
+
+    class StrictLoader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":  # << merges may override
+                    continue
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    first = seen.get(key)
+                except TypeError:  # an unhashable key: the safe loader names it
+                    continue
+                if first is not None:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {show(key)} (first at line {first.line + 1})",
+                        key_node.start_mark)
+                seen[key] = key_node.start_mark
+            return super().construct_mapping(node, deep)
+
+    StrictLoader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+        list("-+0123456789."))
+    return StrictLoader
+
+
 def read_yaml(path: str | Path, what: str):
     """The parsed YAML of ``path`` (a ``what``: 'rig file', 'arm file'), read by
     :func:`read_text`. Every failure is one `UserError` naming the file: a YAML error at its line
@@ -88,7 +122,7 @@ def read_yaml(path: str | Path, what: str):
 
     text = read_text(path, what)
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_loader())
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
@@ -162,10 +196,7 @@ class Fields:
             except OverflowError:  # an integer beyond the doubles
                 x = math.inf
         if not math.isfinite(x):
-            hint = ""
-            if isinstance(v, str) and re.fullmatch(r"\s*[-+]?\d+[eE][-+]?\d+\s*", v):
-                hint = f" (YAML reads {v.strip()} as text: write it with a dot, 1.0e5 not 1e5)"
-            self.fail(where, f"must be a finite number{unit}, got {show(v)}{hint}")
+            self.fail(where, f"must be a finite number{unit}, got {show(v)}")
         if not ((lo < x) if lo_open else (lo <= x)) or x > hi:
             span = (f"{'>' if lo_open else '>='} {lo:g}" if hi == math.inf else
                     f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]")

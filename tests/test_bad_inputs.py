@@ -11,11 +11,12 @@ import pytest
 import yaml
 
 from itg_vision import calibrate, paper, run
-from itg_vision.arm import ARMS_DIR, ArmSpec
+from itg_vision.arm import ARMS_DIR, ArmSpec, load_arm
 from itg_vision.bench import __main__ as bench
 from itg_vision.bench import noise
 from itg_vision.camera import CAMERAS_DIR
 from itg_vision.errors import UserError
+from itg_vision.inputs import read_yaml
 from itg_vision.rules import RULES_DIR
 
 COMMANDS = {"run": run.main, "paper": paper.main, "calibrate": calibrate.main,
@@ -72,7 +73,9 @@ ARM_EDITS = [
     ("trajectory-7", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: 7}"),
     ("rig-list", r"^defaults:.*$", "defaults: {rules: table2, rig: [a], trajectory: ellipse-t1}"),
     ("servo-abc", r"^benchmark:.*$", "benchmark: {max_step_deg: abc, iterations: 1}"),
-    ("servo-1e1", r"^benchmark:.*$", "benchmark: {max_step_deg: 1e1, iterations: 1}"),
+    ("servo-quoted", r"^benchmark:.*$", "benchmark: {max_step_deg: '1e1', iterations: 1}"),
+    ("duplicate-key", r"^name:.*$", "name: two-link\nname: other"),
+    ("duplicate-flow-key", r"^benchmark:.*$", "benchmark: {max_step_deg: 20, max_step_deg: 5, iterations: 1}"),
     ("servo-negative", r"^benchmark:.*$", "benchmark: {max_step_deg: -5, iterations: 1}"),
     ("servo-zero", r"^benchmark:.*$", "benchmark: {max_step_deg: 0, iterations: 1}"),
     ("servo-nan", r"^benchmark:.*$", "benchmark: {max_step_deg: .nan, iterations: 1}"),
@@ -131,6 +134,7 @@ def make_inputs(tmp):
     f["binary.csv"] = tmp / "binary.csv"
     f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
     text("not-rig.yaml", "just: text\n")
+    text("rig-duplicate-key.yaml", "name: x\ncameras: []\ncameras: []\n")
     text("negative-standoff.yaml", re.sub(r"(?m)^led_standoff_mm: .*$", "led_standoff_mm: -3",
                                           (ARMS_DIR / "two-link.yaml").read_text()))
     text("lost-true-rig.yaml", (ARMS_DIR.parent.parent / "cameras" / "planar.yaml").read_text()
@@ -197,7 +201,10 @@ CASES = [
     ("arm-default-rules-5", "run", RUN + ["--arm", "{arm-rules-5.yaml}"], "arm-rules-5.yaml: defaults.rules: must be a name or a path on one line, got 5"),
     ("arm-default-trajectory-7", "run", RUN + ["--arm", "{arm-trajectory-7.yaml}"], "arm-trajectory-7.yaml: defaults.trajectory: must be a name or a path on one line, got 7"),
     ("arm-default-rig-list", "run", ["--quiet", "--arm", "{arm-rig-list.yaml}"], "arm-rig-list.yaml: defaults.rig: must be a name or a path on one line, got ['a']"),
-    ("arm-servo-1e1", "run", RUN + ["--arm", "{arm-servo-1e1.yaml}", "--rules", "itg-plus-two-link"], "arm-servo-1e1.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got '1e1' (YAML reads 1e1 as text: write it with a dot, 1.0e5 not 1e5)"),
+    ("arm-servo-quoted", "run", RUN + ["--arm", "{arm-servo-quoted.yaml}", "--rules", "itg-plus-two-link"], "arm-servo-quoted.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got '1e1'"),
+    ("arm-duplicate-key", "run", RUN + ["--arm", "{arm-duplicate-key.yaml}"], "arm-duplicate-key.yaml:4:1: not valid YAML (duplicate key 'name' (first at line 3))"),
+    ("arm-duplicate-key-flow", "run", RUN + ["--arm", "{arm-duplicate-flow-key.yaml}"], "arm-duplicate-flow-key.yaml:13:31: not valid YAML (duplicate key 'max_step_deg' (first at line 13))"),
+    ("rig-duplicate-key", "run", ["--quiet", "--rig", "{rig-duplicate-key.yaml}"], "rig-duplicate-key.yaml:3:1: not valid YAML (duplicate key 'cameras' (first at line 2))"),
     ("arm-servo-abc", "run", RUN + ["--arm", "{arm-servo-abc.yaml}", "--rules", "itg-plus-two-link"], "arm-servo-abc.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got 'abc'"),
     ("arm-servo-negative", "run", RUN + ["--arm", "{arm-servo-negative.yaml}"], "arm-servo-negative.yaml: benchmark.max_step_deg: must be in (0, 360] (deg per iteration), got -5"),
     ("arm-servo-zero", "run", RUN + ["--arm", "{arm-servo-zero.yaml}"], "arm-servo-zero.yaml: benchmark.max_step_deg: must be in (0, 360] (deg per iteration), got 0"),
@@ -390,6 +397,21 @@ def test_the_servo_limit_note_names_the_arm_file_in_use(tmp_path):
                      "--points", "5", "--out", str(tmp_path / "p")]) == 0
     note = json.loads((tmp_path / "p" / "summary.json").read_text())["servo_limit"]
     assert note.endswith("benchmark limit (data/arms/two-link.yaml)")
+
+
+def test_numbers_in_exponent_form_are_numbers_in_every_yaml_file(tmp_path):
+    """As in YAML 1.2 and JSON: 1e1 and 1.5E-3 are numbers (PyYAML, after YAML 1.1, reads them
+    as text unless written 1.0e+1); quoted, they stay text."""
+    arm = tmp_path / "exp-arm.yaml"
+    arm.write_text(re.sub(r"(?m)^benchmark:.*$", "benchmark: {max_step_deg: 1e1, iterations: 1}",
+                          (ARMS_DIR / "two-link.yaml").read_text()))
+    assert load_arm(str(arm)).benchmark["max_step_deg"] == 10.0
+    doc = tmp_path / "n.yaml"
+    doc.write_text("a: 1e1\nb: -1.5E-3\nc: .5e+2\nd: '1e1'\ne: 1_000\nf: 1e\n"
+                   "g: &g {x: 1, y: 2}\nh:\n  <<: *g\n  x: 3\n")
+    assert read_yaml(doc, "rig file") == {"a": 10.0, "b": -0.0015, "c": 50.0, "d": "1e1",
+                                          "e": 1000, "f": "1e", "g": {"x": 1, "y": 2},
+                                          "h": {"x": 3, "y": 2}}  # a merged key may be overridden
 
 
 def test_a_utf8_bom_in_a_csv_header_is_accepted(tmp_path):
