@@ -191,6 +191,9 @@ def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
 
 #: The largest coordinate a trajectory file may give (mm): a kilometre, far beyond any arm here.
 MAX_COORD_MM = 1e6
+#: A number as a trajectory file may write it: ASCII digits, an optional sign, point and
+#: exponent (Python's float() also takes 1_000, full-width and Arabic-Indic digits).
+DECIMAL = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 
 
 def read_csv(path: str | Path) -> Trajectory:
@@ -201,10 +204,16 @@ def read_csv(path: str | Path) -> Trajectory:
     """
     path = Path(path)
     text = read_text(path, "trajectory CSV")
-    try:
-        rows = list(csv.reader(re.split(r"\r\n|\r|\n", text)))  # not splitlines: \f is no line end
-    except csv.Error as exc:  # e.g. a field larger than csv's limit (128 KiB)
-        raise UserError(f"{path}: not a CSV file ({exc})") from None
+    reader = csv.reader(re.split(r"\r\n|\r|\n", text), strict=True)  # \f is no line end
+    rows = []
+    while True:
+        start = reader.line_num + 1  # the line a row starts on (a quoted field may go on)
+        try:
+            rows.append(next(reader))
+        except StopIteration:
+            break
+        except csv.Error as exc:  # a stray or unclosed quote, a field beyond csv's limit (128 KiB)
+            raise UserError(f"{path}:{start}: not CSV ({exc})") from None
     if not rows or not any(cell.strip() for cell in rows[0]):
         raise UserError(f"{path}: empty file (expected a header x_mm,y_mm[,z_mm][,t_s])")
     header = [h.strip() for h in rows[0]]
@@ -224,6 +233,8 @@ def read_csv(path: str | Path) -> Trajectory:
             try:
                 v = float(cell)
             except ValueError:
+                v = None
+            if v is None or math.isfinite(v) and not DECIMAL.fullmatch(cell.strip()):
                 raise UserError(f"{path}:{lineno}: field {col}: not a number: "
                                 f"{clip(cell.strip())!r}") from None
             if not math.isfinite(v):
@@ -235,8 +246,9 @@ def read_csv(path: str | Path) -> Trajectory:
             vals.append(v)
         values.append(vals)
         linenos.append(lineno)
-    if not values:
-        raise UserError(f"{path}: no set points after the header")
+    if len(values) < 2:
+        raise UserError(f"{path}: {len(values) or 'no'} set point{'' if len(values) == 1 else 's'} "
+                        "after the header; a trajectory needs at least 2 (as --points)")
     arr = np.array(values)
     cols = {h: arr[:, i] for i, h in enumerate(header)}
     planar = "z_mm" not in cols

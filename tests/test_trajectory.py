@@ -85,8 +85,10 @@ def test_csv_reader_good(tmp_path):
     t = T.read_csv(f)
     assert not t.planar and t.points_mm.tolist() == [[1, 2, 3], [4, 5, 6]]
     assert t.t_s.tolist() == [0, 0.5]
-    f.write_text("x_mm,y_mm\n1,2\n")
+    f.write_text("x_mm,y_mm\n1,2\n3,4\n")
     assert T.read_csv(f).planar
+    f.write_text('x_mm,y_mm\n"1",+2.\n.5e1,-4E-1\n')  # quotes, sign, point, exponent: numbers
+    assert T.read_csv(f).points_mm[:, :2].tolist() == [[1, 2], [5, -0.4]]
     for newline in ("\r\n", "\r"):  # Windows' and old Macs' line ends read alike
         f.write_bytes(newline.join(["x_mm,y_mm", "1,2", "3,4", ""]).encode())
         assert T.read_csv(f).points_mm[:, :2].tolist() == [[1, 2], [3, 4]]
@@ -98,7 +100,16 @@ def test_csv_reader_good(tmp_path):
     ("x_mm,y_mm\n1,2\n3,abc\n", ":3: field y_mm: not a number: 'abc'"),
     ("x_mm,y_mm\n1,nan\n", ":2: field y_mm: must be finite"),
     ("x_mm,y_mm\n1,2,3\n", ":2: expected 2 fields, got 3"),
-    ("x_mm,y_mm\n", "no set points"),
+    ("x_mm,y_mm\n", "no set points after the header; a trajectory needs at least 2"),
+    ("x_mm,y_mm\n120,40\n", "1 set point after the header; a trajectory needs at least 2"),
+    # what Python's float() takes but no spreadsheet writes: refused, not read as a number
+    ("x_mm,y_mm\n1,2\n1_20,40\n", ":3: field x_mm: not a number: '1_20'"),
+    ("x_mm,y_mm\n1,2\n\uff11\uff12\uff10,40\n", ":3: field x_mm: not a number"),  # full-width
+    ("x_mm,y_mm\n1,2\n\u0661\u0662\u0660,40\n", ":3: field x_mm: not a number"),  # Arabic-Indic
+    ("x_mm,y_mm\n1,2\n0x10,40\n", ":3: field x_mm: not a number: '0x10'"),
+    # quotes: an unclosed one at the line it opens on, a stray one at its line
+    ("x_mm,y_mm\n1,2\n3,4\n100,\"60\n", ":4: not CSV (unexpected end of data)"),
+    ("x_mm,y_mm\n\"1\"2,3\n4,5\n", ":2: not CSV (',' expected after '\"')"),
     ("x_mm,y_mm,t_s\n1,2,1\n1,2,0\n", ":3: field t_s: times must not decrease"),
     # blank lines before it: still the line of the time that decreases
     ("x_mm,y_mm,t_s\n50,50,0\n\n60,60,1\n70,70,0.5\n", ":5: field t_s: times must not decrease"),
@@ -108,7 +119,7 @@ def test_csv_reader_good(tmp_path):
 ])
 def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
     f = tmp_path / "bad.csv"
-    f.write_text(text)
+    f.write_text(text, encoding="utf-8")
     with pytest.raises(UserError) as exc:
         T.read_csv(f)
     assert str(exc.value).startswith(str(f)) and expect in str(exc.value)
