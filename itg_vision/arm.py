@@ -232,12 +232,31 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
                    source=path)
 
 
+def _shipped(key: str) -> list[str]:
+    """The shipped names a ``defaults`` entry may give: rule bases, rigs or trajectories."""
+    if key == "trajectory":
+        from .trajectory import NAMES
+
+        return list(NAMES)
+    if key == "rig":
+        from .camera import CAMERAS_DIR
+
+        return sorted(p.name[:-len(".yaml")] for p in CAMERAS_DIR.glob("*.yaml"))
+    from .rules import shipped_rules
+
+    return list(shipped_rules())
+
+
 def _default(F: Fields, value, where: str, path: str) -> str:
-    """A default of the arm file: a shipped name as it is (checked where it is used), or a file,
-    which must exist: a relative one beside the arm file (as a rig's ``true_rig``), else from
-    the current folder."""
+    """A default of the arm file: a shipped name, which must be shipped, or a file, which must
+    exist: a relative one beside the arm file (as a rig's ``true_rig``), else from the current
+    folder."""
     text = F.text(value, where)
     if "/" not in text and Path(text).suffix not in FILE_TYPES:
+        shipped = _shipped(where.rsplit(".", 1)[-1])
+        if text not in shipped:
+            F.fail(where, f"no shipped one is called {text!r} (shipped: {', '.join(shipped)}; "
+                          "or give a file's path)")
         return text
     p = resolve_relative(text, Path(path))
     if not p.is_file():

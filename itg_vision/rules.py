@@ -57,7 +57,7 @@ loop's servo limit: :attr:`RuleBase.servo_step` is then true, and the runner bin
 run's ``max_step_deg`` rather than to ``--step`` (the ITG+ rule bases, whose steps are clipped
 to +-S and whose compensations assume each joint moves what the rules ask).
 
-Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm); radial squares
+Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm; none on a one-link arm); radial squares
 ``rd2 rg2 re2`` (x^2 + y^2, mm^2); joints ``q1..qn`` (deg); gain ``f`` (deg/mm), fixed step
 ``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm.
 
@@ -82,6 +82,7 @@ from .errors import UserError
 from .inputs import clip, read_text
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
+ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
 #: The rule parameters and the field names (units included) they go by outside the rules.
 PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
 PARAM_NAMES = ("f", "S", "w")
@@ -886,7 +887,8 @@ class RuleBase:
     def known_names(self) -> set[str]:
         joints = {f"q{i}" for i in range(1, self.n_joints + 1)}
         links = {f"L{i}" for i in range(1, len(self.links_mm) + 1)} | {"L"}
-        return set(MARKER_NAMES) | set(PARAM_NAMES) | joints | links
+        markers = set(MARKER_NAMES) - (set(ELBOW_NAMES) if self.n_joints == 1 else set())
+        return markers | set(PARAM_NAMES) | joints | links
 
     def _check(self) -> None:
         if not self.rules:
@@ -925,6 +927,9 @@ class RuleBase:
 
     def _check_names(self, nodes, known: set[str]) -> None:
         for name, tok in (n for node in nodes for n in _names_in(node)):
+            if name in ELBOW_NAMES and name not in known:  # NaN: its comparisons never hold
+                raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} reads the elbow "
+                                "LED, but a one-link arm has no elbow")
             if name not in known:
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
                                 f"(known: {', '.join(sorted(known))})")

@@ -195,6 +195,12 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
     if trajectory.planar and not model.planar:
         raise UserError(f"--arm {model.name} needs a 3-D trajectory (x_mm,y_mm,z_mm), but "
                         f"--trajectory {trajectory.name} is planar")
+    if not any(true_arm.reachable(p) for p in trajectory.points_mm):
+        lo, hi = true_arm.reach_mm()
+        raise UserError(f"--trajectory {trajectory.name}: none of its "
+                        f"{len(trajectory.points_mm) // trajectory.laps} set points is in reach of "
+                        f"arm {true_arm.name} ({lo:g} to {hi:g} mm from its shoulder): nothing to "
+                        "track")
     info: dict = {}
     given = {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
     if cfg.controller == "itg":

@@ -71,6 +71,9 @@ ARM_EDITS = [
     ("start-1-angle", r"^start_pose_deg:.*$", "start_pose_deg: [90]"),
     ("rules-5", r"^defaults:.*$", "defaults: {rules: 5, rig: planar, trajectory: ellipse-t1}"),
     ("trajectory-7", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: 7}"),
+    ("rules-unknown", r"^defaults:.*$", "defaults: {rules: nosuch, rig: planar, trajectory: ellipse-t1}"),
+    ("rig-unknown", r"^defaults:.*$", "defaults: {rules: table2, rig: nosuch, trajectory: ellipse-t1}"),
+    ("trajectory-unknown", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: circle}"),
     ("rig-list", r"^defaults:.*$", "defaults: {rules: table2, rig: [a], trajectory: ellipse-t1}"),
     ("servo-abc", r"^benchmark:.*$", "benchmark: {max_step_deg: abc, iterations: 1}"),
     ("servo-quoted", r"^benchmark:.*$", "benchmark: {max_step_deg: '1e1', iterations: 1}"),
@@ -130,6 +133,8 @@ def make_inputs(tmp):
                                                      "rotation_deg": [1e300, 0, 0]}))
     f["bom-bad.csv"] = tmp / "bom-bad.csv"
     f["bom-bad.csv"].write_text("x_mm,y_mm\n10,twenty\n", encoding="utf-8-sig")
+    text("elbow.rules", "RULE 1: IF xg > xd THEN q1 -= S\nRULE 2: IF re2 > xd THEN q1 += S\n")
+    text("unreachable.csv", "x_mm,y_mm\n500,500\n510,500\n")
     text("digits.csv", "x_mm,y_mm\n" + "1" * 5000 + ",20\n30,40\n")
     f["binary.csv"] = tmp / "binary.csv"
     f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
@@ -182,6 +187,7 @@ CASES = [
     ("gain-with-ik", "run", RUN + ["--controller", "ik", "--gain", "0.3"], "--gain: the ik controller takes no f"),
     ("step-unused", "run", RUN + ["--step", "3"], "table2.rules never uses S"),
     ("rig-true-rig-missing", "run", ["--quiet", "--rig", "{lost-true-rig.yaml}"], "lost-true-rig.yaml: true_rig: nosuch.yaml: cannot read rig file (No such file or directory)"),
+    ("rules-elbow-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{elbow.rules}"], "elbow.rules:2:12: 're2' reads the elbow LED, but a one-link arm has no elbow"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
@@ -200,6 +206,10 @@ CASES = [
     ("arm-start-pose-1-angle", "run", RUN + ["--arm", "{arm-start-1-angle.yaml}"], "arm-start-1-angle.yaml: start_pose_deg: must be a list of 2 angles in deg (one per joint), got 1 value"),
     ("arm-default-rules-5", "run", RUN + ["--arm", "{arm-rules-5.yaml}"], "arm-rules-5.yaml: defaults.rules: must be a name or a path on one line, got 5"),
     ("arm-default-trajectory-7", "run", RUN + ["--arm", "{arm-trajectory-7.yaml}"], "arm-trajectory-7.yaml: defaults.trajectory: must be a name or a path on one line, got 7"),
+    ("arm-default-rules-unknown", "run", RUN + ["--arm", "{arm-rules-unknown.yaml}"], "arm-rules-unknown.yaml: defaults.rules: no shipped one is called 'nosuch' (shipped: itg-plus-one-link,"),
+    ("arm-default-rig-unknown", "run", ["--quiet", "--arm", "{arm-rig-unknown.yaml}"], "arm-rig-unknown.yaml: defaults.rig: no shipped one is called 'nosuch' (shipped: planar, planar.calib, three-link, three-link.calib; or give a file's path)"),
+    ("arm-default-trajectory-unknown", "run", RUN + ["--arm", "{arm-trajectory-unknown.yaml}"], "arm-trajectory-unknown.yaml: defaults.trajectory: no shipped one is called 'circle' (shipped: ellipse-t1,"),
+    ("calibrate-arm-default-rules-unknown", "calibrate", ["--quiet", "--arm", "{arm-rules-unknown.yaml}", "--out", "{tmp}/c.yaml"], "arm-rules-unknown.yaml: defaults.rules: no shipped one is called 'nosuch'"),
     ("arm-default-rig-list", "run", ["--quiet", "--arm", "{arm-rig-list.yaml}"], "arm-rig-list.yaml: defaults.rig: must be a name or a path on one line, got ['a']"),
     ("arm-servo-quoted", "run", RUN + ["--arm", "{arm-servo-quoted.yaml}", "--rules", "itg-plus-two-link"], "arm-servo-quoted.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got '1e1'"),
     ("arm-duplicate-key", "run", RUN + ["--arm", "{arm-duplicate-key.yaml}"], "arm-duplicate-key.yaml:4:1: not valid YAML (duplicate key 'name' (first at line 3))"),
@@ -233,6 +243,8 @@ CASES = [
     ("links-1000-planar-rig", "run", ["--quiet", "--links", "1000,1000"], "planar.yaml: cameras[0] (left): cannot see"),
     # trajectories
     ("csv-bom-bad-value", "run", RUN + ["--trajectory", "{bom-bad.csv}"], "bom-bad.csv:2: field y_mm: not a number: 'twenty'"),
+    ("csv-all-out-of-reach", "run", RUN + ["--trajectory", "{unreachable.csv}"], "unreachable.csv: none of its 2 set points is in reach of arm two-link (0 to 200 mm from its shoulder): nothing to track"),
+    ("csv-all-out-of-reach-true-links", "run", RUN + ["--trajectory", "ellipse-t1", "--true-links", "10,10"], "--trajectory ellipse-t1: none of its 180 set points is in reach of arm two-link (0 to 20 mm"),
     ("csv-5000-digits", "run", RUN + ["--trajectory", "{digits.csv}"], "digits.csv:2: field x_mm: must be finite, got 1111"),
     ("csv-binary", "run", RUN + ["--trajectory", "{binary.csv}"], "binary.csv:3:1: not UTF-8"),
     ("csv-dev-zero", "run", RUN + ["--trajectory", "/dev/zero"], "/dev/zero: trajectory CSV larger than"),

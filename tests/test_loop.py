@@ -7,6 +7,7 @@ from itg_vision.arm import REACH_TOL_MM, ArmSpec
 from itg_vision.feedback import TruthFeedback
 from itg_vision.loop import Trace, simulate
 from itg_vision.contracts import Controller, Markers, Step
+from itg_vision.errors import UserError
 from itg_vision.runner import RunConfig, execute, prepare
 from itg_vision.world import World
 
@@ -272,13 +273,18 @@ def test_the_three_link_led_reaches_what_its_pose_puts_it_at_and_no_farther():
 def test_a_one_link_path_rounded_in_its_file_is_in_reach_and_one_a_mm_off_is_not(tmp_path):
     """The one-link arm reaches only its 100 mm circle. A circle written with 2 decimals lies
     off it by up to 0.007 mm: in reach (REACH_TOL_MM, the paper's w = 0.5 mm). A circle of
-    101 mm is 1 mm off: out of reach for every set point."""
+    101 mm is 1 mm off: every set point out of reach, and a run of it alone is refused."""
     a = np.radians(np.linspace(0.0, 90.0, 30))
-    counts = []
-    for radius in (100.0, 100.0 + 2 * REACH_TOL_MM):
+
+    def run(radius, extra=""):
         path = tmp_path / f"circle-{radius:g}.csv"
-        path.write_text("x_mm,y_mm\n" + "".join(
+        path.write_text("x_mm,y_mm\n" + extra + "".join(
             f"{radius * np.cos(t):.2f},{radius * np.sin(t):.2f}\n" for t in a))
-        counts.append(execute(prepare(RunConfig(arm="one-link", feedback="model",
-                                                trajectory=str(path))))[1]["n_out_of_reach"])
-    assert counts == [0, len(a)]
+        return execute(prepare(RunConfig(arm="one-link", feedback="model",
+                                         trajectory=str(path))))[1]["n_out_of_reach"]
+
+    far = 100.0 + 2 * REACH_TOL_MM
+    assert run(100.0) == 0
+    assert run(far, extra="0,100\n") == len(a)  # one set point on the circle first
+    with pytest.raises(UserError, match=f"none of its {len(a)} set points is in reach"):
+        run(far)

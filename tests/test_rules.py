@@ -517,7 +517,7 @@ def random_rule_base(pick) -> RuleBase:
     """A random rule base (definitions between rules, shared subexpressions, rules moving one
     or several joints, HOLD, OUT_OF_REACH) for 1 to 3 joints."""
     n = pick([1, 2, 3])
-    names = ["xd", "yd", "xg", "yg", "xe", "ye", "rd2", "f", "S", "w", "L1"]
+    names = ["xd", "yd", "xg", "yg", *(["xe", "ye"] if n > 1 else []), "rd2", "f", "S", "w", "L1"]
     lines, numbers = [], iter(range(1, 100))
     pool = ["xd", "0", *(_random_expr(pick, names, 2) for _ in range(2))]  # used again and again
     for _ in range(pick(range(1, 8))):
