@@ -206,7 +206,11 @@ class Fields:
     def numbers(self, v, n: int | None, where: str, what: str = "numbers", **kw) -> tuple:
         """A list of ``n`` (any number of, when None) finite numbers, each as :meth:`number`."""
         if isinstance(v, dict) and "data" in v:  # ROS's matrix form (rig files)
+            shape = [self.integer(v[k], f"{where}.{k}", 1, 1000) for k in ("rows", "cols") if k in v]
             v = v["data"]
+            if len(shape) == 2 and isinstance(v, (list, tuple)) and shape[0] * shape[1] != len(v):
+                self.fail(where, f"rows x cols is {shape[0]} x {shape[1]}, but data holds "
+                                 f"{count(v, 'value')}")
         if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n) or not v:
             got = count(v, "value") if isinstance(v, (list, tuple)) else show(v)
             self.fail(where, f"must be a list of {'' if n is None else f'{n} '}{what}, got {got}")

@@ -119,6 +119,14 @@ def make_inputs(tmp):
     text("digits.yaml", "name: x\ncameras: " + "7" * 5000 + "\n")
     text("nested.yaml", "[" * 3000 + "]" * 3000)
     f["rig-fx-huge"] = _rig(tmp, "fx-huge", _fx(1e300))
+
+    def shape(key, **kw):
+        def change(doc):
+            doc["cameras"][0][key].update(kw)
+        return change
+    f["rig-km-2x3"] = _rig(tmp, "km-2x3", shape("camera_matrix", rows=2))
+    f["rig-dist-1x4"] = _rig(tmp, "dist-1x4", shape("distortion_coefficients", cols=4))
+    f["rig-rows-text"] = _rig(tmp, "rows-text", shape("camera_matrix", rows="three"))
     f["rig-same-place"] = _rig(tmp, "same-place", _pose(1, position_mm=[-180.0, -60.0, 620.0]))
     f["rig-40000x30000"] = _rig(tmp, "40000x30000", _set(0, image_width=40000, image_height=30000))
     f["rig-away"] = _rig(tmp, "away", _pose(0, look_at_mm=[-180.0, -60.0, 1620.0]))
@@ -229,6 +237,9 @@ CASES = [
     ("rig-dev-zero", "run", ["--quiet", "--rig", "/dev/zero"], "/dev/zero: rig file larger than"),
     ("rig-folder", "run", ["--quiet", "--rig", "{folder}"], "a-folder: is a folder, not a rig file"),
     ("rig-fx-1e300", "run", ["--quiet", "--rig", "{rig-fx-huge}"], "cameras[1].camera_matrix: fx must be at most 1e+06 px"),
+    ("rig-matrix-2x3", "run", ["--quiet", "--rig", "{rig-km-2x3}"], "rig-km-2x3.yaml: cameras[0].camera_matrix: rows x cols is 2 x 3, but data holds 9 values"),
+    ("rig-distortion-1x4", "run", ["--quiet", "--rig", "{rig-dist-1x4}"], "rig-dist-1x4.yaml: cameras[0].distortion_coefficients: rows x cols is 1 x 4, but data holds 5 values"),
+    ("rig-rows-text", "run", ["--quiet", "--rig", "{rig-rows-text}"], "rig-rows-text.yaml: cameras[0].camera_matrix.rows: must be a whole number in 1..1000, got 'three'"),
     ("rig-same-place", "run", ["--quiet", "--rig", "{rig-same-place}"], "cameras[1].pose: at the same place as cameras[0]"),
     ("rig-40000x30000", "run", ["--quiet", "--rig", "{rig-40000x30000}"], "cameras[0]: a 40000 x 30000 px image needs about 72 GB"),
     ("rig-looking-away", "run", ["--quiet", "--rig", "{rig-away}"], "cameras[0] (left): cannot see the gripper LED"),
