@@ -18,6 +18,7 @@ The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -167,15 +168,34 @@ class StartUpFailed(UserError):
 def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
     """The median of ``SAMPLES_PER_POSE`` observations in which every marker was measured."""
     got: list = []
+    why: Counter = Counter()  # why the looks that missed a marker missed it
     for _ in range(MAX_TRIES_PER_POSE):
         m = feedback.observe(world)
         if not any(n in m.missed or not np.all(np.isfinite(m.get(n))) for n in names):
             got.append({n: m.get(n) for n in names})
             if len(got) == SAMPLES_PER_POSE:
                 return {n: np.median([g[n] for g in got], axis=0) for n in names}
+        else:
+            why.update({_miss_cause(feedback, n) for n in names if n in m.missed})
+    causes = ", ".join(f"{c}: {k} looks" for c, k in why.most_common())
     raise StartUpFailed(f"start-up measurement: the LEDs were measured in only {len(got)} of "
-                        f"{MAX_TRIES_PER_POSE} observations {where}; the arm's lengths cannot "
-                        "be measured (check the rig)")
+                        f"{MAX_TRIES_PER_POSE} observations {where}"
+                        + (f" (missed: {causes})" if causes else "")
+                        + "; the arm's lengths cannot be measured")
+
+
+def _miss_cause(feedback, name: str) -> str:
+    """Why ``feedback``'s last look missed marker ``name``, naming the option that set the
+    cause where one did (``--dropout``, ``--noise-px``), else the rig's part."""
+    obs = getattr(feedback, "last_observation", None)
+    reason = obs.reasons.get(name, "") if obs is not None else ""
+    if reason == "dropped":
+        return f"dropped at random (--dropout {feedback.dropout:g})"
+    if reason.startswith("residual"):
+        noise = getattr(feedback, "noise_px", 0.0)
+        return (f"reprojection residual above {feedback.max_residual_px:g} px"
+                + (f" (--noise-px {noise:g})" if noise > 0 else " (check the rig)"))
+    return f"{reason or 'not measured'} (check the rig)"
 
 
 def measure_geometry(world, feedback, arm) -> ArmGeometry:

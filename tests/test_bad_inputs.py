@@ -251,6 +251,9 @@ CASES = [
     ("rig-noise-1e300", "run", ["--quiet", "--rig", "{rig-noisy}"], "cameras[0].sensor.noise_sigma_gray: must be in [0, 255]"),
     ("rig-lens-folds", "run", ["--quiet", "--rig", "{rig-fold}"], "cameras[0].distortion_coefficients: the lens model folds back inside the image"),
     ("rig-rotation-1e300", "run", ["--quiet", "--rig", "{rig-spin}"], "cameras[1].pose.rotation_deg: each must be within +-3600 deg"),
+    # a start-up measurement that fails names its cause, and the option that set it
+    ("start-up-dropout-1", "run", ["--quiet", "--dropout", "1"], "at the start pose (missed: dropped at random (--dropout 1): 50 looks); the arm's lengths cannot be measured"),
+    ("start-up-noise-1e6-px", "run", ["--quiet", "--noise-px", "1e6"], "(missed: reprojection residual above 2 px (--noise-px 1e+06): 50 looks)"),
     ("links-1000-planar-rig", "run", ["--quiet", "--links", "1000,1000"], "planar.yaml: cameras[0] (left): cannot see"),
     # trajectories
     ("csv-bom-bad-value", "run", RUN + ["--trajectory", "{bom-bad.csv}"], "bom-bad.csv:2: field y_mm: not a number: 'twenty'"),
