@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +45,7 @@ def default_out(rig_path: Path) -> Path:
     return DEFAULT_OUT_DIR / f"{Path(rig_path).stem}.calib.yaml"
 
 
-def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
+def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
     """Refuse, before any work, an ``--out`` the calibration must not write (`UserError`).
 
     ``out`` must name a ``.yaml``/``.yml`` file (not a folder) in a folder that can be written,
@@ -52,7 +53,8 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
     rig. An existing file there is replaced only if it is a calibration of this rig (its
     ``true_rig`` names ``rig_path``), or with ``force``; the same holds for the corner picture
     beside it. A folder where either file goes is refused, even with ``force`` (it is never
-    replaced: the write would fail after all the work).
+    replaced: the write would fail after all the work). Returns the files ``force`` lets it
+    replace that are not this rig's calibration and its picture: :func:`keep_aside` keeps them.
     """
     from .outputs import probe_folder
     from .inputs import resolve_relative
@@ -89,6 +91,18 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> None:
         raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "
                         "picture; choose another --out, or add --force")
     probe_folder(out.parent)
+    return [] if ours else [p for p in (out, pic) if p.exists()]
+
+
+def keep_aside(paths: list[Path]) -> None:
+    """Rename each file ``--force`` replaces to ``<stem>.replaced-N<suffix>`` (never delete a
+    user's file), saying so on stderr."""
+    from .outputs import free_name
+
+    for p in paths:
+        kept = free_name(p, "replaced")
+        os.replace(p, kept)
+        print(f"note: --out: {p} was not this rig's calibration; kept as {kept}", file=sys.stderr)
 
 
 def measured_links(base_frame: dict) -> str:
@@ -172,7 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "here); the corner picture goes beside it as <name>.png. An existing "
                          "file is replaced only if it is a calibration of this rig")
     ap.add_argument("--force", action="store_true",
-                    help="replace --out even if it is not a calibration of this rig")
+                    help="write --out even if it is not a calibration of this rig (the file there, and a "
+                         "picture beside it, are kept as NAME.replaced-N.yaml/.png)")
     ap.add_argument("--arm", metavar="NAME|PATH",
                     help=f"arm whose LEDs tie the rig to the base frame: a shipped arm "
                          f"({', '.join(arm_names())}) or an arm file FILE.yaml (default: "
@@ -266,7 +281,7 @@ def report(result: Result, out: Path, picture: Path | None) -> str:
 def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         job = Job.from_args(build_parser().parse_args(argv))
-        check_out(job.out, job.rig_path, job.force)  # before the work, not after it
+        foreign = check_out(job.out, job.rig_path, job.force)  # before the work, not after it
         # one step per rendered pose: the board's, then the arm's (joint sweeps, check poses)
         steps = progress_steps(job.arm, job.views, job.check_poses)
         bar = progress(steps, f"calibrate ({job.views} board + {steps - job.views} arm poses)",
@@ -279,6 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             bar.close()
         try:
+            keep_aside(foreign)
             picture = write_result(result, job.out, job.rig_path)
         except OSError as exc:  # changed since check_out, a full disk: one line, the old files kept
             raise UserError(f"--out {job.out}: cannot write {exc.filename or job.out} "

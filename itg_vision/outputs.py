@@ -38,6 +38,7 @@ import math
 import os
 import re
 import shutil
+import sys
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -448,20 +449,49 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         entries = listing(tmp)
         write_json(tmp / MANIFEST, manifest(command, key, entries))
         check_out_dir(out, command, force=force, option=option, own=entries)  # changed meanwhile?
+        keep = force and out.is_dir() and not out.is_symlink() and not _replaceable(
+            out, command, entries)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_dirs(created)
         raise
     old = None
-    if out.exists() or out.is_symlink():
+    if keep:  # --force over what this command did not make: kept, under a new name
+        old = free_name(out, "replaced")
+        os.replace(out, old)
+        print(f"note: {option} {out}: held what {command} did not write; kept as {old}",
+              file=sys.stderr)
+    elif out.exists() or out.is_symlink():
         old = out.parent / f".{out.name}.old-{os.getpid()}"
         os.replace(out, old)
     os.replace(tmp, out)
-    if old is not None:
+    if old is not None and not keep:
         if old.is_symlink() or not old.is_dir():
-            old.unlink()
-        else:  # ours (the manifest goes last), or a folder replaced with force
+            old.unlink()  # a link (never what it points to)
+        else:  # ours: the manifest goes last
             _remove_ours(old)
+
+
+def _replaceable(out: Path, command: str, own: list[str]) -> bool:
+    """Whether ``command`` may replace ``out`` without ``--force``: only its own results there."""
+    try:
+        check_out_dir(out, command, own=own)
+    except UserError:
+        return False
+    return True
+
+
+def free_name(path: Path, tag: str) -> Path:
+    """``path`` with ``.<tag>-N`` added to its name (before a file's suffix), N the smallest free
+    from 1: where ``--force`` keeps what it would otherwise have deleted."""
+    suffix = path.suffix if path.is_file() else ""
+    stem = path.name[:-len(suffix)] if suffix else path.name
+    k = 1
+    while True:
+        candidate = path.parent / f"{stem}.{tag}-{k}{suffix}"
+        if not (candidate.exists() or candidate.is_symlink()):
+            return candidate
+        k += 1
 
 
 # ---------------------------------------------------------------------------- printed reports

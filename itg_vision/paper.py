@@ -449,7 +449,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="output folder (default %(default)s); replaced only if this command "
                              "made it and it holds nothing else")
         ap.add_argument("--force", action="store_true",
-                        help="replace --out even if it is a folder this command did not make")
+                        help="write --out even if it is a folder this command did not make (that "
+                             "folder is kept beside it as OUT.replaced-N)")
         ap.add_argument("--feedback", default="model", choices=("model", "truth", "vision"),
                         help="feedback of every run (default: model, the paper's setup)")
         ap.add_argument("--gain", type=float, default=0.5, help="f in deg/mm (default %(default)s)")

@@ -6,7 +6,8 @@ followed by every option that differs from its default (``-rules<name>``, ``-rig
 folder. The folder is replaced only if this command made it and it holds nothing else (see
 :mod:`itg_vision.outputs`); its manifest records the run's settings and a hash of its input
 files, and a default folder holding a run with other settings (an edited rule file, a CSV of
-the same name elsewhere) is refused too. ``--force`` replaces anyway.
+the same name elsewhere) is refused too. ``--force`` writes there anyway, keeping a folder
+that holds anything this command did not write beside it as ``OUT.replaced-N``.
 """
 
 from __future__ import annotations
@@ -143,7 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "plus every option that differs from its default); replaced only if a "
                          "run made it and it holds nothing else")
     ap.add_argument("--force", action="store_true",
-                    help="replace --out even if it is a folder this command did not make")
+                    help="write --out even if it is a folder this command did not make (that folder "
+                         "is kept beside it as OUT.replaced-N)")
     ap.add_argument("--video", action="store_true",
                     help="also write a video of both camera views (vision): H.264 video.mp4, "
                          "where OpenCV cannot encode H.264 VP9 video.webm, else MPEG-4 Part 2 "

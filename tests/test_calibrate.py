@@ -445,6 +445,37 @@ def test_a_write_that_fails_after_the_work_is_one_line_and_keeps_the_old_files(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.calib.png", "x.calib.yaml"]
 
 
+def test_force_keeps_the_files_it_replaces_beside_the_new_ones(tmp_path, monkeypatch,
+                                                              main_in_process):
+    """A successful run never deletes a user's file: --force over a file that is not this
+    rig's calibration (and the picture beside it) renames each to <stem>.replaced-N<suffix>,
+    says so, and writes the calibration; a calibration of this rig is replaced as before."""
+    from types import SimpleNamespace
+
+    from itg_vision import calibrate as command
+    from itg_vision.camera import Rig
+
+    def fake_calibrate(true_rig, *a, **k):
+        return SimpleNamespace(picture=np.zeros((4, 4, 3), np.uint8), rig=true_rig,
+                               record={}, timing_s={"total_s": 0.0})
+
+    monkeypatch.setattr(command, "calibrate", fake_calibrate)
+    out, pic = tmp_path / "x.calib.yaml", tmp_path / "x.calib.png"
+    out.write_text("my: settings\n")
+    pic.write_bytes(b"my picture")
+    proc = main_in_process("itg_vision.calibrate", "--quiet", "--out", out, "--force")
+    assert proc.returncode == 0, proc.stderr
+    kept_yaml, kept_png = tmp_path / "x.calib.replaced-1.yaml", tmp_path / "x.calib.replaced-1.png"
+    assert kept_yaml.read_text() == "my: settings\n" and kept_png.read_bytes() == b"my picture"
+    assert proc.stderr == (f"note: --out: {out} was not this rig's calibration; kept as {kept_yaml}\n"
+                           f"note: --out: {pic} was not this rig's calibration; kept as {kept_png}\n")
+    assert Rig.from_yaml(out).true_rig and pic.read_bytes().startswith(b"\x89PNG")
+    # now the file is this rig's calibration: replaced, nothing more kept
+    proc = main_in_process("itg_vision.calibrate", "--quiet", "--out", out, "--force")
+    assert (proc.returncode, proc.stderr) == (0, "")
+    assert len(list(tmp_path.iterdir())) == 4
+
+
 def test_out_empty_is_an_error_not_the_default_file(tmp_path, monkeypatch, main_in_process):
     monkeypatch.chdir(tmp_path)
     proc = main_in_process("itg_vision.calibrate", "--quiet", "--out", "")

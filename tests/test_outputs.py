@@ -92,10 +92,12 @@ def test_a_rerun_keeps_what_the_user_put_into_its_folder(tmp_path):
                               "analysis/); move them out or choose another --out, or add --force "
                               "to replace the folder anyway").format(out)
     assert _tree(tmp_path) == before
-    with outputs.staged_dir(out, "run", force=True) as tmp:  # --force: as before, replaced
+    with outputs.staged_dir(out, "run", force=True) as tmp:  # --force: replaced, and kept
         (tmp / "result.txt").write_text("forced")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["res1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res1", "res1.replaced-1"]
     assert sorted(p.name for p in out.iterdir()) == [outputs.MANIFEST, "result.txt"]
+    kept = tmp_path / "res1.replaced-1"
+    assert (kept / "notes.txt").read_text() == "my notes" and (kept / "analysis" / "fit.py").exists()
 
 
 def test_a_file_put_inside_a_folder_the_command_wrote_is_the_users(tmp_path):
@@ -144,6 +146,7 @@ def test_a_folder_from_before_manifests_listed_entries(tmp_path):
         (tmp / "result.txt").write_text("new")
     assert outputs.read_manifest(out)["entries"] == ["result.txt"]
     assert not (out / "notes.txt").exists()
+    assert (tmp_path / "r.replaced-1" / "notes.txt").read_text() == "my notes"  # kept
 
 
 def test_a_file_managers_own_files_do_not_make_a_result_the_users(tmp_path):
@@ -176,14 +179,26 @@ def test_a_file_the_user_puts_in_while_the_command_works_is_kept(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
 
 
-def test_force_replaces_a_foreign_folder_but_never_a_file(tmp_path):
+def test_force_replaces_a_foreign_folder_keeping_it_and_never_a_file(tmp_path, capsys):
+    """A successful run never deletes what the user made: --force puts the folder it replaces
+    beside the new one, as <name>.replaced-N (the first free N), and says so."""
     folder, file = tmp_path / "f", tmp_path / "notes.txt"
     folder.mkdir()
     (folder / "x").write_text("x")
+    (tmp_path / "f.replaced-1").mkdir()  # taken: the next free name is used
     file.write_text("keep")
     with outputs.staged_dir(folder, "run", force=True) as tmp:
         (tmp / "result.txt").write_text("new")
     assert sorted(p.name for p in folder.iterdir()) == [outputs.MANIFEST, "result.txt"]
+    assert (tmp_path / "f.replaced-2" / "x").read_text() == "x"
+    assert capsys.readouterr().err == (f"note: --out {folder}: held what run did not write; "
+                                       f"kept as {tmp_path / 'f.replaced-2'}\n")
+    # a folder of its own results is replaced, with or without --force: nothing kept
+    with outputs.staged_dir(folder, "run", force=True) as tmp:
+        (tmp / "result.txt").write_text("newer")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f", "f.replaced-1", "f.replaced-2",
+                                                          "notes.txt"]
+    assert capsys.readouterr().err == ""
     with pytest.raises(UserError, match="not a folder"):
         with outputs.staged_dir(file, "run", force=True):
             pass

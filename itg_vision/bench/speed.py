@@ -247,7 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also save what is printed (report.txt) and the figures (results.json) "
                          "as this folder; it replaces only a folder this benchmark made")
     ap.add_argument("--force", action="store_true",
-                    help="let --out replace a folder this benchmark did not make")
+                    help="let --out replace a folder this benchmark did not make (kept beside it "
+                         "as OUT.replaced-N)")
     return ap
 
 
