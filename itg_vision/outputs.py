@@ -13,8 +13,9 @@ Rules (what every command follows):
   command), one that holds anything else (a user's notes or analysis put in beside the
   results), or an existing file, is refused with one line
   (:class:`~itg_vision.errors.UserError`, exit 2) and left untouched; ``force=True``
-  (``--force``) replaces a foreign *folder* (never a file). An empty folder holds nothing to
-  lose and is replaced.
+  (``--force``) writes over a foreign *folder* (never a file), which is kept beside the new
+  one as ``<name>.replaced-N`` (:func:`staged_dir`): nothing the user made is deleted. An empty
+  folder holds nothing to lose and is replaced.
 - ``--out .``, ``--out a/b/..``, the current folder or one of its ancestors, the root: refused
   (a folder cannot be swapped over itself or over where the user stands).
 - ``--out`` names that the file system cannot take with our temporary suffixes are refused
@@ -289,7 +290,7 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
         n = f"{len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'}"
         raise UserError(f"{option} {out}: holds {n} that {command} did not write (first: "
                         f"{foreign[0]}); move {'it' if len(foreign) == 1 else 'them'} out or "
-                        f"choose another {option}, or add --force to replace the folder anyway")
+                        f"choose another {option}, or add --force to write there anyway (the folder is kept)")
     if made is not None:
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
                         f"`{command}`; choose another {option}, or add --force to replace it")

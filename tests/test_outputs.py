@@ -90,7 +90,7 @@ def test_a_rerun_keeps_what_the_user_put_into_its_folder(tmp_path):
         _make(out, text="three")
     assert str(exc.value) == ("--out {}: holds 2 entries that run did not write (first: "
                               "analysis/); move them out or choose another --out, or add --force "
-                              "to replace the folder anyway").format(out)
+                              "to write there anyway (the folder is kept)").format(out)
     assert _tree(tmp_path) == before
     with outputs.staged_dir(out, "run", force=True) as tmp:  # --force: replaced, and kept
         (tmp / "result.txt").write_text("forced")
