@@ -18,6 +18,7 @@ The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -195,6 +196,7 @@ def _miss_cause(feedback, name: str) -> str:
         noise = getattr(feedback, "noise_px", 0.0)
         return (f"reprojection residual above {feedback.max_residual_px:g} px"
                 + (f" (--noise-px {noise:g})" if noise > 0 else " (check the rig)"))
+    reason = re.sub(r" \([-+0-9.e]+\)", "", reason)  # one cause, whatever the measured value
     return f"{reason or 'not measured'} (check the rig)"
 
 

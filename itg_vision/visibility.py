@@ -118,10 +118,16 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
     arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring."""
     from .detect import MIN_SCORE
 
+    from .urdf import LED_RADIUS_MM
+
+    hint = "; --allow-unseen runs anyway"
+    if arm.n_joints > 1 and arm.links_mm[-1] < 2 * LED_RADIUS_MM:
+        raise UserError(f"arm {arm.name}: its last link, {arm.links_mm[-1]:g} mm (links_mm or "
+                        f"--links), is shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): "
+                        f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()
     gripper, elbows = led_points(arm, points_mm)
     where = rig.source or rig.name
-    hint = "; --allow-unseen runs anyway"
     for i, cam in enumerate(rig.cameras):
         who = f"{where}: cameras[{i}] ({cam.name})"
         score = min(255.0, 255.0 * cam.exposure)

@@ -33,3 +33,21 @@ def test_start_up_takes_the_median_of_its_looks():
         clean = measure_geometry(world, TruthFeedback(), arm)
         one_bad = measure_geometry(world, OneBadLook(), arm)
     np.testing.assert_allclose(one_bad.links_mm, clean.links_mm, rtol=0, atol=1e-9)
+
+
+def test_a_failed_start_up_groups_its_misses_by_cause_not_by_measured_value():
+    """Each look's miss reason carries its measured value ('not round (0.41)'); the failure
+    counts looks per cause, so one cause is one entry however the value varies."""
+    from types import SimpleNamespace
+
+    from itg_vision.identify import _miss_cause
+
+    def looked(reason):
+        return SimpleNamespace(last_observation=SimpleNamespace(reasons={"gripper": reason}),
+                               dropout=0.0, noise_px=0.0, max_residual_px=2.0)
+
+    causes = {_miss_cause(looked(f"not round ({r:.2f}): partly hidden?"), "gripper")
+              for r in (0.41, 0.7, 0.69)}
+    assert causes == {"not round: partly hidden? (check the rig)"}
+    assert _miss_cause(looked("residual 3.10 px"), "gripper") == \
+        "reprojection residual above 2 px (check the rig)"
