@@ -150,8 +150,13 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
     seen = [[k for k, c in enumerate(views.corners) if c[i] is not None] for i in range(2)]
     both = [k for k in seen[0] if k in set(seen[1])]
     if len(both) < min_views:
-        raise UserError(f"the board was found by both cameras in only {len(both)} of {n} views;"
-                        f" need at least {min_views} (try more --views)")
+        parts = [lab.rsplit(": ", 1) for lab in camera_labels]  # "rig file: cameras[i] (name)"
+        rig = parts[0][0] + ": " if all(len(p) == 2 and p[0] == parts[0][0] for p in parts) else ""
+        each = ", ".join(f"{p[-1] if rig else lab} {k}"
+                         for p, lab, k in zip(parts, camera_labels, found))
+        raise UserError(f"{rig}the board was found by both cameras in only {len(both)} of {n} "
+                        f"views (each camera alone: {each}); need at least {min_views} (try more "
+                        "--views)")
     obj_board = board.object_points()
     flags = cv2.CALIB_FIX_K3
     dropped: set[int] = set()

@@ -358,7 +358,8 @@ def _camera_looking_away(tmp_path):
 
 
 @pytest.mark.parametrize("args, expect", [
-    (["--views", "2"], "found by both cameras in only"),
+    (["--views", "2"], "planar.yaml: the board was found by both cameras in only 1 of 2 views "
+                       "(each camera alone: cameras[0] (left) 1, cameras[1] (right) 2); need at least 6"),
     (["--views", "12", "--tilt", "0"], "degenerate board poses"),
     # names the rig file and the camera's place in it (the file was not named before)
     (["--views", "6", "--rig", "AWAY"], "away.yaml: cameras[1] (right): never found the board in "
