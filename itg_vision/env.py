@@ -129,7 +129,11 @@ class TrackingEnv(gym.Env):
         self._feedback = prep.feedback_factory()
         self._feedback.reset(run_seed)
         self._world = World(prep.true_arm)
-        geometry = start_up_geometry(cfg, self._world, self._feedback, prep.model)
+        try:
+            geometry = start_up_geometry(cfg, self._world, self._feedback, prep.model)
+        except BaseException:  # a failed start-up (StartUpFailed) leaves no client open
+            self.close()
+            raise
         self._session = Session(self._world, self._feedback, prep.trajectory.points_mm,
                                 iterations=cfg.iterations, planar=prep.model.planar,
                                 max_step_deg=cfg.max_step_deg,
@@ -142,11 +146,11 @@ class TrackingEnv(gym.Env):
     def step(self, action):
         if self._session is None:
             raise RuntimeError("call reset() before step()")
-        dq = np.asarray(action, float)
-        if dq.size != self.action_space.shape[0]:
-            raise ValueError(f"action: {self.action_space.shape[0]} joint increments (deg) "
-                             f"expected, got shape {dq.shape}")
-        dq = dq.reshape(self.action_space.shape)
+        raw = np.asarray(action)
+        if raw.shape != self.action_space.shape or raw.dtype.kind not in "iuf":
+            raise ValueError(f"action: {self.action_space.shape[0]} real joint increments (deg) "
+                             f"expected, got shape {raw.shape} of {raw.dtype}")
+        dq = raw.astype(float)
         if not np.isfinite(dq).all():
             raise ValueError(f"action: joint increments must be finite, got {dq.tolist()}")
         k = self._session.k

@@ -9,6 +9,7 @@ import ctypes
 import os
 import sys
 import tempfile
+import weakref
 from contextlib import contextmanager
 
 import cv2
@@ -49,6 +50,11 @@ from .urdf import arm_urdf
 _MM = 1e-3
 
 
+def _disconnect(client: int) -> None:
+    if p.isConnected(client):
+        p.disconnect(client)
+
+
 class World:
     """One PyBullet DIRECT client holding the true arm.
 
@@ -62,6 +68,8 @@ class World:
         self.arm = arm
         with _quiet_c_stdout():
             self.client = p.connect(p.DIRECT)
+        # a World dropped without close() still frees its client (~28 MB) when collected
+        self._disconnect = weakref.finalize(self, _disconnect, self.client)
         fd, path = tempfile.mkstemp(suffix=".urdf", prefix="itg_")
         try:
             with os.fdopen(fd, "w") as f:
@@ -83,7 +91,12 @@ class World:
     # ------------------------------------------------------------------ joints
     def set_q(self, q_deg: np.ndarray) -> None:
         """Command joint angles (deg); the true arm adds its joint offset."""
-        self.q_deg = np.array(q_deg, float)
+        q_deg = np.array(q_deg, float)
+        if q_deg.shape != (self.arm.n_joints,) or not np.all(np.isfinite(q_deg)):
+            raise ValueError(f"World.set_q: {self.arm.n_joints} finite joint angles (deg) "
+                             f"expected, got {q_deg.tolist()}")
+        self._check_open()
+        self.q_deg = q_deg
         q = np.radians(self.q_deg) + self._offset_rad
         for j, qj in zip(self._joints, q):
             p.resetJointState(self.body, j, float(qj), physicsClientId=self.client)
@@ -100,6 +113,7 @@ class World:
     def led_centres_mm(self) -> dict[str, np.ndarray]:
         """Where the LEDs are, for the renderer to place its windows (as a renderer knows its
         scene); the same numbers as :meth:`true_markers`, for the markers this arm carries."""
+        self._check_open()
         out = {}
         for name, link in self._leds.items():
             pos = p.getLinkState(self.body, link, computeForwardKinematics=True,
@@ -168,9 +182,12 @@ class World:
         return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)  # 20x faster than a strided copy
 
     def close(self) -> None:
-        if self.client is not None and p.isConnected(self.client):
-            p.disconnect(self.client)
+        self._disconnect()  # once: later calls do nothing
         self.client = None
+
+    def _check_open(self) -> None:
+        if self.client is None:
+            raise RuntimeError("the World is closed")
 
     def __enter__(self) -> "World":
         return self

@@ -115,8 +115,13 @@ def test_env_refuses_actions_it_cannot_apply():
     for bad in ([np.nan, 0.0], [np.inf, 0.0]):
         with pytest.raises(ValueError, match="action: joint increments must be finite"):
             env.step(bad)
-    with pytest.raises(ValueError, match=r"action: 2 joint increments \(deg\) expected, got shape \(3,\)"):
-        env.step([1.0, 2.0, 3.0])
+    for bad, got in (([1.0, 2.0, 3.0], r"shape \(3,\) of float64"),
+                     ([[1.0], [2.0]], r"shape \(2, 1\) of float64"),  # not reshaped silently
+                     (["1", "2"], r"shape \(2,\) of <U1"), ([True, False], r"shape \(2,\) of bool"),
+                     ([1 + 1j, 2], r"shape \(2,\) of complex128")):
+        with pytest.raises(ValueError, match=r"action: 2 real joint increments \(deg\) expected, "
+                                             "got " + got):
+            env.step(bad)
     _, _, _, _, info = env.step([1.0, -1.0])  # the refusals left the episode as it was
     assert info["k"] == 0 and np.isfinite(info["q_deg"]).all()
     env.close()
@@ -172,3 +177,49 @@ def test_reading_the_seed_gymnasium_reports_keeps_the_sequence():
         return out
 
     assert all(np.array_equal(a, b) for a, b in zip(firsts(True), firsts(False)))
+
+
+def test_a_world_frees_its_client_when_closed_or_dropped_and_refuses_bad_angles():
+    """A World dropped without close() disconnects when collected (each client holds ~28 MB);
+    close() twice is fine; a closed World, a wrong number of angles or a non-finite one is a
+    clear error, never a silent NaN pose."""
+    import gc
+
+    import pybullet as p
+
+    from itg_vision.arm import ArmSpec
+    from itg_vision.world import World
+
+    arm = ArmSpec.from_args("two-link")
+    w = World(arm)
+    client = w.client
+    del w
+    gc.collect()
+    assert not p.isConnected(client)
+    w = World(arm)
+    for bad in ([np.nan, 0.0], [np.inf, 0.0], [10.0], [0.0, 0.0, 0.0]):
+        with pytest.raises(ValueError, match=r"World.set_q: 2 finite joint angles \(deg\) expected"):
+            w.set_q(bad)
+    assert np.all(np.isfinite(w.true_markers()["gripper"]))  # the refusals moved nothing
+    client = w.client
+    w.close()
+    w.close()
+    assert not p.isConnected(client)
+    with pytest.raises(RuntimeError, match="the World is closed"):
+        w.true_markers()
+    with pytest.raises(RuntimeError, match="the World is closed"):
+        w.set_q([0.0, 0.0])
+
+
+def test_a_failed_reset_leaves_no_client_open():
+    import pybullet as p
+
+    from itg_vision.identify import StartUpFailed
+
+    env = TrackingEnv(points=5, dropout=1.0)
+    before = sum(p.isConnected(c) for c in range(64))
+    with pytest.raises(StartUpFailed, match="dropped at random"):
+        env.reset(seed=0)
+    assert sum(p.isConnected(c) for c in range(64)) == before
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step([0.0, 0.0])
