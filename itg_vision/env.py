@@ -112,7 +112,7 @@ class TrackingEnv(gym.Env):
         self._world: World | None = None
         self._session: Session | None = None
         self._feedback = None
-        self._np_random, self._np_random_seed = gym.utils.seeding.np_random(cfg.seed)
+        self._np_random, self._np_random_seed = gym.utils.seeding.np_random(int(cfg.seed))
         self._reset_before = False
 
     # ------------------------------------------------------------------ gymnasium API

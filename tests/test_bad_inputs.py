@@ -277,7 +277,7 @@ CASES = [
     ("out-other-command", "run", RUN + ["--out", "{paper-out}"], "paper-made: holds the output of `paper`"),
     ("paper-out-file", "paper", ["--quiet", "--out", "{file}"], "notes.txt: exists and is not a folder"),
     ("paper-out-user-folder", "paper", ["--quiet", "--out", "{folder}"], "a-folder: is a folder that paper did not make"),
-    ("paper-seed", "paper", ["--quiet", "--seed", "-1"], "--seed: must be >= 0"),
+    ("paper-seed", "paper", ["--quiet", "--seed", "-1"], "--seed: must be a whole number >= 0, got -1"),
     ("calibrate-out-other-rig", "calibrate", ["--quiet", "--out", str(CAMERAS_DIR / "three-link.yaml")], "three-link.yaml: is the rig file 'three-link', not a calibration of"),
     ("calibrate-out-other-calibration", "calibrate", ["--quiet", "--out", str(CAMERAS_DIR / "three-link.calib.yaml")], "is a calibration of three-link.yaml, not of"),
     ("calibrate-out-folder", "calibrate", ["--quiet", "--out", "{folder}"], "a-folder: is a folder; give the calibrated rig's file name"),

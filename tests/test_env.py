@@ -223,3 +223,14 @@ def test_a_failed_reset_leaves_no_client_open():
     assert sum(p.isConnected(c) for c in range(64)) == before
     with pytest.raises(RuntimeError, match="call reset"):
         env.step([0.0, 0.0])
+
+
+@pytest.mark.parametrize("field, value", [("iterations", 2.5), ("iterations", True),
+                                          ("seed", 1.5), ("seed", -1)])
+def test_whole_number_fields_refuse_other_values(field, value):
+    """iterations=2.5 ran 2 iterations while the config said 2.5; a bool is not a count."""
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"{field}: must be a whole number"):
+        TrackingEnv(feedback="truth", points=5, **{field: value})
+    TrackingEnv(feedback="truth", points=5, **{field: np.int64(2)}).close()  # numpy's ints are
