@@ -12,11 +12,14 @@ the world, the model or the encoders.
 
 from __future__ import annotations
 
+import math
+import numbers
 from time import perf_counter
 
 import numpy as np
 
 from .arm import ArmSpec, forward_kinematics
+from .camera import MAX_SUPERSAMPLE
 from .contracts import Markers, Observation
 from .detect import Detection, locate_led_near
 from .imaging import Patch
@@ -26,6 +29,15 @@ from .imaging import Patch
 #: s = 3 ran at 346-392 Hz with 0.024 px centroid RMS; s = 4 at 252-282 Hz, 0.020 px; s = 2 at
 #: 460-530 Hz, 0.037 px).
 DEFAULT_SUPERSAMPLE = 3
+
+
+def _in_range(what: str, v, lo: float, hi: float) -> float:
+    """``v`` as a finite float in [lo, hi], else a ValueError naming it."""
+    x = float(v)
+    if not (lo <= x <= hi) or math.isnan(x) or math.isinf(x):
+        span = f">= {lo:g}" if math.isinf(hi) else f"in [{lo:g}, {hi:g}]"
+        raise ValueError(f"{what} must be a finite number {span}, got {v!r}")
+    return x
 
 
 class ModelFeedback:
@@ -56,7 +68,7 @@ class TruthFeedback:
     name = "truth"
 
     def __init__(self, noise_mm: float = 0.0):
-        self.noise_mm = float(noise_mm)
+        self.noise_mm = _in_range("TruthFeedback: noise_mm (mm)", noise_mm, 0.0, math.inf)
         self.rng = np.random.default_rng(None)
 
     def reset(self, seed: int | None = None) -> None:
@@ -118,9 +130,16 @@ class VisionFeedback:
         self.render_rig = render_rig
         self.estimate_rig = estimate_rig
         self.arm = arm
-        self.noise_px = float(noise_px)
-        self.dropout = float(dropout)
-        self.max_residual_px = float(max_residual_px)
+        self.noise_px = _in_range("VisionFeedback: noise_px", noise_px, 0.0, math.inf)
+        self.dropout = _in_range("VisionFeedback: dropout", dropout, 0.0, 1.0)
+        self.max_residual_px = float(max_residual_px)  # inf: no residual gate
+        if not self.max_residual_px > 0:
+            raise ValueError(f"VisionFeedback: max_residual_px must be > 0 (inf: no gate), got "
+                             f"{max_residual_px!r}")
+        if isinstance(supersample, bool) or not isinstance(supersample, numbers.Integral) \
+                or not 1 <= supersample <= MAX_SUPERSAMPLE:
+            raise ValueError(f"VisionFeedback: supersample must be a whole number in "
+                             f"1..{MAX_SUPERSAMPLE}, got {supersample!r}")
         self.supersample = int(supersample)
         self.strobe = bool(strobe)
         self.min_area_ratio = float(min_area_ratio)

@@ -835,6 +835,7 @@ class RuleBase:
 
     @classmethod
     def from_text(cls, text: str, n_joints: int, links_mm, source: str = "<rules>", **params):
+        _check_arguments(n_joints, links_mm, params)
         parser = _Parser(tokenize(text, source), source)
         rules = parser.rules()
         lines = text.split("\n")  # the tokenizer's lines
@@ -1099,6 +1100,24 @@ def resolve_rules_path(name_or_path: str) -> Path:
         raise UserError(f"unknown rule base {name_or_path!r} (shipped: {', '.join(shipped)}; "
                         "or give a path to a .rules file)")
     return candidate
+
+
+def _check_arguments(n_joints, links_mm, params: dict) -> None:
+    """A rule base's arguments from code (files and options are checked by their readers):
+    ValueError naming the first that no arm could have."""
+    if isinstance(n_joints, bool) or not isinstance(n_joints, int) or n_joints < 1:
+        raise ValueError(f"n_joints must be a whole number >= 1, got {n_joints!r}")
+    links = list(links_mm)  # L1..Ln for the rules: as many as given (tests probe with more joints)
+    if not links or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
+                            and math.isfinite(v) and v > 0 for v in links):
+        raise ValueError(f"links_mm must be finite lengths > 0 (mm), got {links}")
+    for name, need in (("f", "> 0"), ("S", "> 0"), ("w", ">= 0")):
+        v = params.get(name)
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or \
+                not math.isfinite(v) or not (v > 0 if need == "> 0" else v >= 0):
+            raise ValueError(f"{name} must be a finite number {need}, got {v!r}")
 
 
 def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase:

@@ -619,3 +619,20 @@ def test_a_rule_base_for_another_arm_names_every_shipped_one_for_each_arm():
     msg = str(exc.value)
     assert "no rule moves q3 of this 3-joint arm" in msg
     assert "three-link (three-link)" in msg and "itg-plus-three-link (three-link)" in msg
+
+
+@pytest.mark.parametrize("args, kw, what", [
+    ((0, ()), {}, "n_joints must be a whole number >= 1"),
+    ((2, ()), {}, r"links_mm must be finite lengths > 0 \(mm\)"),
+    ((2, (float("nan"), 100.0)), {}, "links_mm must be finite lengths"),
+    ((2, (-100.0, 100.0)), {}, "links_mm must be finite lengths"),
+    ((2, (100.0, 100.0)), {"f": float("nan")}, "f must be a finite number > 0"),
+    ((2, (100.0, 100.0)), {"f": -1.0}, "f must be a finite number > 0"),
+    ((2, (100.0, 100.0)), {"S": "2"}, "S must be a finite number > 0"),
+    ((2, (100.0, 100.0)), {"w": -0.5}, "w must be a finite number >= 0"),
+])
+def test_a_rule_base_from_code_refuses_arguments_no_arm_has(args, kw, what):
+    """Files and options are checked by their readers; from code, f = NaN gave zero steps for
+    ever, f = -1 stepped away from the target and n_joints 0 said "unknown name 'L1'"."""
+    with pytest.raises(ValueError, match=what):
+        load_rules("table2", *args, **kw)

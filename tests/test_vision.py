@@ -253,3 +253,26 @@ def test_three_link_markers_mostly_visible():
     pred = predicted_rms_error_mm(rig, np.array(pts), sigma)
     assert np.sqrt(np.mean(np.square(errs))) < 1.5 * np.sqrt(np.mean(pred**2)), (
         np.sqrt(np.mean(np.square(errs))), np.sqrt(np.mean(pred**2)), sigma)
+
+
+@pytest.mark.parametrize("kw, what", [
+    (dict(noise_px=-1.0), "noise_px must be a finite number >= 0"),
+    (dict(noise_px=float("nan")), "noise_px must be a finite number >= 0"),
+    (dict(noise_px=float("inf")), "noise_px must be a finite number >= 0"),
+    (dict(dropout=2.0), r"dropout must be a finite number in \[0, 1\]"),
+    (dict(dropout=float("nan")), r"dropout must be a finite number in \[0, 1\]"),
+    (dict(supersample=0), "supersample must be a whole number in 1..8"),
+    (dict(supersample=2.0), "supersample must be a whole number in 1..8"),
+    (dict(max_residual_px=0.0), "max_residual_px must be > 0"),
+])
+def test_the_eye_refuses_settings_no_camera_has(kw, what):
+    """From code, as from the command line (RunConfig): a negative or NaN noise meant no noise,
+    dropout 2 dropped every look, supersample 0 failed later inside OpenCV."""
+    from itg_vision.camera import CAMERAS_DIR
+    from itg_vision.feedback import TruthFeedback
+
+    rig = Rig.from_yaml(CAMERAS_DIR / "planar.yaml")
+    with pytest.raises(ValueError, match=f"VisionFeedback: {what}"):
+        VisionFeedback(rig, rig, ArmSpec.from_args("two-link"), **kw)
+    with pytest.raises(ValueError, match=r"TruthFeedback: noise_mm \(mm\) must be a finite"):
+        TruthFeedback(noise_mm=-0.1)
