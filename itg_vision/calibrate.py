@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +25,7 @@ from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrat
                           picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
 from .errors import UserError, exit_status, run_main
-from .outputs import check_path
+from .outputs import check_path, keep_aside
 from .progress import progress
 
 # ---------------------------------------------------------------------------- command line
@@ -54,7 +53,8 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
     ``true_rig`` names ``rig_path``), or with ``force``; the same holds for the corner picture
     beside it. A folder where either file goes is refused, even with ``force`` (it is never
     replaced: the write would fail after all the work). Returns the files ``force`` lets it
-    replace that are not this rig's calibration and its picture: :func:`keep_aside` keeps them.
+    replace that are not this rig's calibration and its picture, for
+    :func:`itg_vision.outputs.keep_aside`.
     """
     from .outputs import probe_folder
     from .inputs import resolve_relative
@@ -92,17 +92,6 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
                         "picture; choose another --out, or add --force")
     probe_folder(out.parent)
     return [] if ours else [p for p in (out, pic) if p.exists()]
-
-
-def keep_aside(paths: list[Path]) -> None:
-    """Rename each file ``--force`` replaces to ``<stem>.replaced-N<suffix>`` (never delete a
-    user's file), saying so on stderr."""
-    from .outputs import free_name
-
-    for p in paths:
-        kept = free_name(p, "replaced")
-        os.replace(p, kept)
-        print(f"note: --out: {p} was not this rig's calibration; kept as {kept}", file=sys.stderr)
 
 
 def measured_links(base_frame: dict) -> str:
@@ -294,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             bar.close()
         try:
-            keep_aside(foreign)
+            for p in foreign:
+                keep_aside(p, f"--out: {p} was not this rig's calibration")
             picture = write_result(result, job.out, job.rig_path)
         except OSError as exc:  # changed since check_out, a full disk: one line, the old files kept
             raise UserError(f"--out {job.out}: cannot write {exc.filename or job.out} "

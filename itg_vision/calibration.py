@@ -130,11 +130,11 @@ def _mono(obj, img, size, flags):
 
 
 def calibrate_views(views: Views, board: Board, size: tuple[int, int],
-                    camera_labels=("camera 1", "camera 2"), *,
+                    camera_labels=("camera 1", "camera 2"), *, source: str = "",
                     min_views: int = MIN_VIEWS) -> StereoCalibration:
     """Mono calibration of each camera, outlier views out, then stereo calibration.
-    ``camera_labels``: how a message names each camera (:func:`calibrate`: its rig file and
-    place, ``cameras/planar.yaml: cameras[0] (left)``).
+    ``camera_labels``: how a message names each camera (:func:`calibrate`: its place in the
+    rig, ``cameras[0] (left)``); ``source``: the rig file the messages name first.
 
     Raises
     ------
@@ -142,19 +142,17 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
         or degenerate poses.
     """
     n = len(views.corners)
+    where = f"{source}: " if source else ""
     found = [sum(c[i] is not None for c in views.corners) for i in range(2)]
     for i in range(2):
         if found[i] == 0:
-            raise UserError(f"{camera_labels[i]}: never found the board in {n} views: is it "
+            raise UserError(f"{where}{camera_labels[i]}: never found the board in {n} views: is it "
                             f"pointed at the workspace?")
     seen = [[k for k, c in enumerate(views.corners) if c[i] is not None] for i in range(2)]
     both = [k for k in seen[0] if k in set(seen[1])]
     if len(both) < min_views:
-        parts = [lab.rsplit(": ", 1) for lab in camera_labels]  # "rig file: cameras[i] (name)"
-        rig = parts[0][0] + ": " if all(len(p) == 2 and p[0] == parts[0][0] for p in parts) else ""
-        each = ", ".join(f"{p[-1] if rig else lab} {k}"
-                         for p, lab, k in zip(parts, camera_labels, found))
-        raise UserError(f"{rig}the board was found by both cameras in only {len(both)} of {n} "
+        each = ", ".join(f"{lab} {k}" for lab, k in zip(camera_labels, found))
+        raise UserError(f"{where}the board was found by both cameras in only {len(both)} of {n} "
                         f"views (each camera alone: {each}); need at least {min_views} (try more "
                         "--views)")
     obj_board = board.object_points()
@@ -518,8 +516,8 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         t1 = time.perf_counter()
         size = true_rig.cameras[0].size
         cal = calibrate_views(vs, board, size, tuple(
-            f"{true_rig.source or true_rig.name}: cameras[{i}] ({c.name})"
-            for i, c in enumerate(true_rig.cameras)))
+            f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)),
+            source=str(true_rig.source or true_rig.name))
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)

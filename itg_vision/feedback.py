@@ -13,7 +13,6 @@ the world, the model or the encoders.
 from __future__ import annotations
 
 import math
-import numbers
 from time import perf_counter
 
 import numpy as np
@@ -23,6 +22,7 @@ from .camera import MAX_SUPERSAMPLE
 from .contracts import Markers, Observation
 from .detect import Detection, locate_led_near
 from .imaging import Patch
+from .inputs import is_real, is_whole
 
 #: Default supersampling of the vision loop: the most accurate setting that keeps the stereo
 #: loop at >= 300 Hz on one core (``python -m itg_vision.bench speed`` and ``accuracy``:
@@ -33,11 +33,10 @@ DEFAULT_SUPERSAMPLE = 3
 
 def _in_range(what: str, v, lo: float, hi: float) -> float:
     """``v`` as a finite float in [lo, hi], else a ValueError naming it."""
-    x = float(v)
-    if not (lo <= x <= hi) or math.isnan(x) or math.isinf(x):
+    if not (is_real(v) and lo <= v <= hi):
         span = f">= {lo:g}" if math.isinf(hi) else f"in [{lo:g}, {hi:g}]"
         raise ValueError(f"{what} must be a finite number {span}, got {v!r}")
-    return x
+    return float(v)
 
 
 class ModelFeedback:
@@ -136,8 +135,7 @@ class VisionFeedback:
         if not self.max_residual_px > 0:
             raise ValueError(f"VisionFeedback: max_residual_px must be > 0 (inf: no gate), got "
                              f"{max_residual_px!r}")
-        if isinstance(supersample, bool) or not isinstance(supersample, numbers.Integral) \
-                or not 1 <= supersample <= MAX_SUPERSAMPLE:
+        if not (is_whole(supersample) and 1 <= supersample <= MAX_SUPERSAMPLE):
             raise ValueError(f"VisionFeedback: supersample must be a whole number in "
                              f"1..{MAX_SUPERSAMPLE}, got {supersample!r}")
         self.supersample = int(supersample)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 import re
 from pathlib import Path
 
@@ -78,6 +79,18 @@ def position(data: bytes | str, offset: int) -> tuple[int, int]:
     line = data.count(nl, 0, offset) + 1
     col = offset - (data.rfind(nl, 0, offset) + 1) + 1
     return line, col
+
+
+def is_whole(v) -> bool:
+    """An integer (numpy's too), not a bool nor a float that happens to be whole: what a count
+    or a seed given from code must be."""
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def is_real(v) -> bool:
+    """A finite real number (numpy's too), not a bool nor a string: what a physical quantity
+    given from code must be."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
 @functools.cache

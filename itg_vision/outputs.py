@@ -458,10 +458,7 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         raise
     old = None
     if keep:  # --force over what this command did not make: kept, under a new name
-        old = free_name(out, "replaced")
-        os.replace(out, old)
-        print(f"note: {option} {out}: held what {command} did not write; kept as {old}",
-              file=sys.stderr)
+        old = keep_aside(out, f"{option} {out}: held what {command} did not write")
     elif out.exists() or out.is_symlink():
         old = out.parent / f".{out.name}.old-{os.getpid()}"
         os.replace(out, old)
@@ -482,17 +479,18 @@ def _replaceable(out: Path, command: str, own: list[str]) -> bool:
     return True
 
 
-def free_name(path: Path, tag: str) -> Path:
-    """``path`` with ``.<tag>-N`` added to its name (before a file's suffix), N the smallest free
-    from 1: where ``--force`` keeps what it would otherwise have deleted."""
+def keep_aside(path: Path, why: str) -> Path:
+    """Rename ``path`` (a file or a folder ``--force`` writes over) to ``<name>.replaced-N``
+    beside it, before a file's suffix, N the smallest free from 1; say so on stderr as
+    ``note: <why>; kept as <new name>``. Nothing the user made is deleted. Returns the new name."""
     suffix = path.suffix if path.is_file() else ""
     stem = path.name[:-len(suffix)] if suffix else path.name
     k = 1
-    while True:
-        candidate = path.parent / f"{stem}.{tag}-{k}{suffix}"
-        if not (candidate.exists() or candidate.is_symlink()):
-            return candidate
+    while (kept := path.parent / f"{stem}.replaced-{k}{suffix}").exists() or kept.is_symlink():
         k += 1
+    os.replace(path, kept)
+    print(f"note: {why}; kept as {kept}", file=sys.stderr)
+    return kept
 
 
 # ---------------------------------------------------------------------------- printed reports

@@ -463,7 +463,8 @@ def main(argv: list[str] | None = None) -> int:
         except ConfigError as exc:
             raise exc.as_option({"gain_deg_per_mm": "--gain", "seed": "--seed"}) from None
         results = {"settings": settings(base)}
-        with outputs.staged_dir(args.out, "paper", force=args.force, key=settings(base)) as tmp:  # text: "" is an error
+        with outputs.staged_dir(args.out, "paper", force=args.force,
+                                key=results["settings"]) as tmp:  # text: "" is an error
             for name, fn in (("exp1", exp1), ("exp2", exp2), ("exp3", exp3), ("exp4", exp4),
                              ("exp5", exp5), ("exp6", exp6)):
                 if not args.quiet:

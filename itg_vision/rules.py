@@ -79,7 +79,7 @@ import numpy as np
 
 from .contracts import Step
 from .errors import UserError
-from .inputs import clip, read_text
+from .inputs import clip, is_real, is_whole, read_text
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
@@ -1105,18 +1105,15 @@ def resolve_rules_path(name_or_path: str) -> Path:
 def _check_arguments(n_joints, links_mm, params: dict) -> None:
     """A rule base's arguments from code (files and options are checked by their readers):
     ValueError naming the first that no arm could have."""
-    if isinstance(n_joints, bool) or not isinstance(n_joints, int) or n_joints < 1:
+    if not (is_whole(n_joints) and n_joints >= 1):
         raise ValueError(f"n_joints must be a whole number >= 1, got {n_joints!r}")
     links = list(links_mm)  # L1..Ln for the rules: as many as given (tests probe with more joints)
-    if not links or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
-                            and math.isfinite(v) and v > 0 for v in links):
+    if not links or not all(is_real(v) and v > 0 for v in links):
         raise ValueError(f"links_mm must be finite lengths > 0 (mm), got {links}")
-    for name, need in (("f", "> 0"), ("S", "> 0"), ("w", ">= 0")):
+    for name, need, ok in (("f", "> 0", lambda v: v > 0), ("S", "> 0", lambda v: v > 0),
+                           ("w", ">= 0", lambda v: v >= 0)):
         v = params.get(name)
-        if v is None:
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or \
-                not math.isfinite(v) or not (v > 0 if need == "> 0" else v >= 0):
+        if v is not None and not (is_real(v) and ok(v)):
             raise ValueError(f"{name} must be a finite number {need}, got {v!r}")
 
 

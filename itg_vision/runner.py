@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,7 +15,7 @@ from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
-from .inputs import resolve_relative
+from .inputs import is_whole, resolve_relative
 from .loop import Trace, distance_mm, simulate
 from .preview import Preview, plan
 from .rules import PARAM_FIELDS, load_rules
@@ -27,11 +26,6 @@ CONTROLLERS = ("itg", "ik", "jacobian")
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
 RULE_DEFAULTS = {"gain_deg_per_mm": 0.5, "step_deg": 2.0, "tolerance_mm": 0.5}
 RULE_NAMES = {field_: name for name, field_ in PARAM_FIELDS.items()}
-
-
-def _whole(v) -> bool:
-    """An integer (numpy's too), not a bool or a float that happens to be whole."""
-    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
 @dataclass(frozen=True)
@@ -108,7 +102,7 @@ class RunConfig:
              f"must be in [0, 1e4] mm, got {self.tolerance_mm}"),
             ("max_step_deg", positive(self.max_step_deg),
              f"must be > 0 (deg per iteration), got {self.max_step_deg}"),
-            ("iterations", _whole(self.iterations) and 1 <= self.iterations <= MAX_ITERATIONS,
+            ("iterations", is_whole(self.iterations) and 1 <= self.iterations <= MAX_ITERATIONS,
              f"must be a whole number in 1..{MAX_ITERATIONS}, got {self.iterations}"),
             ("noise_px", math.isfinite(self.noise_px) and self.noise_px >= 0,
              f"must be >= 0, got {self.noise_px}"),
@@ -133,7 +127,7 @@ class RunConfig:
              "applies to vision feedback only"),
             ("dropout", 0 <= self.dropout <= 1,
              f"must be a probability in [0, 1], got {self.dropout}"),
-            ("seed", _whole(self.seed) and self.seed >= 0,
+            ("seed", is_whole(self.seed) and self.seed >= 0,
              f"must be a whole number >= 0, got {self.seed}"),
             ("correction", math.isfinite(self.correction) and 0 < self.correction <= 1,
              f"must be in (0, 1], got {self.correction}"),

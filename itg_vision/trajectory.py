@@ -236,7 +236,7 @@ def read_csv(path: str | Path) -> Trajectory:
                 v = None
             if v is None or math.isfinite(v) and not DECIMAL.fullmatch(cell.strip()):
                 raise UserError(f"{path}:{lineno}: field {col}: not a number: "
-                                f"{clip(cell.strip())!r}") from None
+                                f"{clip(cell.strip())!r}")
             if not math.isfinite(v):
                 raise UserError(f"{path}:{lineno}: field {col}: must be finite, got "
                                 f"{clip(cell.strip())}")
