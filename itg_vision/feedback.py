@@ -148,8 +148,9 @@ class VisionFeedback:
         self.last_observation: Observation | None = None
         self.reset(None)
 
-    def reset(self, seed: int | None = None) -> None:
-        """New generator from ``seed``; forget the last estimates."""
+    def reset(self, seed: int | np.random.SeedSequence | None = None) -> None:
+        """New generator from ``seed`` (anything ``numpy.random.default_rng`` takes); forget the
+        last estimates."""
         self.rng = np.random.default_rng(seed)
         self._last = {n: np.full(3, np.nan) for n in ("gripper", "elbow")}
         self.last_observation = None

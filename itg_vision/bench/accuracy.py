@@ -46,6 +46,14 @@ def _tail(values) -> tuple[float, float, float]:
     return float(np.sqrt(np.mean(v ** 2))), float(np.percentile(v, 95)), float(np.max(v))
 
 
+def streams(seed: int, n_poses: int):
+    """The poses' generator and each pose's noise seed, all from ``seed``: the poses come from
+    ``default_rng(seed)``, pose k's images from the k-th child of ``SeedSequence(seed)``
+    (numpy's independent streams; every setting and sigma draws pose k's noise from it, so
+    they are compared on common random numbers)."""
+    return np.random.default_rng(seed), np.random.SeedSequence(seed).spawn(n_poses)
+
+
 def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
             supersample: int = DEFAULT_SUPERSAMPLE, full_frame: bool = False) -> dict:
     """Errors of one setting over ``n_poses`` random poses, for each added noise in ``sigmas``
@@ -58,7 +66,7 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
     noise), ``n_missed`` (at zero added noise) and ``rows`` (per sigma: measured and predicted
     RMS, ratio).
     """
-    rng = np.random.default_rng(seed)
+    rng, noise_seeds = streams(seed, n_poses)
     poses = arm.random_poses(n_poses, rng)
     centroid_err, pts, errs = [], [], {s: [] for s in sigmas}
     by_marker: dict[str, list] = {n: [] for n in arm.marker_names}
@@ -71,7 +79,7 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
             for s in sigmas:
                 fb = VisionFeedback(rig, rig, arm, noise_px=s, supersample=supersample,
                                     full_frame=full_frame)
-                fb.reset(seed * 100003 + k)
+                fb.reset(noise_seeds[k])
                 m = fb.observe(world)
                 if s == 0:
                     missed += len(m.missed)
