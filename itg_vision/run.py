@@ -271,8 +271,8 @@ def main(argv: list[str] | None = None) -> int:
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
             outputs.write_json(tmp / "summary.json", summary)
             title = plot_title(summary)
-            plot.path_figure(trace, title, tmp / "path.png")
-            plot.error_figure(trace, title, tmp / "error.png")
+            plot.path_figure(trace, title, tmp / "path.png", laps=summary["laps"])
+            plot.error_figure(trace, title, tmp / "error.png", laps=summary["laps"])
         if not args.quiet:
             print(summary_table(summary, out))
         return 0
@@ -282,20 +282,38 @@ def main(argv: list[str] | None = None) -> int:
 
 def plot_title(s: dict) -> str:
     """The run's figures' title: what ran on which path, what it saw and under which limits
-    (servo, iterations), then E_av. Files are named by their name less folder and type; an ITG
-    run names its rule base."""
+    (servo, iterations), then E_av (and 'DIVERGED'); on a second line what else set the
+    result: the rig, dropout, the simulated arm's differences from the model, the seed. Files
+    are named by their name less folder and type; an ITG run names its rule base."""
     who = _less_type(Path(s["rules"]).name) if s["controller"] == "itg" else s["controller"]
     seen = s["feedback"]
-    noise = s.get("feedback_params", {}).get("noise_px") or 0.0
+    fp = s.get("feedback_params", {})
+    noise = fp.get("noise_px") or 0.0
     if seen == "vision" and noise > 0:
         seen += f", {noise:g} px noise"
+    if fp.get("noise_mm"):
+        seen += f", {fp['noise_mm']:g} mm noise"
     laps = f", {s['laps']} laps" if s.get("laps", 1) > 1 else ""
     limits = ", ".join(
         ([f"servo {s['max_step_deg']:g} deg/iteration"] if s.get("max_step_deg") else [])
         + ([f"{s['iterations']} iterations"] if s.get("iterations", 1) > 1 else []))
     e_av = s["e_av_mm"] if s["e_av_mm"] is not None else float("nan")
-    return (f"{s['arm']} {_less_type(Path(s['trajectory']).name)}{laps} ({who}, {seen}"
-            f"{'; ' + limits if limits else ''}): E_av {e_av:.2f} mm")
+    line = (f"{s['arm']} {_less_type(Path(s['trajectory']).name)}{laps} ({who}, {seen}"
+            f"{'; ' + limits if limits else ''}): E_av {e_av:.2f} mm"
+            + (", DIVERGED" if s.get("diverged") else ""))
+    more = []
+    if s.get("estimate_rig"):
+        est, ren = (_less_type(Path(s[k]).name) for k in ("estimate_rig", "render_rig"))
+        more.append(f"rig {est}" if est == ren else f"rig {est} (renders {ren})")
+    if fp.get("dropout"):
+        more.append(f"LED dropout {fp['dropout']:g}")
+    if s.get("true_links_mm") and s["true_links_mm"] != s.get("links_mm"):
+        more.append("true links " + "/".join(f"{v:g}" for v in s["true_links_mm"]) + " mm")
+    if any(s.get("joint_offset_deg") or ()):
+        more.append("joint offset " + "/".join(f"{v:g}" for v in s["joint_offset_deg"]) + " deg")
+    if "seed" in s and (s["feedback"] == "vision" or fp.get("noise_mm")):  # something random
+        more.append(f"seed {s['seed']}")
+    return line + ("\n" + ", ".join(more) if more else "")
 
 
 def summary_table(s: dict, out: Path) -> str:

@@ -564,3 +564,17 @@ def test_a_sweep_where_every_run_fails_reports_and_exits_1(tmp_path, capsys, mon
     assert "None: no run of this sweep has finished." in (out / "report.md").read_text()
     assert not list(out.glob("*.png"))
     assert len((out / "failures.log").read_text().splitlines()) == 24
+
+
+def test_figure_titles_say_which_sweep_they_show():
+    """A benchmark figure names its set points, laps, iterations, servo limit and seeds, read
+    from the sweep's run specs (the quick sweep: 60 points per lap, 2 laps, 2 seeds)."""
+    from itg_vision.bench.report import _sweep_line
+
+    specs = build_sweep(quick=True)
+    mine = [s for s in specs if s.trajectory == "ellipse-t1"]
+    s = mine[0]
+    assert (s.points, s.laps, s.iterations, s.max_step_deg) == (60, 2, 1, 20.0)
+    assert len({x.seed for x in mine}) == 2
+    assert _sweep_line(specs, "ellipse-t1") == ("60 set points, 2 laps, 1 iteration(s), "
+                                                "servo 20 deg/iteration; 2 seeds")

@@ -234,6 +234,20 @@ def test_figure_titles_name_the_rule_base_the_path_and_what_the_eye_saw():
            "feedback_params": {"noise_px": 0.0}, "e_av_mm": None}
     assert plot_title(dls) == "two-link ellipse-t1 (jacobian, vision): E_av nan mm"
     assert "noise" not in plot_title({**base, "feedback": "model", "feedback_params": {}})
+    # what else set the result goes on a second line: the rig (and the one that rendered, if
+    # another), dropout, the simulated arm's differences from the model, the seed
+    more = {**base, "feedback_params": {"noise_px": 0.0, "dropout": 0.2}, "seed": 4,
+            "estimate_rig": "cameras/planar.calib.yaml", "render_rig": "cameras/planar.yaml",
+            "links_mm": [100.0, 100.0], "true_links_mm": [105.0, 105.0],
+            "joint_offset_deg": [1.0, 0.0], "diverged": True}
+    assert plot_title(more) == (
+        "two-link lemniscate, 2 laps (itg-plus-two-link, vision): E_av 1.43 mm, DIVERGED\n"
+        "rig planar.calib (renders planar), LED dropout 0.2, true links 105/105 mm, joint "
+        "offset 1/0 deg, seed 4")
+    # nothing random, nothing that differs: no second line
+    plain = {**more, "feedback": "model", "feedback_params": {}, "estimate_rig": None,
+             "true_links_mm": [100.0, 100.0], "joint_offset_deg": [0.0, 0.0], "diverged": False}
+    assert "\n" not in plot_title(plain)
 
 
 def test_open_loop_ik_records_the_nominal_lengths_it_uses_not_the_measured_ones():

@@ -307,7 +307,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
             + _table(summary, t, conds, ctrls, "e_av") + [""]
         L += [f"## {t}: tracking phase (mm): median / mean / p95 / max of E_i (worst seed's max)",
               "", lim, ""] + _tail_table(summary, t, conds, ctrls) + [""]
-    plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics)
+    plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics, specs)
     if plots:
         L += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in plots] + [""]
     elif not rows:
@@ -316,23 +316,39 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     return plots
 
 
-def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]:
+def _sweep_line(specs: list[RunSpec], traj: str) -> str:
+    """What a figure of ``traj`` shows, for its title: set points, laps, seeds, limits."""
+    mine = [s for s in specs if s.trajectory == traj]
+    s = mine[0]
+    seeds = sorted({x.seed for x in mine})
+    pts = "the path's set points" if s.points is None else f"{s.points} set points"
+    limit = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
+    return (f"{pts}{', %d laps' % s.laps if s.laps > 1 else ''}, {s.iterations} iteration(s), "
+            f"{limit}; {len(seeds)} seed{'s' if len(seeds) > 1 else ''}")
+
+
+def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> list[Path]:
     made = []
 
-    def med(t, c, k, metric):  # a cell where a run did not start is not drawn
+    def cell(t, c, k, metric):  # (median, q1, q3); NaN where no run started
         s = summary.get((t, c, k))
-        return s[metric][0] if s and not s["no_start"] else float("nan")
+        return s[metric] if s and not s["no_start"] else (float("nan"),) * 3
+
+    def diverged(t, c, k):
+        s = summary.get((t, c, k))
+        return bool(s and s["diverged"])
 
     def curve(t, k, pairs, metric):
         xs, ys = [], []
         for x, c in pairs:
-            y = med(t, c, k, metric)
-            if math.isfinite(y):
+            y = cell(t, c, k, metric)
+            if math.isfinite(y[0]):
                 xs.append(x)
-                ys.append(max(y, 1e-3))  # exact IK: drawn at the floor
-        return xs, ys
+                ys.append(y)
+        return (xs, *np.array(ys, float).reshape(-1, 3).T)
 
     for t in trajs:
+        about = _sweep_line(specs, t)
         for name, field_, xlabel in (("sigma", "noise_px", "centroid noise sigma (px)"),
                                      ("dropout", "dropout", "LED dropout probability"),
                                      ("model_error", "link_error", "link length error (%)")):
@@ -352,20 +368,27 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics) -> list[Path]
                 series = {k: v for k, v in series.items() if v[0]}
                 if not series:  # no run of these conditions finished: nothing to draw
                     continue
+                gone = sorted({k for k in ctrls for _, c in pairs if diverged(t, c, k)})
                 path = out / f"{metric}_vs_{name}-{t}.png"
-                plot.lines_figure(series, xlabel, f"{label} (mm)\nmedian over seeds; < 0.001 "
-                                  "drawn at 0.001", f"{t}: {label} against {xlabel}", path,
-                                  logy=True)
+                plot.lines_figure(series, xlabel, f"{label} (mm), median over seeds",
+                                  f"{t}: {label} against {xlabel}\n{about}"
+                                  + (f"\ndiverged runs (tracking median > {DIVERGED_MM:g} mm) in: "
+                                     + ", ".join(gone) if gone else ""), path, logy=True,
+                                  hlines=[(DIVERGED_MM, f"diverged above ({DIVERGED_MM:g} mm)",
+                                           "C3")] if gone else ())
                 made.append(path)
         for metric in metrics:
-            values = {k: [med(t, c, k, metric) for c in conds] for k in ctrls}
+            cells = {k: [cell(t, c, k, metric) for c in conds] for k in ctrls}
+            values = {k: [v[0] for v in vs] for k, vs in cells.items()}
             if not any(math.isfinite(v) for vs in values.values() for v in vs):
                 continue  # no finished run: a log axis has nothing to scale
             path = out / f"{metric}_by_condition-{t}.png"
-            plot.grouped_bars_figure(conds, values, f"{PLOT_METRICS[metric]} (mm)\nmedian over seeds",
-                                     f"{t}: {PLOT_METRICS[metric]} per controller and condition",
-                                     path, logy=True)
+            plot.grouped_dots_figure(
+                conds, values, f"{PLOT_METRICS[metric]} (mm), median over seeds",
+                f"{t}: {PLOT_METRICS[metric]} per controller and condition\n{about}", path,
+                logy=True, spread={k: ([v[1] for v in vs], [v[2] for v in vs])
+                                   for k, vs in cells.items()},
+                flagged={k: [diverged(t, c, k) for c in conds] for k in ctrls},
+                flag_label=f"a run diverged (tracking median > {DIVERGED_MM:g} mm)")
             made.append(path)
     return made
-
-

@@ -1,0 +1,119 @@
+"""The figures say what they show: values on log axes are dots (not bars) with their numbers,
+values under the axis' floor are marked as such and not joined to a curve, log ticks are plain
+decimals, laps and missed markers are told apart, the desired path stays visible, and a 3-D
+path has one scale. Each figure is caught before it is written (``plot._save``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from itg_vision import plot
+from itg_vision.contracts import Markers
+from itg_vision.loop import SetPointRecord, Trace
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    made = []
+    monkeypatch.setattr(plot, "_save", lambda fig, path: made.append(fig))
+    return made
+
+
+def _trace(desired, actual, *, planar=True, missed=(), tracking_start=0):
+    t = Trace(planar=planar, n_joints=2, tracking_start=tracking_start)
+    for i, (d, g) in enumerate(zip(desired, actual)):
+        d, g = np.asarray(d, float), np.asarray(g, float)
+        t.record(SetPointRecord(d, d, Markers(g, g), {"gripper": g, "elbow": g},
+                                {"gripper": g, "elbow": g}, np.zeros(2), (), 
+                                ("missed:gripper",) if i in missed else (), False, True))
+    return t
+
+
+def test_dots_on_a_log_axis_write_their_values_and_mark_the_floor_and_the_flagged(figures):
+    plot.grouped_dots_figure(["clean", "noise"], {"a": [0.5, 1e-6], "b": [20.0, float("nan")]},
+                             "E (mm)", "t", "x.png", logy=True,
+                             spread={"a": ([0.4, 1e-7], [0.6, 2e-6]), "b": ([10, np.nan], [30, np.nan])},
+                             flagged={"a": [False, False], "b": [True, False]}, flag_label="diverged")
+    ax = figures[0].axes[0]
+    assert not ax.patches  # no bars: a bar's length on a log axis means nothing
+    texts = sorted(t.get_text() for t in ax.texts)
+    assert texts == ["0.5", "20", "<0.001"]  # NaN: no dot, no number
+    # the value under the floor: an open triangle at the floor, not a dot at a made-up value
+    below = [ln for ln in ax.lines if ln.get_marker() == "v" and len(ln.get_xdata())]
+    assert len(below) == 1 and list(below[0].get_ydata()) == [plot.FLOOR_MM]
+    ringed = [ln for ln in ax.lines if ln.get_markersize() == 11 and len(ln.get_xdata())]
+    assert len(ringed) == 1 and list(ringed[0].get_ydata()) == [20.0]  # b's clean cell
+    labels = ax.get_legend_handles_labels()[1]
+    assert "diverged" in labels and "below 0.001 mm, drawn there" in labels
+    assert len(ax.collections) == 2  # the whiskers (interquartile ranges) of both series
+
+
+def test_a_curve_is_not_joined_to_a_value_drawn_at_the_floor(figures):
+    plot.lines_figure({"ik": ([0, 1, 2], [1e-6, 0.3, 2.0]), "x": ([0, 1, 2], [0.2, 0.3, 0.4])},
+                      "s", "E (mm)", "t", "x.png", logy=True)
+    ax = figures[0].axes[0]
+    ik = next(ln for ln in ax.lines if ln.get_label() == "ik")
+    assert np.isnan(ik.get_ydata()[0]) and list(ik.get_ydata()[1:]) == [0.3, 2.0]
+    # two series lying on each other stay told apart: their markers differ
+    x = next(ln for ln in ax.lines if ln.get_label() == "x")
+    assert ik.get_marker() != x.get_marker()
+
+
+def test_log_ticks_are_plain_decimals(figures):
+    plot.lines_figure({"a": ([1, 2], [0.002, 60.0])}, "s", "E (mm)", "t", "x.png", logy=True)
+    fmt = figures[0].axes[0].yaxis.get_major_formatter()
+    assert [fmt(v, 0) for v in (0.005, 0.05, 1.0, 20.0, 50.0)] == ["0.005", "0.05", "1", "20", "50"]
+
+
+def test_references_are_drawn_without_markers_and_apart_from_the_measurements(figures):
+    plot.lines_figure({"f = 0.1": ([100, 1000], [5.0, 0.5])}, "n", "E (mm)", "t", "x.png",
+                      logx=True, logy=True, references={"slope -1": ([100, 1000], [4.0, 0.4])})
+    ref = next(ln for ln in figures[0].axes[0].lines if ln.get_label() == "slope -1")
+    assert ref.get_marker() in ("None", None, "") and ref.get_linestyle() != "-"
+
+
+def test_a_planar_path_draws_the_desired_path_over_the_laps_it_colours_apart(figures):
+    a = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    lap = np.c_[100 + 50 * np.cos(a), 50 * np.sin(a), np.zeros(8)]
+    d = np.vstack([lap, lap])
+    plot.path_figure(_trace(d, d + [0.5, 0, 0]), "t", "x.png", laps=2)
+    ax = figures[0].axes[0]
+    by = {ln.get_label(): ln for ln in ax.lines}
+    lap1, lap2, desired = (by["actual gripper, lap 1"], by["actual gripper, lap 2"],
+                           by["desired"])
+    assert len(lap1.get_xdata()) == len(lap2.get_xdata()) == 8
+    assert lap1.get_color() != lap2.get_color()
+    assert desired.get_zorder() > lap1.get_zorder() > by["base"].get_zorder()
+
+
+def test_a_3d_path_has_one_scale_for_x_y_and_z(figures):
+    d = np.c_[np.linspace(50, 100, 5), np.linspace(0, 20, 5), np.linspace(200, 300, 5)]
+    plot.path_figure(_trace(d, d, planar=False), "t", "x.png")
+    ax = figures[0].axes[0]
+    spans = np.array([np.ptp(ax.get_xlim3d()), np.ptp(ax.get_ylim3d()), np.ptp(ax.get_zlim3d())])
+    aspect = np.asarray(ax.get_box_aspect(), float)
+    # the box's sides are in the ratio of the millimetres they show (the base at 0 included)
+    assert np.allclose(aspect / aspect[2], spans / spans[2], rtol=1e-6)
+    assert np.ptp(ax.get_zlim3d()) >= 300  # from the base, z = 0, to the path's top
+
+
+def test_the_error_figure_marks_missed_markers_and_names_its_scale(figures):
+    d = np.c_[np.arange(10.0), np.zeros(10), np.zeros(10)]
+    plot.error_figure(_trace(d, d + [0, 1, 0], missed=(3, 7), tracking_start=5), "t", "x.png",
+                      laps=2)
+    ax = figures[0].axes[0]
+    missed = next(ln for ln in ax.lines if ln.get_label().startswith("a marker missed"))
+    assert list(missed.get_xdata()) == [3, 7] and "(2 set points)" in missed.get_label()
+    assert "linear below 0.01" in ax.get_ylabel()
+    assert [t.get_text() for t in ax.texts] == ["lap 2"]
+
+
+def test_paths_figure_draws_a_jump_dashed_and_leaves_it_out_of_the_desired_path(figures):
+    d = np.array([[0, 0, 0], [10, 0, 0], [50, 50, 0], [60, 50, 0]], float)
+    plot.paths_figure([("abcd", _trace(d, d), [(1, 2, "jump")])], "t", "x.png")
+    ax = figures[0].axes[0]
+    desired = [ln for ln in ax.lines if ln.get_color() == "k"]
+    assert sorted(len(ln.get_xdata()) for ln in desired) == [2, 2]  # cut between 1 and 2
+    jump = next(ln for ln in ax.lines if ln.get_label() == "jump")
+    assert jump.get_linestyle() == "--" and list(jump.get_xdata()) == [10, 50]
