@@ -79,7 +79,9 @@ def exp1(base, out) -> dict:
     control = _simulate_points(base, np.vstack([pts[:n], bridge, pts[n:]])).error_mm()[-n:]
     cd = e[n:]
     after = settle_index(np.abs(cd - control), 0.1)  # set points until the jump is forgotten
-    plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain_deg_per_mm, trace)], "Fig. 4.1", out / "exp1_path.png")
+    plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain_deg_per_mm, trace,
+                        [(n - 1, n, "B-C: the jump (no set point between)")])],
+                      "Fig. 4.1", out / "exp1_path.png")
     plot.lines_figure({"with the jump": (np.arange(n), cd), "control: B-C crossed by 100 set points": (np.arange(n), control)},
                       "set point on C-D", "E_i (mm)", "experiment 1: E_i along C-D", out / "exp1_error.png",
                       logy=True, marker="",
@@ -98,6 +100,14 @@ def exp2(base, out) -> dict:
     e = trace.error_mm()
     i0 = settle_index(e, 10.0)
     plot.paths_figure([("experiment 2: ellipse T1, 180 points", trace)], "Fig. 4.2", out / "exp2_path.png")
+    plot.lines_figure({"E_i": (np.arange(len(e)), e)}, "set point i", "E_i (mm)",
+                      f"experiment 2: E_i along T1 (settled from set point {i0})",
+                      out / "exp2_error.png", logy=True, marker=None,
+                      hlines=[(ACCEPTABLE_MM, f"settled E_max at most {ACCEPTABLE_MM:g} mm; settling: "
+                                              "below it for 10 set points in a row", "C3"),
+                              (FOLLOWS_CLOSELY_MM, f"settled E_av at most {FOLLOWS_CLOSELY_MM:g} mm", "C2")],
+                      vspans=[(0, min(i0, len(e)) - 0.5, "start transient (before settling)")]
+                      if i0 > 0 else [])
     return {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"], "settled_at": i0,
             # a run that never settles has no settled part: nan, and its verdict disagrees
             "e_av_after_settling_mm": float(np.mean(e[i0:])) if i0 < len(e) else float("nan"),
@@ -117,10 +127,17 @@ def exp3(base, out) -> dict:
         slope = float(np.polyfit(np.log(ns), np.log(eav), 1)[0])
         res[f"{f:g}"] = {"e_av_mm": eav.tolist(), "loglog_slope": slope}
         series[f"f = {f:g} deg/mm (slope {slope:.2f})"] = (ns, eav)
-    fit = {f"c / n_t (through f = {EXP3_GAINS[0]:g})": (
-        ns, np.exp(np.mean(np.log(np.asarray(res[f"{EXP3_GAINS[0]:g}"]["e_av_mm"]) * ns))) / ns)}
-    plot.lines_figure({**series, **fit}, "n_t (set points)", "E_av (mm)",
-                      "Fig. 4.3: E_av against n_t", out / "exp3_eav_vs_nt.png", logx=True, logy=True)
+    # references, not measurements: slopes -1 (the claim) and the band's edges, through the
+    # geometric mean of the first gain's points
+    e0 = np.asarray(res[f"{EXP3_GAINS[0]:g}"]["e_av_mm"])
+    anchor_n, anchor_e = np.exp(np.mean(np.log(ns))), np.exp(np.mean(np.log(e0)))
+    refs = {f"slope {k:g}{' (inversely proportional)' if k == -1 else ''}, through f = "
+            f"{EXP3_GAINS[0]:g}": (ns, anchor_e * (ns / anchor_n) ** k)
+            for k in (-1.0, SLOPE_RANGE[0], SLOPE_RANGE[1])}
+    plot.lines_figure(series, "n_t (set points)", "E_av (mm)",
+                      f"Fig. 4.3: E_av against n_t (agrees: slopes in [{SLOPE_RANGE[0]:g}, "
+                      f"{SLOPE_RANGE[1]:g}])", out / "exp3_eav_vs_nt.png", logx=True, logy=True,
+                      references=refs)
     return {"n_t": ns.tolist(), "by_gain_deg_per_mm": res}
 
 
@@ -189,14 +206,17 @@ def exp5(base, out) -> dict:
                   "flail_onsets_from_inverted_pose": int(inv[k - 1].sum()) if len(k) else 0,
                   "inverted_share_of_settled_lap": float(inv[n:].mean()),
                   "variants": variants}
-    plot.lines_figure(series_first, "radial angle (deg)", "E_i (mm)",
+    marks = {"hlines": [(ACCEPTABLE_MM, f"acceptable: {ACCEPTABLE_MM:g} mm")],
+             "vspans": [(max(a - PEAK_ANGLE_TOL_DEG, 0), min(a + PEAK_ANGLE_TOL_DEG, 360),
+                         f"the paper's peaks: 0, 180, 360 +- {PEAK_ANGLE_TOL_DEG:g} deg")
+                        for a in (0, 180, 360)]}
+    angle = "radial angle: the ellipse's parameter (deg)"
+    plot.lines_figure(series_first, angle, "E_i (mm)",
                       "Fig. 4.5: set point deviation, first lap (as the paper: from the start pose)",
-                      out / "exp5_first_lap.png", logy=True, marker="")
-    plot.lines_figure(series_second, "radial angle (deg)", "E_i (mm)",
-                      "Fig. 4.5: set point deviation, second lap (settled)", out / "exp5_second_lap.png", marker="",
-                      hlines=[(ACCEPTABLE_MM, f"acceptable: {ACCEPTABLE_MM:g} mm")],
-                      vspans=[(max(a - PEAK_ANGLE_TOL_DEG, 0), min(a + PEAK_ANGLE_TOL_DEG, 360),
-                               f"the paper's peaks: 0, 180, 360 +- {PEAK_ANGLE_TOL_DEG:g} deg") for a in (0, 180, 360)])
+                      out / "exp5_first_lap.png", logy=True, marker=None, **marks)
+    plot.lines_figure(series_second, angle, "E_i (mm)",
+                      "Fig. 4.5: set point deviation, second lap (settled)", out / "exp5_second_lap.png",
+                      logy=True, marker=None, **marks)
     return res
 
 
@@ -265,11 +285,17 @@ def exp6(base, out) -> dict:
         res[label] = {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"],
                       "e_av_second_half_mm": float(e[len(e) // 2:].mean()),
                       "e_max_second_half_mm": float(e[len(e) // 2:].max())}
-        panels.append((label, trace))
+        panels.append((label, e))
         plot.path_figure(trace, f"experiment 6, line-ab-reach, {label}: E_av {s['e_av_mm']:.2f} mm",
                          out / f"exp6_path_{'paper' if not kw else 'limited'}.png")
     plot.path_figure(t_full, f"experiment 6, the paper's line: {s_full['n_out_of_reach']} of "
                              f"{s_full['n_setpoints']} set points out of reach", out / "exp6_line_ab.png")
+    plot.lines_figure({label: (np.arange(len(e)), e) for label, e in panels}, "set point i",
+                      "E_i (mm)", "experiment 6, line-ab-reach: E_i along the line",
+                      out / "exp6_error.png", logy=True, marker=None,
+                      hlines=[(PAPER_EXP6_E_AV_MM, f"the paper's E_av, {PAPER_EXP6_E_AV_MM:g} mm", "C2"),
+                              (EXP6_FACTOR * PAPER_EXP6_E_AV_MM, f"agrees if E_av (the mean of E_i) "
+                               f"<= {EXP6_FACTOR:g} x that", "C3")])
     res["start_tie"] = tie_experiment()
     return res
 
@@ -424,7 +450,8 @@ def report(r: dict, base: RunConfig) -> str:
             ("1. The jump B-C does not affect tracking quality (Fig. 4.1)", v1,
              (("exp1_path.png", "Experiment 1 (Fig. 4.1)"), ("exp1_error.png", "Experiment 1: E_i along C-D"))),
             ("2. The ITG closely follows the ellipse T1 (Fig. 4.2)", v2,
-             (("exp2_path.png", "Experiment 2 (Fig. 4.2)"),)),
+             (("exp2_path.png", "Experiment 2 (Fig. 4.2)"),
+              ("exp2_error.png", "Experiment 2: E_i, the settling and its thresholds"))),
             ("3. E_av is inversely proportional to n_t (Fig. 4.3)", v3,
              (("exp3_eav_vs_nt.png", "Experiment 3 (Fig. 4.3)"),)),
             ("4. The best range of f is the same for T1 and T2 (Fig. 4.4)", v4,
@@ -435,7 +462,8 @@ def report(r: dict, base: RunConfig) -> str:
             (f"6. The three-link line A-B, average error about {PAPER_EXP6_E_AV_MM} mm", f"{v6} as given",
              (("exp6_line_ab.png", "Experiment 6, the paper's line"),
               ("exp6_path_paper.png", "Experiment 6, reachable variant, as the paper"),
-              ("exp6_path_limited.png", "Experiment 6, reachable variant, servo limit")))):
+              ("exp6_path_limited.png", "Experiment 6, reachable variant, servo limit"),
+              ("exp6_error.png", "Experiment 6, reachable variant: E_i and the paper's 0.4 mm")))):
         L += [f"### {title}: {v}", "", *(f"![{cap}]({name})" for name, cap in figs), ""]
     return "\n".join(L)
 
