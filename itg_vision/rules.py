@@ -73,6 +73,7 @@ import math
 import re
 from collections import Counter
 from dataclasses import dataclass, field, replace
+import os
 from pathlib import Path
 
 import numpy as np
@@ -922,8 +923,9 @@ class RuleBase:
             raise UserError(f"{self.source}: no rule moves a joint")
 
     def unmoved_joints(self) -> list[str]:
-        """Joints of the arm that no rule moves (``q2`` for Table 1 on a two-link arm)."""
-        moved = {a.joint for r in self.rules for a in r.actions if a.kind in ("inc", "dec")}
+        """Joints of the arm that no rule moves or holds (``q2`` for Table 1 on a two-link arm):
+        a rule base written for fewer joints. ``qN HOLD`` names a joint kept still on purpose."""
+        moved = {a.joint for r in self.rules for a in r.actions if a.kind in ("inc", "dec", "hold")}
         return [f"q{j}" for j in range(1, self.n_joints + 1) if j not in moved]
 
     def _check_names(self, nodes, known: set[str]) -> None:
@@ -1088,9 +1090,12 @@ def shipped_rules() -> list[str]:
 
 
 def resolve_rules_path(name_or_path: str) -> Path:
-    """A shipped rule base by name (``table1``, ``table2``, ``three-link``) or a file path."""
+    """A shipped rule base by name (``table1``, ``table2``, ``three-link``) or a file path: a
+    name ending in .rules or holding a folder separator is a path, any other a shipped name
+    (whatever files the current folder holds: a file or folder called ``table2`` there does not
+    replace the shipped ``table2``)."""
     p = Path(name_or_path)
-    if p.suffix == ".rules" or p.exists() or "/" in name_or_path:
+    if p.suffix == ".rules" or "/" in name_or_path or os.sep in name_or_path:
         if not p.exists():
             raise UserError(f"{p}: rule file not found")
         return p
@@ -1098,7 +1103,7 @@ def resolve_rules_path(name_or_path: str) -> Path:
     if not candidate.exists():
         shipped = shipped_rules()
         raise UserError(f"unknown rule base {name_or_path!r} (shipped: {', '.join(shipped)}; "
-                        "or give a path to a .rules file)")
+                        f"or give a path to a rule file: ./{name_or_path} for one in this folder)")
     return candidate
 
 
@@ -1118,7 +1123,8 @@ def _check_arguments(n_joints, links_mm, params: dict) -> None:
 
 
 def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase:
-    """A rule base for an arm with ``n_joints`` joints; refused unless it moves every one.
+    """A rule base for an arm with ``n_joints`` joints; refused unless its rules move or hold
+    (``qN HOLD``) every one.
 
     ``params``: ``f`` (deg/mm), ``S`` (deg), ``w`` (mm), the rules' parameters; those not given
     take :class:`RuleBase`'s defaults (f 0.06, S 0.5, w 0.5), not ``run``'s (0.5, 2, 0.5:
@@ -1132,8 +1138,9 @@ def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase
 
         shipped = ", ".join(f"{ArmSpec.from_args(a).defaults[k]} ({a})" for a in arm_names()
                             for k in ("rules", "itg_plus_rules"))
-        raise UserError(f"{rb.source}: no rule moves {', '.join(unmoved)} of this {n_joints}-joint "
-                        f"arm: a rule base for another arm? (shipped: {shipped})")
+        raise UserError(f"{rb.source}: no rule moves or holds {', '.join(unmoved)} of this "
+                        f"{n_joints}-joint arm: a rule base for another arm? (shipped: {shipped}; "
+                        f"to keep a joint still on purpose, say so: {unmoved[0]} HOLD)")
     return rb
 
 

@@ -1,6 +1,7 @@
 """The rule language and the paper's tables against hand-worked situations."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -291,10 +292,24 @@ def test_limits_leave_room_for_real_rule_bases():
 
 
 def test_a_rule_base_for_another_arm_is_refused_by_load_rules():
-    with pytest.raises(UserError, match="no rule moves q2 of this 2-joint arm"):
+    with pytest.raises(UserError, match="no rule moves or holds q2 of this 2-joint arm"):
         load_rules("table1", 2, TWO)
-    with pytest.raises(UserError, match="no rule moves q3 of this 3-joint arm"):
+    with pytest.raises(UserError, match="no rule moves or holds q3 of this 3-joint arm"):
         load_rules("table2", 3, (100.0, 100.0, 100.0))
+
+
+def test_a_joint_held_on_purpose_counts_as_named(tmp_path):
+    """`q2 HOLD` says the rule base means to keep q2 still: it is loaded and q2 never moves (it
+    used to be refused as 'a rule base for another arm', and `q2 += 0` was the workaround)."""
+    path = tmp_path / "hold.rules"
+    path.write_text("RULE 1: IF xd > xg THEN q1 += S, q2 HOLD\nRULE 2: IF xd < xg THEN q1 -= S\n")
+    rb = load_rules(str(path), 2, TWO, S=1.0)
+    for g in ([0.0, 0, 0], [5.0, 0, 0]):
+        dq = rb.step(np.array([1.0, 0, 0]), markers(g, [0, 0, 0]), [0, 0]).dq_deg
+        assert dq[1] == 0.0 and abs(dq[0]) == 1.0
+    path.write_text("RULE 1: IF xd > xg THEN q1 += S\n")
+    with pytest.raises(UserError, match=r"no rule moves or holds q2 .*say so: q2 HOLD\)$"):
+        load_rules(str(path), 2, TWO, S=1.0)
 
 
 def test_binary_and_oversized_rule_files_are_one_line(tmp_path):
@@ -617,7 +632,7 @@ def test_a_rule_base_for_another_arm_names_every_shipped_one_for_each_arm():
     with pytest.raises(UserError) as exc:
         load_rules("table2", 3, (100.0, 100.0, 100.0))
     msg = str(exc.value)
-    assert "no rule moves q3 of this 3-joint arm" in msg
+    assert "no rule moves or holds q3 of this 3-joint arm" in msg
     assert "three-link (three-link)" in msg and "itg-plus-three-link (three-link)" in msg
 
 
@@ -636,3 +651,23 @@ def test_a_rule_base_from_code_refuses_arguments_no_arm_has(args, kw, what):
     ever, f = -1 stepped away from the target and n_joints 0 said "unknown name 'L1'"."""
     with pytest.raises(ValueError, match=what):
         load_rules("table2", *args, **kw)
+
+
+def test_a_file_or_folder_named_like_a_shipped_rule_base_does_not_replace_it(tmp_path,
+                                                                              monkeypatch):
+    """A name is a path only if it ends in .rules or holds a folder: a folder called `table2`
+    in the current folder used to make the default run fail ("table2: is a folder"), and an
+    empty file `table1` to replace the shipped Table 1 ("no rules found")."""
+    from itg_vision.rules import RULES_DIR, resolve_rules_path
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "table2").mkdir()
+    (tmp_path / "table1").write_text("")
+    assert resolve_rules_path("table2") == RULES_DIR / "table2.rules"
+    assert resolve_rules_path("table1") == RULES_DIR / "table1.rules"
+    # the file itself is still reachable, as a path
+    (tmp_path / "mine.rules").write_text("")
+    assert resolve_rules_path("./table1") == Path("./table1")
+    assert resolve_rules_path("mine.rules") == Path("mine.rules")
+    with pytest.raises(UserError, match=r"unknown rule base 'mine' .*\./mine for one in this folder"):
+        resolve_rules_path("mine")
