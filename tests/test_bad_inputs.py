@@ -196,7 +196,7 @@ CASES = [
     ("step-unused", "run", RUN + ["--step", "3"], "table2.rules never uses S"),
     ("rig-true-rig-missing", "run", ["--quiet", "--rig", "{lost-true-rig.yaml}"], "lost-true-rig.yaml: true_rig: nosuch.yaml: cannot read rig file (No such file or directory)"),
     ("rules-elbow-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{elbow.rules}"], "elbow.rules:2:12: 're2' reads the elbow LED, but a one-link arm has no elbow"),
-    ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves q2 of this 2-joint arm"),
+    ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves or holds q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
     # rig files (vision feedback, the default)
