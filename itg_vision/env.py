@@ -156,7 +156,9 @@ class TrackingEnv(gym.Env):
         k = self._session.k
         e = self._session.apply(Step(dq, (), False))
         terminated = self._session.done
-        markers = self._session.observe()
+        # the last observation shows where the arm ended; it is no decision's input, so the
+        # trace (its estimation errors, misses, timings) does not count it, as in simulate()
+        markers = self._feedback.observe(self._world) if terminated else self._session.observe()
         obs = self._observation(markers)
         info = {"e_mm": e, "k": k, "q_deg": self._world.q_deg.copy(),
                 "missed": tuple(markers.missed)}
