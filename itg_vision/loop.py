@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from .contracts import Controller, Markers, Step
+from .inputs import is_real, is_whole
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
 #: two- and three-link arms' 200 mm reach (a line, not a gap in the data: README, "Diverged runs").
@@ -281,6 +282,11 @@ class Session:
         self.world = world
         self.feedback = feedback
         self.points_mm = np.asarray(points_mm, float).reshape(-1, 3)
+        if not (is_whole(iterations) and iterations >= 1):
+            raise ValueError(f"iterations must be a whole number >= 1, got {iterations!r}")
+        if max_step_deg is not None and not (is_real(max_step_deg) and max_step_deg > 0):
+            raise ValueError(f"max_step_deg must be a finite number > 0 (deg) or None for no "
+                             f"limit, got {max_step_deg!r}")  # 0 used to mean no limit
         self.iterations = int(iterations)
         self.max_step_deg = max_step_deg
         self.progress = progress
@@ -331,7 +337,7 @@ class Session:
         if decide_ms is not None:
             self.trace.time("rules", decide_ms)
         dq = np.asarray(step.dq_deg, float)
-        if self.max_step_deg:
+        if self.max_step_deg is not None:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
         self.world.move(dq)
         self._aim = self.desired_mm.copy() if aim_mm is None else np.asarray(aim_mm, float).copy()

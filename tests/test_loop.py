@@ -56,6 +56,18 @@ def test_servo_limit_clips_each_joint_on_its_own(limit):
     assert np.allclose(moved, 3 * per_iteration)  # 3 iterations per set point
 
 
+@pytest.mark.parametrize("limit", [0, 0.0, -1.0, float("nan"), float("inf"), "2"])
+def test_a_servo_limit_no_servo_has_is_refused_not_read_as_none(limit):
+    """0 used to mean 'no limit' (a joint moved 119.6 deg in one iteration); None is no limit."""
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(ValueError, match="max_step_deg must be a finite number > 0"):
+            simulate(world, Constant([10.0, -1.0]), TruthFeedback(), np.zeros((2, 3)),
+                     max_step_deg=limit)
+        with pytest.raises(ValueError, match="iterations must be a whole number >= 1"):
+            simulate(world, Constant([10.0, -1.0]), TruthFeedback(), np.zeros((2, 3)),
+                     iterations=0)
+
+
 def test_trace_records_one_entry_per_set_point_with_the_truth_after_it():
     arm = ArmSpec.from_args("two-link")
     pts = np.array([[100.0, 50.0, 0.0], [90.0, 60.0, 0.0], [80.0, 70.0, 0.0]])
