@@ -50,11 +50,17 @@ OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", 
            "correction": "--correction", "preview": "--preview"}
 
 
-def _links(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(v) for v in text.replace(" ", "").split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected link lengths in mm separated by commas, got {text!r}")
+def _numbers(what: str):
+    """An option's parser of numbers separated by commas; its error names ``what`` they are."""
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            return tuple(float(v) for v in text.replace(" ", "").split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what} separated by commas, got {text!r}")
+    return parse
+
+
+_links = _numbers("link lengths in mm")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--arm", default="two-link", help="an arm of data/arms (one-link, two-link, three-link) or an arm file "
                          "(default %(default)s)")
     ap.add_argument("--links", type=_links, metavar="L1,L2[,L3]",
-                    help="link lengths in mm (default: the paper's 100 mm each)")
+                    help="link lengths in mm (default: the arm file's links_mm; the shipped "
+                         "arms': the paper's 100 mm each)")
     ap.add_argument("--trajectory", metavar="NAME|PATH",
                     help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, or a CSV with "
                          "header x_mm,y_mm[,z_mm][,t_s] (default: ellipse-t1 for two-link, "
@@ -121,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="model error: the simulated arm's link lengths in mm (default: the "
                          "nominal --links). Only --feedback model and --controller ik know the "
                          "nominal model; vision and truth runs measure the lengths at start-up")
-    ap.add_argument("--joint-offset", type=_links, metavar="D1,D2[,D3]",
+    ap.add_argument("--joint-offset", type=_numbers("joint offsets in deg"), metavar="D1,D2[,D3]",
                     help="model error: the simulated joints sit this many degrees off their "
                          "commanded angles")
     ap.add_argument("--dropout", type=float, default=0.0, help="probability that an LED detection is dropped")

@@ -255,6 +255,8 @@ CASES = [
     ("start-up-dropout-1", "run", ["--quiet", "--dropout", "1"], "at the start pose (missed: dropped at random (--dropout 1): 50 looks); the arm's lengths cannot be measured"),
     ("start-up-noise-1e6-px", "run", ["--quiet", "--noise-px", "1e6"], "(missed: reprojection residual above 2 px (--noise-px 1e+06): 50 looks)"),
     ("links-last-shorter-than-an-led", "run", ["--quiet", "--links", "100,10"], "arm two-link: its last link, 10 mm (links_mm or --links), is shorter than an LED's diameter (12 mm): the elbow and gripper LEDs overlap in every image"),
+    ("joint-offset-text", "run", ["--quiet", "--joint-offset", "1,x"], "--joint-offset: expected joint offsets in deg separated by commas, got '1,x'"),
+    ("links-text", "run", ["--quiet", "--links", "100,x"], "--links: expected link lengths in mm separated by commas, got '100,x'"),
     ("links-1000-planar-rig", "run", ["--quiet", "--links", "1000,1000"], "planar.yaml: cameras[0] (left): cannot see"),
     # trajectories
     ("csv-bom-bad-value", "run", RUN + ["--trajectory", "{bom-bad.csv}"], "bom-bad.csv:2: field y_mm: not a number: 'twenty'"),
