@@ -68,13 +68,23 @@ class Trajectory:
                             "point is not next to its first): it can run only once (--laps 1)")
         if laps == 1:
             return self
+        # a path that repeats its start as its last point is not given that point twice at
+        # each seam: its laps share it (one set point, once)
+        p = self.points_mm
+        shared = len(p) > 2 and np.array_equal(p[0], p[-1])
+
+        def tiled(v, shift=0.0):  # v per set point, one lap -> all laps
+            one = v[:-1] if shared else v
+            parts = [one + k * shift for k in range(laps)]
+            return np.concatenate(parts + ([v[-1:] + (laps - 1) * shift] if shared else []))
+
         period = None
         if self.t_s is not None and len(self.t_s) > 1:
-            period = float(self.t_s[-1] - self.t_s[0]) + float(np.median(np.diff(self.t_s)))
-        return Trajectory(self.name, np.tile(self.points_mm, (laps, 1)),
-                          None if period is None else np.concatenate(
-                              [self.t_s + k * period for k in range(laps)]),
-                          None if self.param_deg is None else np.tile(self.param_deg, laps),
+            period = float(self.t_s[-1] - self.t_s[0]) + (
+                0.0 if shared else float(np.median(np.diff(self.t_s))))
+        return Trajectory(self.name, tiled(p),
+                          None if period is None else tiled(self.t_s, period),
+                          None if self.param_deg is None else tiled(self.param_deg),
                           self.planar, self.closed, self.laps * laps, self.file)
 
 

@@ -79,6 +79,26 @@ def test_a_path_run_for_laps_is_tracked_from_its_second_lap():
     assert (t.tracking_start, three.tracking_start) == (90, 180)
 
 
+def test_a_path_that_repeats_its_start_shares_it_between_laps(tmp_path):
+    """A square written with its start repeated as its last point, run for 2 laps: the start is
+    one set point at the seam, not two in a row (both counted in the metrics), the times go
+    on by one period, and the tracking phase starts at the second lap's first point."""
+    f = tmp_path / "square.csv"
+    f.write_text("x_mm,y_mm,t_s\n50,10,0\n100,10,1\n100,60,2\n50,60,3\n50,10,4\n")
+    t = T.read_csv(f)
+    assert t.closed and len(t) == 5
+    two = t.repeated(2)
+    assert two.points_mm[:, :2].tolist() == [[50, 10], [100, 10], [100, 60], [50, 60],
+                                             [50, 10], [100, 10], [100, 60], [50, 60], [50, 10]]
+    assert two.t_s.tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 8]
+    assert two.tracking_start == 4 and two.points_mm[4].tolist() == [50, 10, 0]
+    # without the repeat, every lap has all its points and the clock steps on by one step
+    f.write_text("x_mm,y_mm,t_s\n50,10,0\n100,10,1\n100,60,2\n50,60,3\n")
+    two = T.read_csv(f).repeated(2)
+    assert len(two) == 8 and two.t_s.tolist() == [0, 1, 2, 3, 4, 5, 6, 7]
+    assert two.tracking_start == 4
+
+
 def test_csv_reader_good(tmp_path):
     f = tmp_path / "t.csv"
     f.write_text("x_mm,y_mm,z_mm,t_s\n1,2,3,0\n4,5,6,0.5\n\n")
