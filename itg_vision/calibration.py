@@ -244,7 +244,7 @@ def triangulate_leds(rig: Rig, arm, patches) -> dict[str, np.ndarray]:
     from .feedback import VisionFeedback
 
     eye = VisionFeedback(rig, rig, arm)
-    points, _, _ = eye.triangulate(eye.detect(patches))
+    points = eye.triangulate(eye.detect(patches))[0]
     return points
 
 

@@ -82,9 +82,12 @@ class Observation:
         captured image, undistorted centroid, blob area, reason).
     residual_px : marker -> RMS reprojection residual of its triangulation (markers that were
         triangulated only).
-    reasons : marker -> why it was missed at this look ("" if measured).
+    reasons : marker -> why it was missed at this look, for people ("" if measured).
     timing_ms : wall time of the steps: "render" (capture: render, distort, noise), "detect",
         "triangulate".
+    causes : marker -> why it was missed, one of a fixed set of phrases for code to branch on
+        (`itg_vision.detect.Detection.cause`'s, or ``itg_vision.feedback``'s ``RESIDUAL``,
+        ``PARTLY_HIDDEN``); "" if measured.
     """
 
     markers: Markers
@@ -93,6 +96,7 @@ class Observation:
     residual_px: dict
     reasons: dict
     timing_ms: dict
+    causes: dict = field(default_factory=dict)
 
     def frames(self) -> tuple[np.ndarray, ...] | None:
         """The whole frames of both cameras (the first marker's when strobing), or None if

@@ -43,6 +43,14 @@ HALF_WINDOW_PX = 24
 WEIGHT_FLOOR = 8
 
 
+#: Why a detection failed: :attr:`Detection.cause`, a fixed phrase code can branch on (its
+#: ``reason`` may add the measured value).
+NOT_FOUND, TOO_SMALL, SEVERAL = "not found", "too small", "several candidates"
+WINDOW_BORDER, IMAGE_BORDER, NOT_ROUND = ("touches the window border", "at the image border",
+                                          "not round")
+_BORDER = "touches the border"  # blob_centroid's, before locate_led tells which border
+
+
 @dataclass(frozen=True)
 class Detection:
     """One LED in one image.
@@ -53,7 +61,9 @@ class Detection:
     uv_px : ndarray (2,), undistorted (pinhole) centroid; NaN if not ok.
     uv_raw_px : ndarray (2,), centroid in the captured (distorted) image; NaN if none.
     area_px : float, blob area (px) at the half-peak level (0 if none).
-    reason : why it was rejected ("" if ok).
+    reason : why it was rejected, for people ("" if ok): its cause, perhaps with the value.
+    cause : why it was rejected, one of a fixed set of phrases (this module's ``NOT_FOUND``
+        ..., and ``itg_vision.feedback``'s ``OUTSIDE``, ``DROPPED``); "" if ok.
     """
 
     ok: bool
@@ -61,6 +71,7 @@ class Detection:
     uv_raw_px: np.ndarray
     area_px: float = 0.0
     reason: str = ""
+    cause: str = ""
 
 
 def _nan2() -> np.ndarray:
@@ -104,13 +115,13 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     mask = (score >= MIN_SCORE).view(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
-        return _nan2(), 0.0, 0.0, "not found"
+        return _nan2(), 0.0, 0.0, NOT_FOUND
     areas = stats[1:, cv2.CC_STAT_AREA]
     best = int(np.argmax(areas)) + 1
     if areas.max() < MIN_AREA_PX:
-        return _nan2(), float(areas.max()), 0.0, "too small"
+        return _nan2(), float(areas.max()), 0.0, TOO_SMALL
     if n > 2 and np.sort(areas)[-2] >= max(MIN_AREA_PX, 0.2 * areas.max()):
-        return _nan2(), float(areas.max()), 0.0, "several candidates"
+        return _nan2(), float(areas.max()), 0.0, SEVERAL
     x, y, w, h = stats[best, :4]
     x0, y0 = max(x - 1, 0), max(y - 1, 0)
     x1, y1 = min(x + w + 1, score.shape[1]), min(y + h + 1, score.shape[0])
@@ -135,7 +146,7 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     area = float(mc["m00"])
     rnd = _roundness(mc)
     if x == 0 or y == 0 or x + w >= score.shape[1] or y + h >= score.shape[0]:
-        return uv, area, rnd, "touches the border"
+        return uv, area, rnd, _BORDER
     return uv, area, rnd, ""
 
 
@@ -185,17 +196,18 @@ def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 
     the window border" (the window was placed to hold the whole LED with a margin).
     """
     score = score_image(patch.image, rgb)
-    uv, area, rnd, reason = blob_centroid(score, method)
+    uv, area, rnd, cause = blob_centroid(score, method)
     uv = uv + np.asarray(patch.origin_px, float)
-    if reason == "touches the border":
-        reason = "touches the window border"
+    reason = cause
+    if cause == _BORDER:
+        cause = reason = WINDOW_BORDER
         if any(patch.at_frame_edge()) and _touches_frame_edge(score, patch):
-            reason = "at the image border"
-    elif not reason and rnd < min_roundness:
-        reason = f"not round ({rnd:.2f}): partly hidden?"
-    if reason:
-        return Detection(False, _nan2(), uv, area, reason)
-    return Detection(True, _nan2(), uv, area, "")
+            cause = reason = IMAGE_BORDER
+    elif not cause and rnd < min_roundness:
+        cause, reason = NOT_ROUND, f"{NOT_ROUND} ({rnd:.2f}): partly hidden?"
+    if cause:
+        return Detection(False, _nan2(), uv, area, reason, cause)
+    return Detection(True, _nan2(), uv, area)
 
 
 def _touches_frame_edge(score: np.ndarray, patch) -> bool:
@@ -220,7 +232,7 @@ def locate_led_near(patch, rgb, predicted_uv, *, half_window: int = HALF_WINDOW_
         if x1 - x0 > 2 and y1 - y0 > 2:
             d = locate_led(Patch(img[y0:y1, x0:x1], (ox + x0, oy + y0), patch.frame_size), rgb,
                            **locate)
-            if d.ok or d.reason == "several candidates":
+            if d.ok or d.cause == SEVERAL:
                 return d
     return locate_led(patch, rgb, **locate)
 

@@ -81,6 +81,14 @@ class TruthFeedback:
         return Markers(m["gripper"], m["elbow"])
 
 
+#: Why a marker was missed at the stereo stage (`Observation.causes`; the detection's own
+#: causes are `itg_vision.detect`'s): its LED's window fell outside a camera's frame, it was
+#: dropped at random (``dropout``), its triangulation's residual was above the gate, or its
+#: blob was smaller than expected (partly hidden).
+OUTSIDE, DROPPED = "outside the image", "dropped"
+RESIDUAL, PARTLY_HIDDEN = "reprojection residual above the gate", "blob smaller than expected"
+
+
 class VisionFeedback:
     """Stereo vision: render both cameras, distort, add noise, detect, triangulate.
 
@@ -213,15 +221,15 @@ class VisionFeedback:
             for cam, patch in zip(est_cams, ps):
                 if patch is None:
                     dets.append(Detection(False, np.full(2, np.nan), np.full(2, np.nan), 0.0,
-                                          "outside the image"))
+                                          OUTSIDE, OUTSIDE))
                     continue
                 pred = None
                 if patch.full_frame and np.all(np.isfinite(self._last[name])):
                     pred = cam.project(self._last[name])
                 dets.append(locate_led_near(patch, LED_RGB[name], pred))
             if all(d.ok for d in dets) and self.dropout > 0 and self.rng.random() < self.dropout:
-                dets = [Detection(False, np.full(2, np.nan), d.uv_raw_px, d.area_px, "dropped")
-                        for d in dets]
+                dets = [Detection(False, np.full(2, np.nan), d.uv_raw_px, d.area_px, DROPPED,
+                                  DROPPED) for d in dets]
             if all(d.ok for d in dets) and self.noise_px > 0:
                 dets = [Detection(True, d.uv_px, d.uv_raw_px + self.rng.normal(
                     0.0, self.noise_px, 2), d.area_px) for d in dets]
@@ -238,42 +246,46 @@ class VisionFeedback:
                 out[n][i] = Detection(True, uv, d.uv_raw_px, d.area_px)
         return {n: tuple(d) for n, d in out.items()}
 
-    def triangulate(self, detections: dict) -> tuple[dict, dict, dict]:
+    def triangulate(self, detections: dict) -> tuple[dict, dict, dict, dict]:
         """Triangulate the markers seen by both cameras (one batched call) and check them.
 
         Returns
         -------
         points_mm : marker -> (3,) for the accepted markers.
         residual_px : marker -> RMS reprojection residual, for every triangulated marker.
-        reasons : marker -> why it was missed ("" if accepted).
+        reasons : marker -> why it was missed, for people ("" if accepted).
+        causes : marker -> why it was missed, a fixed phrase (a detection's cause,
+            :data:`RESIDUAL` or :data:`PARTLY_HIDDEN`); "" if accepted.
         """
         from .detect import expected_area_px
         from .triangulate import triangulate
         from .urdf import LED_RADIUS_MM
 
         est_cams = self.estimate_rig.cameras
-        reasons = {n: next((d.reason for d in dets if not d.ok), "")
-                   for n, dets in detections.items()}
-        both = [n for n in detections if not reasons[n]]
+        first_miss = {n: next((d for d in dets if not d.ok), None) for n, dets in detections.items()}
+        reasons = {n: d.reason if d else "" for n, d in first_miss.items()}
+        causes = {n: d.cause if d else "" for n, d in first_miss.items()}
+        both = [n for n in detections if not causes[n]]
         points: dict[str, np.ndarray] = {}
         residual: dict[str, float] = {}
         if not both:
-            return points, residual, reasons
+            return points, residual, reasons, causes
         uv1 = np.array([detections[n][0].uv_px for n in both])
         uv2 = np.array([detections[n][1].uv_px for n in both])
         X, rms = triangulate(self.estimate_rig, uv1, uv2, method="optimal")
         for n, Xn, r in zip(both, X, rms):
             residual[n] = float(r)
             if not np.isfinite(r) or r > self.max_residual_px:
-                reasons[n] = f"residual {r:.2f} px"
+                reasons[n], causes[n] = f"residual {r:.2f} px", RESIDUAL
                 continue
             ratio = min(d.area_px / expected_area_px(c, Xn, LED_RADIUS_MM)
                         for d, c in zip(detections[n], est_cams))
             if ratio < self.min_area_ratio:
                 reasons[n] = f"blob area {ratio:.2f} of expected: partly hidden"
+                causes[n] = PARTLY_HIDDEN
                 continue
             points[n] = Xn
-        return points, residual, reasons
+        return points, residual, reasons, causes
 
     def observe(self, world) -> Markers:
         """Measure the markers in the current world (see the class docstring); the full
@@ -283,14 +295,14 @@ class VisionFeedback:
         t1 = perf_counter()
         detections = self.detect(patches)
         t2 = perf_counter()
-        points, residual, reasons = self.triangulate(detections)
+        points, residual, reasons, causes = self.triangulate(detections)
         t3 = perf_counter()
         self._last.update(points)
-        missed = tuple(n for n in self.arm.marker_names if reasons[n])
+        missed = tuple(n for n in self.arm.marker_names if causes[n])
         timing = {"render": 1e3 * (t1 - t0), "detect": 1e3 * (t2 - t1),
                   "triangulate": 1e3 * (t3 - t2)}
         markers = Markers(self._last["gripper"].copy(), self._last["elbow"].copy(), missed,
                           residual, timing)
         self.last_observation = Observation(markers, patches, detections, residual, reasons,
-                                            timing)
+                                            timing, causes)
         return markers

@@ -18,7 +18,6 @@ The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 
 from __future__ import annotations
 
-import re
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -186,18 +185,23 @@ def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
 
 
 def _miss_cause(feedback, name: str) -> str:
-    """Why ``feedback``'s last look missed marker ``name``, naming the option that set the
-    cause where one did (``--dropout``, ``--noise-px``), else the rig's part."""
+    """Why ``feedback``'s last look missed marker ``name`` (its cause, not the measured value:
+    one entry per cause in the failure's count), naming the option that set the cause where
+    one did (``--dropout``, ``--noise-px``), else the rig's part."""
+    from .feedback import DROPPED, PARTLY_HIDDEN, RESIDUAL
+
     obs = getattr(feedback, "last_observation", None)
-    reason = obs.reasons.get(name, "") if obs is not None else ""
-    if reason == "dropped":
+    cause = obs.causes.get(name, "") if obs is not None else ""
+    if cause == DROPPED:
         return f"dropped at random (--dropout {feedback.dropout:g})"
-    if reason.startswith("residual"):
+    if cause == RESIDUAL:
         noise = getattr(feedback, "noise_px", 0.0)
         return (f"reprojection residual above {feedback.max_residual_px:g} px"
                 + (f" (--noise-px {noise:g})" if noise > 0 else " (check the rig)"))
-    reason = re.sub(r" \([-+0-9.e]+\)", "", reason)  # one cause, whatever the measured value
-    return f"{reason or 'not measured'} (check the rig)"
+    if cause == PARTLY_HIDDEN:
+        return (f"blob area under {feedback.min_area_ratio:g} of expected: partly hidden "
+                "(check the rig)")
+    return f"{cause or 'not measured'} (check the rig)"
 
 
 def measure_geometry(world, feedback, arm) -> ArmGeometry:

@@ -160,6 +160,7 @@ def test_a_blob_too_small_in_either_camera_is_rejected_by_its_area(planar, area_
     LEDs, test_detect.py) pass. The detections are exact projections of one point, so the
     residual (~1e-14 px) and the roundness play no part: only the area can reject it."""
     from itg_vision.detect import Detection, expected_area_px
+    from itg_vision.feedback import PARTLY_HIDDEN
     from itg_vision.urdf import LED_RADIUS_MM
 
     X = np.array([40.0, 120.0, 12.0])
@@ -167,11 +168,13 @@ def test_a_blob_too_small_in_either_camera_is_rejected_by_its_area(planar, area_
     dets = tuple(Detection(True, c.project(X, distort=False), c.project(X),
                            k * expected_area_px(c, X, LED_RADIUS_MM))
                  for c, k in zip(planar.cameras, area_ratios))
-    points, _, reasons = fb.triangulate({"gripper": dets})
+    points, _, reasons, causes = fb.triangulate({"gripper": dets})
     if accepted:
-        assert reasons["gripper"] == "" and np.allclose(points["gripper"], X, atol=1e-6)
+        assert reasons["gripper"] == causes["gripper"] == ""
+        assert np.allclose(points["gripper"], X, atol=1e-6)
     else:
         assert reasons["gripper"] == "blob area 0.30 of expected: partly hidden"
+        assert causes["gripper"] == PARTLY_HIDDEN
 
 
 def test_seeded_noise_is_reproducible_and_sized(planar):

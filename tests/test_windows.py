@@ -181,8 +181,9 @@ def test_observation_contents():
         m.get("wrist")
     # the named steps, by hand, give the same estimate from the same pixels
     dets = fb.detect(obs.patches)
-    points, residual, reasons = fb.triangulate(dets)
+    points, residual, reasons, causes = fb.triangulate(dets)
     assert np.allclose(points["gripper"], m.gripper_mm) and reasons == obs.reasons
+    assert causes == obs.causes == {"gripper": "", "elbow": ""}
     full = VisionFeedback(rig, rig, arm, full_frame=True)
     full.reset(1)
     with World(arm) as world:
