@@ -22,6 +22,7 @@ from .errors import exit_status, run_main
 from .feedback import Markers, TruthFeedback
 from .identify import nominal_geometry
 from .loop import simulate
+from .rules import PARAM_DEFAULTS
 from .runner import RunConfig, bind_geometry, execute, prepare
 from .world import World
 
@@ -333,7 +334,8 @@ def report(r: dict, base: RunConfig) -> str:
         f"{_fmt(pf['1'], 1)} mm; with the few iterations per set point of its section 3.2(i), 10 and 20 "
         f"iterations give {_fmt(pf['10'], 1)} and {_fmt(pf['20'], 1)} mm; (b) deg/mm with one iteration, "
         f"tuned: the measured optimum is near {t1['best_f_deg_per_mm']:.2f} deg/mm and the loop turns unstable above "
-        "about 0.8 deg/mm (the q1 loop gain is f |y_g| pi/180 per step). We use f in deg/mm, default 0.5.",
+        "about 0.8 deg/mm (the q1 loop gain is f |y_g| pi/180 per step). We use f in deg/mm, default "
+        f"{PARAM_DEFAULTS['f']:g}.",
         "",
         "| exp. | the paper's claim | measured here | threshold (ours) | verdict |",
         "| --- | --- | --- | --- | --- |",
@@ -481,7 +483,8 @@ def main(argv: list[str] | None = None) -> int:
                              "folder is kept beside it as OUT.replaced-N)")
         ap.add_argument("--feedback", default="model", choices=("model", "truth", "vision"),
                         help="feedback of every run (default: model, the paper's setup)")
-        ap.add_argument("--gain", type=float, default=0.5, help="f in deg/mm (default %(default)s)")
+        ap.add_argument("--gain", type=float, default=PARAM_DEFAULTS["f"],
+                        help="f in deg/mm (default %(default)s)")
         ap.add_argument("--seed", type=int, default=0)
         ap.add_argument("--quiet", action="store_true")
         args = ap.parse_args(argv)

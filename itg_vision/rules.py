@@ -86,6 +86,9 @@ MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
 #: The rule parameters and the field names (units included) they go by outside the rules.
 PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
+#: Their defaults (deg/mm, deg, mm), the same from code, from ``run`` and from ``paper``: the
+#: paper's gain read in deg/mm, a 2 deg fixed step, a 0.5 mm tolerance.
+PARAM_DEFAULTS = {"f": 0.5, "S": 2.0, "w": 0.5}
 PARAM_NAMES = ("f", "S", "w")
 #: The declaration that a rule base's S is the loop's servo limit (a line of its own).
 SERVO_STEP = re.compile(r"^#![ \t]*S is the servo limit[ \t]*$", re.M)
@@ -823,9 +826,9 @@ class RuleBase:
     rules: list[Rule]
     n_joints: int
     links_mm: tuple[float, ...]
-    f: float = 0.06
-    S: float = 0.5
-    w: float = 0.5
+    f: float = PARAM_DEFAULTS["f"]
+    S: float = PARAM_DEFAULTS["S"]
+    w: float = PARAM_DEFAULTS["w"]
     source: str = "<rules>"
     servo_step: bool = False
     definitions: tuple[Definition, ...] = ()
@@ -1127,10 +1130,9 @@ def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase
     (``qN HOLD``) every one.
 
     ``params``: ``f`` (deg/mm), ``S`` (deg), ``w`` (mm), the rules' parameters; those not given
-    take :class:`RuleBase`'s defaults (f 0.06, S 0.5, w 0.5), not ``run``'s (0.5, 2, 0.5:
-    ``runner.RULE_DEFAULTS``). A rule base whose S is the servo limit (``#! S is the servo
-    limit``, the ITG+ files) needs ``S`` given, here as in :meth:`RuleBase.from_text`: the servo's
-    largest step per iteration."""
+    take :data:`PARAM_DEFAULTS` (f 0.5, S 2, w 0.5), as ``run`` does. A rule base whose S is
+    the servo limit (``#! S is the servo limit``, the ITG+ files) needs ``S`` given, here as in
+    :meth:`RuleBase.from_text`: the servo's largest step per iteration."""
     rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
     unmoved = rb.unmoved_joints()
     if unmoved:

@@ -18,13 +18,13 @@ from .imaging import opencv_threads
 from .inputs import is_whole, resolve_relative
 from .loop import Trace, distance_mm, simulate
 from .preview import Preview, plan
-from .rules import PARAM_FIELDS, load_rules
+from .rules import PARAM_DEFAULTS, PARAM_FIELDS, load_rules
 from .world import World
 
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
-RULE_DEFAULTS = {"gain_deg_per_mm": 0.5, "step_deg": 2.0, "tolerance_mm": 0.5}
+RULE_DEFAULTS = {PARAM_FIELDS[k]: v for k, v in PARAM_DEFAULTS.items()}
 RULE_NAMES = {field_: name for name, field_ in PARAM_FIELDS.items()}
 
 

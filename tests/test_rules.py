@@ -671,3 +671,17 @@ def test_a_file_or_folder_named_like_a_shipped_rule_base_does_not_replace_it(tmp
     assert resolve_rules_path("mine.rules") == Path("mine.rules")
     with pytest.raises(UserError, match=r"unknown rule base 'mine' .*\./mine for one in this folder"):
         resolve_rules_path("mine")
+
+
+def test_the_library_run_and_paper_share_one_set_of_rule_defaults():
+    """A rule base loaded from code without f, S, w gets `run`'s parameters (the library's
+    defaults used to be f 0.06, S 0.5: a gain 8x smaller than run's, said only in a
+    docstring)."""
+    from itg_vision.rules import PARAM_DEFAULTS
+    from itg_vision.runner import RULE_DEFAULTS, RunConfig, prepare
+
+    lib = load_rules("table2", 2, TWO)
+    assert (lib.f, lib.S, lib.w) == (0.5, 2.0, 0.5) == tuple(PARAM_DEFAULTS.values())
+    ran = prepare(RunConfig(feedback="model")).controller
+    assert (ran.f, ran.S, ran.w) == (lib.f, lib.S, lib.w)
+    assert RULE_DEFAULTS == {"gain_deg_per_mm": 0.5, "step_deg": 2.0, "tolerance_mm": 0.5}
