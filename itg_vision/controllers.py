@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .arm import ArmSpec
+from .arm import REACH_TOL_MM, ArmSpec
 from .errors import UserError
 from .contracts import Step
 
@@ -25,12 +25,17 @@ def wrap_deg(a):
     return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
 
 
-def two_link_ik(x: float, y: float, l1: float, l2: float) -> tuple[tuple[float, float], ...]:
-    """Both closed-form solutions (q1, q2) in degrees of the planar two-link arm, or ()."""
-    r2 = x * x + y * y
-    c2 = (r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    if c2 < -1.0 - 1e-12 or c2 > 1.0 + 1e-12:
+def two_link_ik(x: float, y: float, l1: float, l2: float, tol_mm: float = 0.0
+                ) -> tuple[tuple[float, float], ...]:
+    """Both closed-form solutions (q1, q2) in degrees of the planar two-link arm, or ().
+
+    A point out of reach by at most ``tol_mm`` on the radius (:data:`itg_vision.arm.REACH_TOL_MM`
+    for the metrics' "in reach") is solved as the nearest point the arm reaches, on the same
+    ray: the arm stretched (or folded) towards it."""
+    r = math.hypot(x, y)
+    if r > l1 + l2 + tol_mm or r < abs(l1 - l2) - tol_mm:
         return ()
+    c2 = (r * r - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
     c2 = min(1.0, max(-1.0, c2))
     out = []
     for s2 in (math.sqrt(1.0 - c2 * c2), -math.sqrt(1.0 - c2 * c2)):
@@ -40,8 +45,11 @@ def two_link_ik(x: float, y: float, l1: float, l2: float) -> tuple[tuple[float, 
     return tuple(out)
 
 
-def three_link_ik(p_mm, links_mm, standoff_mm=0.0) -> tuple[tuple[float, float, float], ...]:
-    """Closed-form solutions (q1, q2, q3) in degrees putting the three-link gripper LED at ``p``.
+def three_link_ik(p_mm, links_mm, standoff_mm=0.0, tol_mm: float = 0.0
+                  ) -> tuple[tuple[float, float, float], ...]:
+    """Closed-form solutions (q1, q2, q3) in degrees putting the three-link gripper LED at ``p``
+    (a point out of reach by at most ``tol_mm`` on a radius: the nearest one reached, as
+    :func:`two_link_ik` does).
 
     The LED sits ``standoff_mm`` beside the forearm's tip along the pitch axis
     a = (sin q1, -cos q1, 0) (see :func:`itg_vision.arm.forward_kinematics`), so its horizontal
@@ -53,12 +61,13 @@ def three_link_ik(p_mm, links_mm, standoff_mm=0.0) -> tuple[tuple[float, float, 
     L1, L2, L3 = links_mm
     h = float(standoff_mm)
     rho2 = x * x + y * y - h * h
-    if rho2 < 0.0:
+    if math.hypot(x, y) < h - tol_mm:
         return ()
+    rho2 = max(rho2, 0.0)
     out = []
     for r in ((math.sqrt(rho2), -math.sqrt(rho2)) if rho2 > 0 else (0.0,)):
         yaw = math.degrees(math.atan2(y, x) + math.atan2(h, r))
-        for q2, q3 in two_link_ik(r, z - L1, L2, L3):
+        for q2, q3 in two_link_ik(r, z - L1, L2, L3, tol_mm):
             out.append((yaw, q2, q3))
     return tuple(out)
 
@@ -78,13 +87,14 @@ class InverseKinematics:
         x, y, _ = (float(v) for v in desired_mm)
         q_now = np.asarray(q_deg, float)
         if self.model.n_joints == 1:
-            if abs(math.hypot(x, y) - L[0]) > 1e-6 * L[0] + 0.5:
+            if abs(math.hypot(x, y) - L[0]) > REACH_TOL_MM:
                 return None
             return np.array([math.degrees(math.atan2(y, x))])
         if self.model.planar:
-            cands = [np.array(c) for c in two_link_ik(x, y, L[0], L[1])]
+            cands = [np.array(c) for c in two_link_ik(x, y, L[0], L[1], REACH_TOL_MM)]
         else:
-            cands = [np.array(c) for c in three_link_ik(desired_mm, L, self.model.led_standoff_mm)]
+            cands = [np.array(c) for c in three_link_ik(desired_mm, L, self.model.led_standoff_mm,
+                                                        REACH_TOL_MM)]
         if not cands:
             return None
         return min(cands, key=lambda c: float(np.sum(wrap_deg(c - q_now) ** 2)))

@@ -25,7 +25,7 @@ import inspect
 
 import numpy as np
 
-from .arm import ArmSpec, forward_kinematics
+from .arm import REACH_TOL_MM, ArmSpec, forward_kinematics
 from .errors import UserError
 
 #: Pixels kept free between an LED's projected disc and the image border.
@@ -69,9 +69,10 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
         if not has_elbow:
             continue
         if arm.planar:
-            qs = [np.array(q) for q in two_link_ik(p[0], p[1], *arm.links_mm)]
+            qs = [np.array(q) for q in two_link_ik(p[0], p[1], *arm.links_mm, REACH_TOL_MM)]
         else:  # base yaw towards the point, then the pitch plane's branches (the LED is the tool)
-            qs = [np.array(q) for q in three_link_ik(p, arm.links_mm, arm.led_standoff_mm)]
+            qs = [np.array(q) for q in three_link_ik(p, arm.links_mm, arm.led_standoff_mm,
+                                                     REACH_TOL_MM)]
         e = [forward_kinematics(nominal, q)["elbow"] for q in qs]
         if e:
             elbows.append(np.array(e))

@@ -108,6 +108,44 @@ def test_ik_holds_out_of_reach_points():
 
 
 @pytest.mark.parametrize("name", ARMS)
+def test_ik_reaches_as_near_as_it_can_every_point_the_metrics_count_in_reach(name):
+    """A point out of reach by less than REACH_TOL_MM counts in E_av (arm.reachable): IK used to
+    flag it out of reach and hold still there (a 100/100 arm at 200.3 mm). It now stretches
+    (or folds) towards it, landing on the reach's edge on the same ray, 0.3 mm short; one
+    farther out than the tolerance is still flagged."""
+    from itg_vision.arm import REACH_TOL_MM
+
+    arm = ArmSpec.from_args(name)
+    ik = InverseKinematics(arm)
+    rng = np.random.default_rng(11)
+    for q in random_poses(arm, 20, rng):
+        if arm.n_joints == 1:
+            edge = forward_kinematics(arm, q)["gripper"]
+            base = np.zeros(3)
+        elif arm.planar:
+            edge = forward_kinematics(arm, [q[0], 0.0])["gripper"]  # stretched: r = 200 mm
+            base = np.zeros(3)
+        else:  # the LED sits h beside the arm's plane: its radius is from the shoulder moved so
+            edge = forward_kinematics(arm, [q[0], q[1], 0.0])["gripper"]
+            a = np.array([math.sin(math.radians(q[0])), -math.cos(math.radians(q[0])), 0.0])
+            base = np.array([0.0, 0.0, arm.links_mm[0]]) + arm.led_standoff_mm * a
+        for over, reached in ((0.3, True), (REACH_TOL_MM + 0.2, False)):
+            ray = edge - base
+            if arm.planar:
+                ray[2] = 0.0
+            p = edge + over * ray / np.linalg.norm(ray)
+            if arm.planar:
+                p[2] = 0.0
+            assert arm.reachable(p) == reached, (q, over)
+            step = ik.step(p, None, np.zeros(arm.n_joints))
+            assert step.out_of_reach == (not reached)
+            if reached:
+                g = forward_kinematics(arm, step.dq_deg)["gripper"]
+                d = (g - p)[:2] if arm.planar else g - p
+                assert np.linalg.norm(d) == pytest.approx(over, abs=1e-6)
+
+
+@pytest.mark.parametrize("name", ARMS)
 def test_clean_ik_run_is_exact_on_every_arm(name):
     """Exact model, ideal sensors: open-loop IK puts the tracked LED on every set point."""
     trace, s = execute(prepare(RunConfig(arm=name, controller="ik", feedback="truth")))
