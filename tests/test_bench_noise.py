@@ -273,6 +273,10 @@ def test_a_limited_resume_keeps_the_failures_it_did_not_retry(tmp_path, capsys, 
             "--points", "8", "--out", str(out), "--workers", "1", "--quiet"]
     assert main(args) == 1
     assert len((out / "failures.log").read_text().splitlines()) == 3
+    # each failure says where, on stderr: the traceback down to the raising line
+    err = capsys.readouterr().err
+    assert err.count("run failed: itg-model clean") == 3 and err.count("Traceback") == 3
+    assert 'raise RuntimeError("boom")' in err and "in failing" in err
     broken[0] = False
     assert main(args + ["--limit", "1"]) == 1  # one retried and done, two left untried
     assert len((out / "failures.log").read_text().splitlines()) == 2

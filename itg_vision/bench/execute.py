@@ -11,6 +11,7 @@ calling process (``workers == 1``) and a Dask cluster (:func:`dask_executor`, th
 from __future__ import annotations
 
 import os
+import traceback
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
 
 from ..errors import UserError
@@ -47,7 +48,8 @@ def run_one(spec: RunSpec) -> dict:
         why = str(exc).strip().splitlines() or [type(exc).__name__]
         return make_row(spec, None, no_start=why[0])
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
-        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0],
+                "traceback": traceback.format_exc()}  # where it failed: a bug's one clue
     return make_row(spec, s)
 
 

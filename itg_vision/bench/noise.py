@@ -241,6 +241,8 @@ def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, fail
                 failures[spec.run_id] = f"{spec.controller} {spec.condition} {spec.trajectory} " \
                                         f"seed {spec.seed}: {res['error']}"
                 bar.write(f"run failed: {failures[spec.run_id]}", file=sys.stderr)
+                if res.get("traceback"):  # the run's own error (not a lost worker): where
+                    bar.write(res["traceback"].rstrip(), file=sys.stderr)
             else:
                 store.append(res)
             n_done += 1
