@@ -343,8 +343,10 @@ def summary_table(s: dict, out: Path) -> str:
             *([(f"diverged (tracking median > {DIVERGED_MM:g} mm)",
                 "yes (README, 'Diverged runs')")] if s.get("diverged") else []),
             ("servo limit", "none" if s["max_step_deg"] is None else f"{s['max_step_deg']:g} deg/iteration"),
-            ("controller parameters", ", ".join(f"{k} {v}" for k, v in s["controller_params"].items())
-             or "none"),
+            ("controller parameters", ", ".join(
+                f"{k} {v}" + (f" ({s['controller_params_from'][k]})"
+                              if k in s.get("controller_params_from", {}) else "")
+                for k, v in s["controller_params"].items()) or "none"),
             *([("preview: aims moved / largest move", "{moved} / {largest_move_mm:.3f} mm".format(
                 **s["preview"]))] if s.get("preview") else []),
             *([("aims flagged out of reach, asked again with the set point",

@@ -218,6 +218,12 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
                 raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
         info["rules"] = str(controller.source)
         info["controller_params"] = used
+        # where each came from: a rule base that lost its '#! S is the servo limit' line runs
+        # with S = run's default and says so, not silently
+        info["controller_params_from"] = {
+            k: "given" if k in given else
+            "the servo limit" if controller.servo_step and k == "step_deg" else "default"
+            for k in used}
     else:
         from .controllers import make_controller
 

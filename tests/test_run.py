@@ -41,7 +41,7 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
     assert "E_av" in res.stdout and "pybullet" not in res.stdout + res.stderr
     s = json.loads((out / "summary.json").read_text())
     assert set(s) == {
-        "arm", "controller", "controller_params", "e_av_mm", "e_max_mm", "e_rms_mm",
+        "arm", "controller", "controller_params", "controller_params_from", "e_av_mm", "e_max_mm", "e_rms_mm",
         "est_elbow_rms_mm", "est_gripper_rms_mm", "feedback", "feedback_params", "geometry",
         "iterations", "joint_offset_deg", "laps", "links_mm", "max_step_deg", "correction", "preview", "n_missed",
         "n_out_of_reach", "n_flagged", "n_aim_out_of_reach", "n_setpoints", "rules", "seed", "start_error_mm", "first_error_mm",
@@ -309,3 +309,26 @@ def test_a_diverged_run_says_so_from_the_benchmark_threshold(tmp_path):
         assert s["diverged"] is (s["track_median_mm"] > DIVERGED_MM) is expect, (arm, s["track_median_mm"])
         rows = [ln for ln in summary_table(s, tmp_path).splitlines() if ln.startswith("diverged")]
         assert len(rows) == expect
+
+
+def test_the_summary_says_where_each_rule_parameter_came_from(tmp_path):
+    """Given, run's default, or the servo limit: a copy of an ITG+ file that lost its
+    '#! S is the servo limit' line runs with S = 2 (the default) and no servo limit, and the
+    summary now says 'default' beside it instead of nothing."""
+    from itg_vision.rules import RULES_DIR
+    from itg_vision.run import summary_table
+
+    def source(**kw):
+        return prepare(RunConfig(feedback="model", **kw)).info["controller_params_from"]
+
+    assert source() == {"gain_deg_per_mm": "default"}  # Table 2 reads f only
+    assert source(rules="itg-plus-two-link", tolerance_mm=0.3) == {
+        "step_deg": "the servo limit", "tolerance_mm": "given"}
+    lost = tmp_path / "plus.rules"
+    text = (RULES_DIR / "itg-plus-two-link.rules").read_text()
+    lost.write_text("\n".join(l for l in text.splitlines() if not l.startswith("#! S is")))
+    prep = prepare(RunConfig(feedback="model", rules=str(lost)))
+    assert prep.config.max_step_deg is None
+    assert prep.info["controller_params_from"] == {"step_deg": "default", "tolerance_mm": "default"}
+    _, s = execute(prepare(RunConfig(feedback="model", rules=str(lost), points=12)))
+    assert "step_deg 2.0 (default), tolerance_mm 0.5 (default)" in summary_table(s, tmp_path)
