@@ -7,9 +7,10 @@ against the true rig.
 
 Outputs: the calibrated rig (``runs/calibrate/<rig>.calib.yaml`` by default: the shipped
 ``cameras/<rig>.calib.yaml`` is rewritten only when named with ``--out``), in the rig schema with
-a ``calibration`` section and ``true_rig`` (the rig that rendered, relative to the file's folder),
-and a picture of the detected corners of one view, titled with the rig, the camera and the view
-(``<name>.calib.png`` beside it).
+a ``calibration`` section, ``true_rig`` (the rig that rendered, relative to the file's folder)
+and ``true_rig_sha256`` (that file's content hash: a run refuses the calibration once the true
+rig is edited, :func:`itg_vision.camera.load_true_rig`), and a picture of the detected corners
+of one view, titled with the rig, the camera and the view (``<name>.calib.png`` beside it).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrat
                           picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
 from .errors import UserError, exit_status, run_main
+from .inputs import file_sha256
 from .outputs import check_path, keep_aside
 from .progress import progress
 
@@ -202,6 +204,7 @@ class Job:
 
     rig_path: Path
     true_rig: Rig
+    rig_sha256: str  # of the true rig file as read: the calibration's true_rig_sha256
     arm: ArmSpec
     true_arm: ArmSpec
     out: Path
@@ -232,6 +235,7 @@ class Job:
                 raise UserError(msg)
         rig_path = resolve_rig(args.rig or "planar")
         true_rig = Rig.from_yaml(rig_path)
+        rig_sha256 = file_sha256(rig_path)  # as read, not as it may be after the work
         if true_rig.true_rig:
             raise UserError(f"{rig_path} is already a calibrated rig (of {true_rig.true_rig}); "
                             f"calibrate the true rig")
@@ -254,8 +258,8 @@ class Job:
                 raise UserError(str(exc).replace("--links", "--true-links")) from None
         # '' is the empty-path error (check_path), not the default
         out = check_path(args.out, what="file") if args.out is not None else default_out(rig_path)
-        return cls(rig_path, true_rig, arm, true_arm, out, args.views, args.seed, args.tilt,
-                   args.check_poses, args.force, args.quiet)
+        return cls(rig_path, true_rig, rig_sha256, arm, true_arm, out, args.views, args.seed,
+                   args.tilt, args.check_poses, args.force, args.quiet)
 
 
 def report(result: Result, out: Path, picture: Path | None) -> str:
@@ -285,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             for p in foreign:
                 keep_aside(p, f"--out: {p} was not this rig's calibration")
-            picture = write_result(result, job.out, job.rig_path)
+            picture = write_result(result, job.out, job.rig_path, job.rig_sha256)
         except OSError as exc:  # changed since check_out, a full disk: one line, the old files kept
             raise UserError(f"--out {job.out}: cannot write {exc.filename or job.out} "
                             f"({exc.strerror or exc})") from None

@@ -27,9 +27,9 @@ The board, its poses, views and corners: :mod:`itg_vision.board`. From the corne
 
 :func:`calibrate` does it all and returns a :class:`Result`; :func:`write_result` writes the
 calibrated rig (the rig schema with a ``calibration`` section and ``true_rig``, the rig that
-rendered, relative to the file's folder) and a picture of the detected corners of one view,
-titled with the rig, the camera and the view (``<name>.png`` beside it). The command line:
-:mod:`itg_vision.calibrate`.
+rendered, relative to the file's folder, with ``true_rig_sha256``, its content hash) and a
+picture of the detected corners of one view, titled with the rig, the camera and the view
+(``<name>.png`` beside it). The command line: :mod:`itg_vision.calibrate`.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ from . import outputs
 from .board import Board, Views, render_views, sample_board_poses
 from .camera import Camera, Rig
 from .errors import UserError
+from .inputs import file_sha256
 
 #: Fewest views (board found by both cameras) accepted for a calibration.
 MIN_VIEWS = 6
@@ -603,10 +604,15 @@ def picture_path(out: Path) -> Path:
     return out.with_name(out.name.removesuffix(".yaml").removesuffix(".yml") + ".png")
 
 
-def write_result(result: Result, out: Path, true_rig_path: Path) -> Path | None:
+def write_result(result: Result, out: Path, true_rig_path: Path,
+                 true_rig_sha256: str | None = None) -> Path | None:
     """Write the calibrated rig ``out`` and the corner picture beside it as one result
     (:func:`itg_vision.outputs.write_files`: both written to temporary names, then renamed, the
-    rig last); return the picture's path (None if the result has no picture)."""
+    rig last); return the picture's path (None if the result has no picture).
+
+    The rig names ``true_rig_path`` (``true_rig``) and records ``true_rig_sha256``, the hash of
+    that file as it was calibrated (default: its content now), which a run checks
+    (:func:`itg_vision.camera.load_true_rig`)."""
     try:
         rel = os.path.relpath(Path(true_rig_path).resolve(), out.parent.resolve())
     except ValueError:  # another drive (Windows)
@@ -619,7 +625,8 @@ def write_result(result: Result, out: Path, true_rig_path: Path) -> Path | None:
         if not ok:
             raise RuntimeError("cv2.imencode could not encode the corner picture as PNG")
         files[pic] = buf.tobytes()
-    rig = Rig(result.rig.name, result.rig.cameras, "", result.record, rel)
+    sha = true_rig_sha256 if true_rig_sha256 is not None else file_sha256(true_rig_path)
+    rig = Rig(result.rig.name, result.rig.cameras, "", result.record, rel, None, sha)
     files[out] = rig.yaml_text().encode()
     outputs.write_files(files)
     return pic

@@ -27,6 +27,8 @@ Rig files (``cameras/*.yaml``) use ROS ``camera_info`` names where natural::
                                     # --supersample overrides; default in feedback.py)
     calibration: {...}              # optional, written by calibration
     true_rig: cameras/planar.yaml   # optional, the rig a calibrated rig was measured from
+    true_rig_sha256: 64 hex digits  # optional, written by calibration: the SHA-256 of the
+                                    # true rig file it calibrated (load_true_rig checks it)
 
 Any other key, or a pose giving more than one form, is refused (one line naming the field).
 """
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -44,7 +47,8 @@ import cv2
 import numpy as np
 import yaml
 
-from .inputs import Fields, read_yaml
+from .errors import UserError
+from .inputs import Fields, file_sha256, read_yaml, resolve_relative
 
 _MM = 1e-3
 #: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
@@ -321,6 +325,8 @@ class Rig:
     true_rig : optional path of the rig a calibrated rig was measured from.
     supersample : optional rendering factor of the vision loop for this rig (None: the
         default of :mod:`itg_vision.feedback`).
+    true_rig_sha256 : optional SHA-256 (hex) of the true rig file as it was calibrated (None:
+        not recorded, as in calibrations written before it was).
     """
 
     name: str
@@ -329,6 +335,7 @@ class Rig:
     calibration: dict | None = field(default=None, compare=False)
     true_rig: str | None = None
     supersample: int | None = None
+    true_rig_sha256: str | None = None
 
     def scaled(self, factor: float) -> "Rig":
         """The same rig with every image ``factor`` times larger (same field of view).
@@ -346,7 +353,7 @@ class Rig:
             cams.append(Camera.from_arrays(c.name, size, K, c.dist_coeffs, c.R, c.t_mm,
                                            c.noise_sigma_gray, c.exposure))
         return Rig(self.name, tuple(cams), self.source, self.calibration, self.true_rig,
-                   self.supersample)
+                   self.supersample, self.true_rig_sha256)
 
     @classmethod
     def from_yaml(cls, path) -> "Rig":
@@ -363,6 +370,8 @@ class Rig:
             doc["calibration"] = self.calibration
         if self.true_rig is not None:
             doc["true_rig"] = self.true_rig
+        if self.true_rig_sha256 is not None:
+            doc["true_rig_sha256"] = self.true_rig_sha256
         if self.supersample is not None:
             doc["supersample"] = self.supersample
         header = ("# Stereo rig (itg_vision). OpenCV conventions, mm; pose as R world->camera\n"
@@ -403,7 +412,8 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     if not isinstance(name, str) or not name:
         F.fail("name", "must be a non-empty string")
     cams = F.get(doc, "cameras", "")
-    F.mapping(doc, "(top level)", ("name", "cameras"), ("supersample", "calibration", "true_rig"))
+    F.mapping(doc, "(top level)", ("name", "cameras"),
+              ("supersample", "calibration", "true_rig", "true_rig_sha256"))
     if not isinstance(cams, list) or len(cams) != 2:
         F.fail("cameras", "must be a list of exactly two cameras")
     cameras = tuple(_camera_from_dict(F, c, f"cameras[{i}]") for i, c in enumerate(cams))
@@ -419,12 +429,42 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     true_rig = doc.get("true_rig")
     if true_rig is not None and not isinstance(true_rig, str):
         F.fail("true_rig", "must be a path string")
+    true_rig_sha256 = doc.get("true_rig_sha256")
+    if true_rig_sha256 is not None:
+        if not isinstance(true_rig_sha256, str) or not re.fullmatch(r"[0-9a-f]{64}",
+                                                                    true_rig_sha256):
+            F.fail("true_rig_sha256", "must be 64 lowercase hex digits (a SHA-256)")
+        if true_rig is None:
+            F.fail("true_rig_sha256", "needs true_rig, the file it is the hash of")
     supersample = doc.get("supersample")
     if supersample is not None:
         supersample = F.integer(supersample, "supersample")
         if not 1 <= supersample <= MAX_SUPERSAMPLE:
             F.fail("supersample", f"must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
-    return Rig(name, cameras, path, calibration, true_rig, supersample)
+    return Rig(name, cameras, path, calibration, true_rig, supersample, true_rig_sha256)
+
+
+def load_true_rig(rig: Rig, rig_path) -> Rig:
+    """The rig a calibrated ``rig`` (read from ``rig_path``) renders with: the file its
+    ``true_rig`` names, relative to ``rig_path``'s folder. The one loader of a calibrated rig's
+    truth (run, the environment, ``bench noise``'s ``rig-calibrated``).
+
+    Raises `UserError` (one line naming ``rig_path``) if that file cannot be read, or if it no
+    longer is the file that was calibrated: its SHA-256 differs from ``true_rig_sha256`` (the
+    true rig was edited after calibrating; estimating with the stale calibration would be wrong
+    without a word). A rig without ``true_rig_sha256`` (older calibrations) is not checked.
+    """
+    path = resolve_relative(rig.true_rig, Path(rig_path))
+    try:
+        truth = Rig.from_yaml(path)
+    except UserError as exc:  # name the calibrated rig and its field, then the problem
+        raise UserError(f"{rig_path}: true_rig: {exc}") from None
+    if rig.true_rig_sha256 is not None and file_sha256(path) != rig.true_rig_sha256:
+        shown = os.path.normpath(path)
+        raise UserError(f"{rig_path}: its true rig {shown} has changed since it was calibrated "
+                        f"(true_rig_sha256 no longer matches); re-run python -m "
+                        f"itg_vision.calibrate --rig {shown} --out {rig_path}")
+    return truth
 
 
 def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:

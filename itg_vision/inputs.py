@@ -42,6 +42,14 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
     return beside if beside.exists() else p
 
 
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes, as 64 hex digits (a calibrated rig's
+    ``true_rig_sha256``)."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
     """The text of ``path`` (a ``what``: 'rule file', 'rig file', ...); raises `UserError`.
 

@@ -15,7 +15,7 @@ from .errors import ConfigError, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
-from .inputs import is_whole, resolve_relative
+from .inputs import is_whole
 from .loop import Trace, distance_mm, simulate
 from .preview import Preview, plan
 from .rules import PARAM_DEFAULTS, PARAM_FIELDS, load_rules
@@ -244,18 +244,15 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
         def feedback_factory():
             return TruthFeedback(noise_mm=cfg.noise_mm)
     else:
-        from .camera import Rig
+        from .camera import Rig, load_true_rig
         from .feedback import VisionFeedback
         from .visibility import check_visible
 
         if estimate_rig is None:
             estimate_rig = Rig.from_yaml(cfg.rig_path)
         render_rig = estimate_rig
-        if estimate_rig.true_rig:
-            try:
-                render_rig = Rig.from_yaml(resolve_relative(estimate_rig.true_rig, cfg.rig_path))
-            except UserError as exc:  # name the calibrated rig and its field, then the problem
-                raise UserError(f"{cfg.rig_path}: true_rig: {exc}") from None
+        if estimate_rig.true_rig:  # checked against the hash it was calibrated with
+            render_rig = load_true_rig(estimate_rig, cfg.rig_path)
         if not cfg.allow_unseen:
             check_visible(render_rig, true_arm, trajectory.points_mm)
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name

@@ -421,6 +421,31 @@ def test_out_from_a_different_sweep_exits_2_and_loses_no_row(tmp_path, capsys):
     assert (tmp_path / "results.csv").read_bytes() == before
 
 
+def test_a_stale_calibrated_rig_is_refused_before_any_run(tmp_path, monkeypatch, capsys):
+    """rig-calibrated reads the calibrated rig through the loader run uses: a calibration whose
+    true rig was edited after it was made (true_rig_sha256 no longer matches) stops the sweep
+    before any run, in one line, exit 2 (before the hash, every run estimated with the stale
+    calibration without a word)."""
+    import hashlib
+
+    from itg_vision import camera
+
+    true = tmp_path / "planar.yaml"
+    true.write_text(camera.default_rig_path("two-link").read_text())
+    rig = camera.Rig.from_yaml(true)
+    calib = tmp_path / "planar.calib.yaml"
+    calib.write_text(camera.Rig(rig.name, rig.cameras, "", {}, "planar.yaml").yaml_text()
+                     + f"true_rig_sha256: {hashlib.sha256(true.read_bytes()).hexdigest()}\n")
+    true.write_text(true.read_text() + "# moved nothing, but edited\n")
+    monkeypatch.setattr(camera, "default_rig_path",
+                        lambda arm, calibrated=False: calib if calibrated else true)
+    out = tmp_path / "o"
+    code = main(["--quick", "--conditions", "rig-calibrated", "--controllers", "itg-plus-vision",
+                 "--seeds", "1", "--workers", "1", "--out", str(out)])
+    assert code == 2 and not out.exists()
+    _one_line_error(capsys, f"{calib}: its true rig {true} has changed since it was calibrated")
+
+
 def test_cli_entry_point_exit_status(cli, tmp_path):
     res = cli("itg_vision.bench", "noise", "--quick", "--controllers", "nope", "--out", tmp_path / "o")
     assert res.returncode == 2

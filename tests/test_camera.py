@@ -105,6 +105,35 @@ def test_yaml_round_trip_is_exact(rig, tmp_path):
     assert not (tmp_path / "rig.yaml.tmp").exists()
 
 
+def test_true_rig_hash_round_trips_and_checks_the_true_rig(rig, tmp_path):
+    """A calibrated rig's true_rig_sha256 is written and read back; load_true_rig returns the
+    true rig while the file is as hashed, and refuses it, in one line naming both files and
+    what to do, once it has changed (it rendered with the edited rig, without a word)."""
+    from itg_vision.camera import load_true_rig
+    from itg_vision.inputs import file_sha256
+
+    true = tmp_path / "true.yaml"
+    true.write_text(PLANAR.read_text())
+    out = tmp_path / "cal" / "true.calib.yaml"
+    out.parent.mkdir()
+    Rig(rig.name, rig.cameras, "", {}, "../true.yaml", None, file_sha256(true)).to_yaml(out)
+    back = Rig.from_yaml(out)
+    assert back.true_rig_sha256 == file_sha256(true)
+    assert load_true_rig(back, out).cameras == rig.cameras
+    true.write_text(PLANAR.read_text().replace("[-180.0, -60.0, 620.0]", "[-180.0, -60.0, 650.0]"))
+    with pytest.raises(UserError) as exc:
+        load_true_rig(back, out)
+    assert str(exc.value) == (
+        f"{out}: its true rig {true} has changed since it was calibrated (true_rig_sha256 no "
+        f"longer matches); re-run python -m itg_vision.calibrate --rig {true} --out {out}")
+    # a calibration without the hash (older files, the shipped ones) is not checked
+    old = Rig(rig.name, rig.cameras, "", {}, "../true.yaml")
+    assert load_true_rig(old, out).cameras[0].position_mm[2] == pytest.approx(650.0)
+    shipped = ROOT / "cameras" / "planar.calib.yaml"
+    assert Rig.from_yaml(shipped).true_rig_sha256 is None
+    load_true_rig(Rig.from_yaml(shipped), shipped)
+
+
 def test_rotation_deg_form_equals_look_at_form(rig, tmp_path):
     import cv2
 
@@ -154,7 +183,10 @@ _K = [600.0, 0.0, 319.5, 0.0, 600.0, 239.5, 0.0, 0.0, 1.0]
     (("name",), _DELETE, "name: missing"),
     # unknown and contradicting keys (they ran, ignored, before)
     (("supersampel",), 1,
-     "supersampel: unknown field (known: name, cameras, supersample, calibration, true_rig)"),
+     "supersampel: unknown field (known: name, cameras, supersample, calibration, true_rig, "
+     "true_rig_sha256)"),
+    (("true_rig_sha256",), "abc", "true_rig_sha256: must be 64 lowercase hex digits"),
+    (("true_rig_sha256",), "0" * 64, "true_rig_sha256: needs true_rig"),
     (("cameras", 0, "sensor", "noise_sigma_grey"), 20,
      "cameras[0].sensor.noise_sigma_grey: unknown field (known: noise_sigma_gray, exposure)"),
     (("cameras", 1, "focal_mm"), 8, "cameras[1].focal_mm: unknown field (known: name, "),

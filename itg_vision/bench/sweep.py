@@ -375,6 +375,9 @@ def _calibrated_rig_sha(arm: str) -> str:
                         f"itg_vision.calibrate --rig {ArmSpec.from_args(arm).defaults['rig']} "
                         f"--out {path}`, or leave "
                         "the rig-calibrated conditions out with --conditions")
+    from ..camera import Rig, load_true_rig
+
+    load_true_rig(Rig.from_yaml(path), path)  # a stale calibration: refused before any run
     return _file_sha(path)
 
 
