@@ -35,6 +35,7 @@ picture of the detected corners of one view, titled with the rig, the camera and
 from __future__ import annotations
 
 import functools
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -267,8 +268,9 @@ def axis_sweeps(arm) -> dict[int, tuple[np.ndarray, tuple[str, ...]]]:
     return out
 
 
-def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names) -> dict[str, dict]:
-    """Circle fits of the LEDs one joint's sweep moved (camera-1 coordinates)."""
+def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names, source: str = "") -> dict[str, dict]:
+    """Circle fits of the LEDs one joint's sweep moved (camera-1 coordinates); ``source``: the
+    rig file a message names first."""
     from .identify import coaxial_normal, fit_circle, rotation_sense_axis
 
     pts: dict[str, list] = {n: [] for n in names}
@@ -280,10 +282,14 @@ def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names) -> dict[str, dict]:
                 pts[n].append(X[n])
                 angles[n].append(float(q[joint]))
     out = {}
+    need = math.ceil(0.75 * len(shots))
+    where = f"{source}: " if source else ""
     for n in names:
-        if len(pts[n]) < 0.75 * len(shots):
-            raise UserError(f"base frame: joint q{joint + 1}'s sweep: the {n} LED was seen by "
-                            f"both cameras in only {len(pts[n])} of {len(shots)} poses")
+        if len(pts[n]) < need:
+            raise UserError(f"{where}base frame: arm {arm.name}, joint q{joint + 1}'s sweep: "
+                            f"the {n} LED was seen by both cameras in only {len(pts[n])} of "
+                            f"{len(shots)} poses; need at least {need}: both cameras must see "
+                            "the LEDs over the arm's joint sweeps (check the rig's camera poses)")
     axis = coaxial_normal([pts[n] for n in names])  # every LED turns about the same axis
     for n in names:
         centre, normal, radius, rms = fit_circle(pts[n], axis)
@@ -293,7 +299,8 @@ def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names) -> dict[str, dict]:
     return out
 
 
-def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,
+                         source: str = "") -> tuple[np.ndarray, np.ndarray, dict]:
     """World (base) frame in camera-1 coordinates from the joint axes the LEDs trace.
 
     Each sweep turns one joint; every LED it moves runs on a circle about that joint's axis
@@ -311,6 +318,12 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np
     rig_c1 : the calibrated pair in camera-1 coordinates.
     arm : the nominal arm (its structure, stand-off and, three-link only, L1).
     sweeps : {joint: (shots, marker names)}, shots from :func:`led_images`.
+    source : the rig file a message names first (:func:`calibrate`: the true rig's).
+
+    Raises
+    ------
+    UserError : an LED seen by both cameras in fewer than 3/4 of a sweep's poses (one line
+        naming the rig file, the arm, the joint, the LED and the count needed).
 
     Returns
     -------
@@ -318,7 +331,8 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict) -> tuple[np.ndarray, np
     """
     from .identify import zero_direction
 
-    fits = {j: _joint_fits(rig_c1, arm, j, shots, names) for j, (shots, names) in sweeps.items()}
+    fits = {j: _joint_fits(rig_c1, arm, j, shots, names, source)
+            for j, (shots, names) in sweeps.items()}
     base = fits[0]
     z = np.sum([f["axis"] for f in base.values()], axis=0)
     z /= np.linalg.norm(z)
@@ -516,9 +530,9 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
                           progress=tick("board"))
         t1 = time.perf_counter()
         size = true_rig.cameras[0].size
+        source = str(true_rig.source or true_rig.name)  # the rig file messages name
         cal = calibrate_views(vs, board, size, tuple(
-            f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)),
-            source=str(true_rig.source or true_rig.name))
+            f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)), source=source)
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)
@@ -527,7 +541,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         q_check = arm.random_poses(check_poses, rng)
         shots_check = led_images(world, true_rig, arm, q_check, rng, progress=tick("arm"))
     t3 = time.perf_counter()
-    R_w, t_w, base_record = base_frame_from_axes(rig_c1, arm, sweeps)
+    R_w, t_w, base_record = base_frame_from_axes(rig_c1, arm, sweeps, source=source)
     rig = place_rig(rig_c1, R_w, t_w, name)
     err_true = led_errors(true_rig, arm, shots_check)
     err_cal = led_errors(rig, arm, shots_check)

@@ -382,6 +382,47 @@ def test_failures_exit_2_with_one_line_and_keep_the_old_file(cli, tmp_path, args
                                                           ["away.yaml", "old.calib.yaml"])
 
 
+SWEEP_HINT = ("both cameras must see the LEDs over the arm's joint sweeps (check the rig's camera "
+              "poses)")
+
+
+@pytest.mark.parametrize("seen", [7, 17])
+def test_a_sweep_seen_in_too_few_poses_names_the_rig_the_arm_and_the_count_needed(monkeypatch,
+                                                                                 seen):
+    """An LED seen by both cameras in fewer than 3/4 of a sweep's 23 poses (18): one line naming
+    the rig file, the arm, the joint, the LED, the count needed and what to change; it named no
+    file, no arm and no need. (The eye stubbed: the gripper seen in the first ``seen`` poses.)"""
+    def eye(rig, arm, k):
+        return {"elbow": np.zeros(3), **({"gripper": np.zeros(3)} if k < seen else {})}
+
+    monkeypatch.setattr(cal, "triangulate_leds", eye)
+    shots = [(np.zeros(2), k, None) for k in range(23)]
+    with pytest.raises(UserError) as exc:
+        cal.base_frame_from_axes(Rig.from_yaml(PLANAR), ArmSpec.from_args("two-link"),
+                                 {0: (shots, ("elbow", "gripper"))}, source="nearrig.yaml")
+    assert str(exc.value) == (
+        f"nearrig.yaml: base frame: arm two-link, joint q1's sweep: the gripper LED was seen by "
+        f"both cameras in only {seen} of 23 poses; need at least 18: {SWEEP_HINT}")
+
+
+@pytest.mark.slow
+def test_a_rig_that_sees_the_sweeps_poorly_fails_in_one_line_naming_its_file(cli, tmp_path):
+    """The right camera lowered to z = 300 mm sees the gripper over q1's sweep in only a few
+    poses (7 of 23 measured): the command's one line names the rig file, as its board error
+    does (18 s of work first)."""
+    near = tmp_path / "nearrig.yaml"
+    near.write_text(PLANAR.read_text().replace("[180.0, -60.0, 620.0]", "[180.0, -60.0, 300.0]"))
+    out = tmp_path / "near.calib.yaml"
+    proc = cli("itg_vision.calibrate", "--rig", near, "--quiet", "--out", out)
+    assert proc.returncode == 2
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        f"error: {near}: base frame: arm two-link, joint q1's sweep: the gripper LED was seen by "
+        "both cameras in only "), proc.stderr
+    assert lines[0].endswith(f" of 23 poses; need at least 18: {SWEEP_HINT}")
+    assert not out.exists()
+
+
 def test_calibrate_help(cli):
     proc = cli("itg_vision.calibrate", "--help")
     assert proc.returncode == 0 and "--views" in proc.stdout and "--rig" in proc.stdout
