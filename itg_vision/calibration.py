@@ -34,7 +34,6 @@ picture of the detected corners of one view, titled with the rig, the camera and
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 import time
@@ -48,6 +47,7 @@ from . import outputs
 from .board import Board, Views, render_views, sample_board_poses
 from .camera import Camera, Rig
 from .errors import UserError
+from .imaging import opencv_threads
 from .inputs import file_sha256
 
 #: Fewest views (board found by both cameras) accepted for a calibration.
@@ -470,28 +470,14 @@ def _plain(obj, digits: int = 6):
     return obj
 
 
-def _one_opencv_thread(fn):
-    """Run ``fn`` with OpenCV on one thread (restored after): OpenCV's threaded reductions sum
-    in a varying order (results differ at ~1e-10); one thread makes the same seed give the same
-    calibration, bit for bit."""
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        threads = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-        try:
-            return fn(*args, **kwargs)
-        finally:
-            cv2.setNumThreads(threads)
-    return wrapper
-
-
 def progress_steps(arm, views: int, check_poses: int) -> int:
     """How many times :func:`calibrate` calls its ``progress``: once per board view and per arm
     pose (the joint sweeps of ``arm`` and the check poses)."""
     return views + sum(len(q) for q, _ in axis_sweeps(arm).values()) + check_poses
 
 
-@_one_opencv_thread
+@opencv_threads(1)  # OpenCV's threaded reductions sum in a varying order (results differ at
+# ~1e-10): one thread makes the same seed give the same calibration, bit for bit
 def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
               board: Board = Board(), tilt_deg: float = 45.0,
               check_poses: int = 20, supersample: int = 2, name: str | None = None,

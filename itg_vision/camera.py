@@ -306,8 +306,9 @@ class Camera:
         """OpenGL view matrix (metres), column-major, shape (16,)."""
         return gl_view_matrix(self.R, self.t_mm)
 
-    def gl_projection(self, near_m: float = 0.05, far_m: float = 5.0) -> np.ndarray:
-        """OpenGL projection matrix for this image size, column-major, shape (16,)."""
+    def gl_projection(self, near_m: float, far_m: float) -> np.ndarray:
+        """OpenGL projection matrix for this image size, column-major, shape (16,); the planes
+        in metres (the renders' own: :data:`itg_vision.imaging.NEAR_M`, ``FAR_M``)."""
         return gl_projection_matrix(self.K, self.image_width, self.image_height, near_m, far_m)
 
 

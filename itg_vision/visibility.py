@@ -21,8 +21,6 @@ Pure numpy and the camera model: nothing is rendered. ``--allow-unseen`` skips t
 
 from __future__ import annotations
 
-import inspect
-
 import numpy as np
 
 from .arm import REACH_TOL_MM, ArmSpec, forward_kinematics
@@ -36,11 +34,11 @@ MIN_LED_RADIUS_PX = 1.0
 
 
 def _render_range_mm() -> tuple[float, float]:
-    """The near and far planes (mm) that :func:`itg_vision.imaging.render_plan` renders with."""
-    from .imaging import render_plan
+    """The near and far planes (mm) of every render (:data:`itg_vision.imaging.NEAR_M`,
+    ``FAR_M``, in metres as PyBullet takes them)."""
+    from .imaging import FAR_M, NEAR_M
 
-    params = inspect.signature(render_plan).parameters
-    return 1e3 * params["near_m"].default, 1e3 * params["far_m"].default
+    return 1e3 * NEAR_M, 1e3 * FAR_M
 
 
 def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:

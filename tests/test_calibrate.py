@@ -568,3 +568,31 @@ def test_a_calibration_whose_true_rig_was_edited_is_refused(tmp_path, monkeypatc
     assert (proc.returncode, proc.stderr) == (0, "")
     assert Rig.from_yaml(out).true_rig_sha256 == hashlib.sha256(true.read_bytes()).hexdigest()
     prepare(RunConfig(rig=str(out), points=4))
+
+
+def test_calibrate_runs_opencv_on_one_thread_and_restores_it(monkeypatch):
+    """OpenCV's threaded reductions sum in a varying order: calibrate runs on one thread (the
+    same seed, the same calibration bit for bit) and gives the setting back, even on an error."""
+    import cv2
+
+    from itg_vision import calibration
+    from itg_vision.arm import ArmSpec
+    from itg_vision.camera import Rig
+    from itg_vision.runner import CAMERAS_DIR
+
+    seen = []
+
+    def record(*args, **kwargs):
+        seen.append(cv2.getNumThreads())
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(calibration, "sample_board_poses", record)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        with pytest.raises(RuntimeError, match="stop here"):
+            calibration.calibrate(Rig.from_yaml(CAMERAS_DIR / "planar.yaml"),
+                                  ArmSpec.from_args("two-link"))
+        assert seen == [1] and cv2.getNumThreads() == 2
+    finally:
+        cv2.setNumThreads(before)
