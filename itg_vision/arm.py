@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
@@ -84,18 +84,19 @@ class ArmSpec:
 
     @classmethod
     def from_args(cls, name: str, links_mm: tuple[float, ...] | None = None) -> "ArmSpec":
-        """A shipped arm by name (or an arm file's path), optionally with other link lengths."""
+        """A shipped arm by name (or an arm file's path), optionally with other link lengths
+        (bad ones: a `ConfigError` on ``links_mm``, which a command names by its option)."""
         arm = load_arm(name)
         if links_mm is None:
             return arm
         links = tuple(float(v) for v in links_mm)
         if len(links) != arm.n_joints:
-            raise UserError(f"--links: arm {arm.name!r} needs {arm.n_joints} link lengths in mm, "
-                            f"got {len(links)}")
+            raise ConfigError("links_mm", f"arm {arm.name!r} needs {arm.n_joints} link lengths "
+                                          f"in mm, got {len(links)}")
         for i, v in enumerate(links, 1):
             if not np.isfinite(v) or v <= 0 or v > MAX_LINK_MM:
-                raise UserError(f"--links: link {i} must be a length in mm in "
-                                f"(0, {MAX_LINK_MM:g}], got {v}")
+                raise ConfigError("links_mm", f"link {i} must be a length in mm in "
+                                              f"(0, {MAX_LINK_MM:g}], got {v}")
         return arm.with_links(links)
 
     # ------------------------------------------------------------------ structure

@@ -25,7 +25,7 @@ from .arm import ArmSpec, arm_names
 from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrate,
                           picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
-from .errors import UserError, exit_status, run_main
+from .errors import ConfigError, UserError, exit_status, run_main
 from .inputs import file_sha256
 from .outputs import check_path, keep_aside
 from .progress import progress
@@ -254,8 +254,8 @@ class Job:
                                 f"got {args.true_links!r}") from None
             try:
                 true_arm = ArmSpec.from_args(arm_arg, links)
-            except UserError as exc:
-                raise UserError(str(exc).replace("--links", "--true-links")) from None
+            except ConfigError as exc:
+                raise exc.as_option({"links_mm": "--true-links"}) from None
         # '' is the empty-path error (check_path), not the default
         out = check_path(args.out, what="file") if args.out is not None else default_out(rig_path)
         return cls(rig_path, true_rig, rig_sha256, arm, true_arm, out, args.views, args.seed,

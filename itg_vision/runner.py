@@ -181,27 +181,26 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
     if cfg.true_links_mm is not None:
         try:
             true_arm = ArmSpec.from_args(cfg.arm, cfg.true_links_mm)
-        except UserError as exc:
-            raise UserError(str(exc).replace("--links", "--true-links")) from None
+        except ConfigError as exc:
+            raise ConfigError("true_links_mm", exc.message) from None
     if cfg.joint_offset_deg is not None:
         if len(cfg.joint_offset_deg) != model.n_joints or not all(
                 math.isfinite(v) and abs(v) <= 180 for v in cfg.joint_offset_deg):
-            raise UserError(f"--joint-offset: arm {model.name!r} needs {model.n_joints} finite "
-                            f"offsets in deg within +-180, got {cfg.joint_offset_deg}")
+            raise ConfigError("joint_offset_deg", f"arm {model.name!r} needs {model.n_joints} "
+                              f"finite offsets in deg within +-180, got {cfg.joint_offset_deg}")
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
     trajectory = traj.load(cfg.trajectory_name, cfg.points, arm=model).repeated(cfg.laps)
     if not trajectory.planar and model.planar:
-        raise UserError(f"--trajectory {trajectory.name} has z values, but --arm {model.name} is "
-                        "planar (x_mm,y_mm)")
+        raise ConfigError("trajectory", f"{trajectory.name} has z values, but arm {model.name} "
+                                        "is planar (x_mm,y_mm)")
     if trajectory.planar and not model.planar:
-        raise UserError(f"--arm {model.name} needs a 3-D trajectory (x_mm,y_mm,z_mm), but "
-                        f"--trajectory {trajectory.name} is planar")
+        raise ConfigError("trajectory", f"arm {model.name} needs a 3-D trajectory "
+                                        f"(x_mm,y_mm,z_mm), but {trajectory.name} is planar")
     if not any(true_arm.reachable(p) for p in trajectory.points_mm):
         lo, hi = true_arm.reach_mm()
-        raise UserError(f"--trajectory {trajectory.name}: none of its "
-                        f"{len(trajectory.points_mm) // trajectory.laps} set points is in reach of "
-                        f"arm {true_arm.name} ({lo:g} to {hi:g} mm from its shoulder): nothing to "
-                        "track")
+        raise ConfigError("trajectory", f"none of the {len(trajectory.points_mm) // trajectory.laps}"
+                          f" set points of {trajectory.name} is in reach of arm {true_arm.name} "
+                          f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")
     info: dict = {}
     given = {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
     if cfg.controller == "itg":

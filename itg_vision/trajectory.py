@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from .errors import ConfigError, UserError
 from .inputs import clip, read_text
 
 
@@ -59,13 +59,13 @@ class Trajectory:
 
         Raises
         ------
-        UserError : ``laps`` < 1, or > 1 on a path that is not closed.
+        ConfigError : ``laps`` < 1, or > 1 on a path that is not closed.
         """
         if laps < 1 or laps > 1000:
-            raise UserError(f"--laps: must be in 1..1000, got {laps}")
+            raise ConfigError("laps", f"must be in 1..1000, got {laps}")
         if laps > 1 and not self.closed:
-            raise UserError(f"--laps: trajectory {self.name} is not a closed path (its last "
-                            "point is not next to its first): it can run only once (--laps 1)")
+            raise ConfigError("laps", f"trajectory {self.name} is not a closed path (its last "
+                                      "point is not next to its first): it can run only once")
         if laps == 1:
             return self
         # a path that repeats its start as its last point is not given that point twice at
@@ -176,8 +176,8 @@ def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
                         "or give a path to a CSV file)")
     n = DEFAULT_POINTS[name] if n_points is None else int(n_points)
     if n < 2 or (name == "abcd" and n % 2):
-        raise UserError(f"--points: {name} needs {'an even number of' if name == 'abcd' else 'at least 2'} "
-                        f"points, got {n}")
+        raise ConfigError("points", f"{name} needs {'an even number of' if name == 'abcd' else 'at least 2'} "
+                                    f"points, got {n}")
     if name == "ellipse-t1":
         return ellipse(name, (20.0, -30.0), 130.0, 80.0, -45.0, n)
     if name == "ellipse-t2":
@@ -280,6 +280,6 @@ def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory
         if not p.exists():
             raise UserError(f"{p}: trajectory file not found")
         if n_points is not None:
-            raise UserError("--points applies to named trajectories only, not to a CSV file")
+            raise ConfigError("points", "applies to named trajectories only, not to a CSV file")
         return read_csv(p)
     return named(name_or_path, n_points)  # raises the 'unknown trajectory' error

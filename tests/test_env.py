@@ -240,3 +240,21 @@ def test_whole_number_fields_refuse_other_values(field, value):
     with pytest.raises(ConfigError, match=f"{field}: must be a whole number"):
         TrackingEnv(feedback="truth", points=5, **{field: value})
     TrackingEnv(feedback="truth", points=5, **{field: np.int64(2)}).close()  # numpy's ints are
+
+
+@pytest.mark.parametrize("field, value, said", [
+    ("true_links_mm", (1.0, 2.0, 3.0), "true_links_mm: arm 'two-link' needs 2 link lengths"),
+    ("links_mm", (100.0, -5.0), "links_mm: link 2 must be a length in mm"),
+    ("joint_offset_deg", (1.0,), "joint_offset_deg: arm 'two-link' needs 2 finite offsets"),
+    ("laps", 0, "laps: must be in 1..1000"),
+    ("trajectory", "line-ab-reach", "trajectory: line-ab-reach has z values, but arm two-link"),
+])
+def test_the_library_names_its_fields_not_the_command_lines_options(field, value, said):
+    """From code, a bad field is named as the code names it (`true_links_mm`), not as `run`'s
+    option (`--true-links`, which the command line still says: tests/test_bad_inputs.py)."""
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError) as caught:
+        TrackingEnv(**{field: value})
+    assert caught.value.field == field and str(caught.value).startswith(said)
+    assert "--" not in str(caught.value)

@@ -131,10 +131,10 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--links", "100,-5"], "--links: link 2"),
     (["--rules", "nope"], "unknown rule base 'nope'"),
     (["--trajectory", "spiral"], "unknown trajectory 'spiral'"),
-    (["--trajectory", "line-ab-reach"], "--trajectory line-ab-reach has z values, but --arm "
+    (["--trajectory", "line-ab-reach"], "--trajectory: line-ab-reach has z values, but arm "
      "two-link is planar"),
-    (["--arm", "three-link", "--trajectory", "ellipse-t1"], "--arm three-link needs a 3-D "
-     "trajectory (x_mm,y_mm,z_mm), but --trajectory ellipse-t1 is planar"),
+    (["--arm", "three-link", "--trajectory", "ellipse-t1"], "--trajectory: arm three-link needs "
+     "a 3-D trajectory (x_mm,y_mm,z_mm), but ellipse-t1 is planar"),
     (["--gain", "-1"], "--gain"),
     (["--controller", "ik", "--rules", "table2"], "--rules: the ik controller takes no rule base"),
     (["--controller", "jacobian", "--rules", "itg-plus-two-link"],
