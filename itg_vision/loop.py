@@ -254,6 +254,21 @@ def _fmt(v) -> str:
     return "" if not np.isfinite(v) else f"{v:.4f}"
 
 
+def _checked(step):
+    """``step`` if it is a :class:`Step`, else a one-line TypeError (the controller contract)."""
+    if not isinstance(step, Step):
+        raise TypeError(f"controller.step must return itg_vision.contracts.Step, got "
+                        f"{type(step).__name__}")
+    return step
+
+
+def _shown(value) -> str:
+    """A wrong value's type, and the offending ``missed`` if that is what is wrong."""
+    if isinstance(value, Markers):
+        return f"Markers with missed={value.missed!r}"
+    return type(value).__name__
+
+
 class Session:
     """One tracking run in progress: where the loop and the Gymnasium environment meet.
 
@@ -268,7 +283,8 @@ class Session:
     feedback : a feedback source (``observe(world) -> Markers``).
     points_mm : shape (n, 3), the set points.
     iterations : steps per set point.
-    planar : E_i in the x-y plane.
+    planar : E_i in the x-y plane; None (the default): the world's arm's (``world.arm.planar``),
+        the only value accepted.
     max_step_deg : the servo rate limit: no joint moves more per iteration, whatever the
         controller (None: no limit).
     tracking_start : first set point of the tracking phase (default: the second half).
@@ -276,7 +292,7 @@ class Session:
     recorder : optional video recorder (``frame(feedback, desired_mm)`` per set point).
     """
 
-    def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool = True,
+    def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool | None = None,
                  max_step_deg: float | None = None, tracking_start: int | None = None,
                  progress: Callable[[int], None] | None = None, recorder=None):
         self.world = world
@@ -287,12 +303,18 @@ class Session:
         if max_step_deg is not None and not (is_real(max_step_deg) and max_step_deg > 0):
             raise ValueError(f"max_step_deg must be a finite number > 0 (deg) or None for no "
                              f"limit, got {max_step_deg!r}")  # 0 used to mean no limit
+        if planar is None:
+            planar = world.arm.planar
+        elif bool(planar) != world.arm.planar:  # a three-link run measured in x-y looks fine
+            raise ValueError(f"planar={planar!r}, but arm {world.arm.name} is "
+                             f"{'' if world.arm.planar else 'not '}planar (leave planar out)")
+        self.planar = bool(planar)
         self.iterations = int(iterations)
         self.max_step_deg = max_step_deg
         self.progress = progress
         self.recorder = recorder
         n = len(self.points_mm)
-        self.trace = Trace(planar, world.arm.n_joints,
+        self.trace = Trace(self.planar, world.arm.n_joints,
                            n // 2 if tracking_start is None else int(tracking_start))
         self.k = 0
         self.last_error_mm = float("nan")
@@ -317,6 +339,9 @@ class Session:
         """The feedback's estimate of the markers now (the controller's only view)."""
         self._seen = self.world.true_markers()  # evaluation only
         self._estimate = self.feedback.observe(self.world)
+        if not isinstance(self._estimate, Markers) or not isinstance(self._estimate.missed, tuple):
+            raise TypeError("feedback.observe must return itg_vision.contracts.Markers (missed: a "
+                            f"tuple of marker names), got {_shown(self._estimate)}")
         self.trace.observed(self._estimate, self._seen)
         for m in self._estimate.missed:
             self.flag(f"missed:{m}")
@@ -336,7 +361,10 @@ class Session:
             raise RuntimeError("the trajectory is finished")
         if decide_ms is not None:
             self.trace.time("rules", decide_ms)
-        dq = np.asarray(step.dq_deg, float)
+        dq = np.asarray(_checked(step).dq_deg, float)
+        if dq.shape != (self.world.arm.n_joints,):
+            raise ValueError(f"Step.dq_deg: {self.world.arm.n_joints} joint increments (deg) "
+                             f"expected, got shape {dq.shape}")
         if self.max_step_deg is not None:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
         self.world.move(dq)
@@ -368,7 +396,7 @@ class Session:
 
 
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
-             iterations: int = 1, planar: bool = True, max_step_deg: float | None = None,
+             iterations: int = 1, planar: bool | None = None, max_step_deg: float | None = None,
              tracking_start: int | None = None, correction: float = 1.0,
              aims_mm: np.ndarray | None = None,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
@@ -389,14 +417,14 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
         estimate = session.observe()
         desired = session.desired_mm
         target = desired if aims_mm is None else aims_mm[session.k]
-        aim = aim_mm(target, previous, estimate.gripper_mm, correction, planar)
+        aim = aim_mm(target, previous, estimate.gripper_mm, correction, session.planar)
         previous = target
         t0 = time.perf_counter()
         q_deg = world.q_deg if controller.uses_encoders else None
-        step = controller.step(aim, estimate, q_deg)
+        step = _checked(controller.step(aim, estimate, q_deg))
         if step.out_of_reach and not np.array_equal(aim, desired):
             session.flag("aim_out_of_reach")  # reach is the set point's, not the aim's: ask again
             aim = desired
-            step = controller.step(aim, estimate, q_deg)
+            step = _checked(controller.step(aim, estimate, q_deg))
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0), aim_mm=aim)
     return session.trace

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from itg_vision.arm import REACH_TOL_MM, ArmSpec
+from itg_vision.arm import REACH_TOL_MM, ArmSpec, forward_kinematics
 from itg_vision.feedback import TruthFeedback
 from itg_vision.loop import Trace, simulate
 from itg_vision.contracts import Controller, Markers, Step
@@ -300,3 +300,67 @@ def test_a_one_link_path_rounded_in_its_file_is_in_reach_and_one_a_mm_off_is_not
     assert run(far, extra="0,100\n") == len(a)  # one set point on the circle first
     with pytest.raises(UserError, match=f"none of the {len(a)} set points of .* is in reach"):
         run(far)
+
+
+def test_planar_comes_from_the_arm_and_a_contradiction_is_refused():
+    """simulate's planar used to default to True: a three-link run was scored in x-y (a helper
+    measured E_av 3.6 against 25.3 mm in space). It now comes from the world's arm; a value
+    that contradicts the arm is refused."""
+    arm = ArmSpec.from_args("three-link")
+    pts = np.tile(forward_kinematics(arm, arm.start_q_deg)["gripper"] + [0.0, 0.0, -30.0], (3, 1))
+    with World(arm) as world:
+        trace = simulate(world, Constant([0.0, 0.0, 0.0]), TruthFeedback(), pts)
+    assert not trace.planar
+    assert trace.error_mm() == pytest.approx([30.0] * 3, abs=1e-4)  # straight down: 0 in x-y
+    with World(arm) as world:
+        with pytest.raises(ValueError, match="planar=True, but arm three-link is not planar"):
+            simulate(world, Constant([0.0, 0.0, 0.0]), TruthFeedback(), pts, planar=True)
+
+
+class _Returns:
+    uses_encoders = False
+
+    def __init__(self, value):
+        self.value = value
+
+    def params(self):
+        return {}
+
+    def step(self, desired_mm, markers, q_deg):
+        return self.value
+
+
+class _Sees:
+    def __init__(self, value):
+        self.value = value
+
+    def observe(self, world):
+        return self.value(world.true_markers())
+
+
+@pytest.mark.parametrize("returned, error, said", [
+    (np.zeros(2), TypeError, "controller.step must return itg_vision.contracts.Step, got ndarray"),
+    (Step(np.array([5.0])), ValueError, r"Step.dq_deg: 2 joint increments \(deg\) expected, got shape \(1,\)"),
+    (Step(np.zeros(3)), ValueError, r"got shape \(3,\)"),
+])
+def test_a_controller_that_breaks_the_contract_is_told_in_one_line(returned, error, said):
+    """A one-element step used to move every joint (broadcast), a three-element one failed
+    deep in the world, an array failed as a missing attribute."""
+    with World(ArmSpec.from_args("two-link")) as world:
+        q0 = world.q_deg.copy()
+        with pytest.raises(error, match=said):
+            simulate(world, _Returns(returned), TruthFeedback(), np.zeros((2, 3)))
+        assert np.array_equal(world.q_deg, q0)  # nothing moved
+
+
+@pytest.mark.parametrize("seen, said", [
+    (lambda t: t, "got dict"),
+    (lambda t: Markers(t["gripper"], t["elbow"], missed="gripper"), "missed='gripper'"),
+])
+def test_a_feedback_that_breaks_the_contract_is_told_in_one_line(seen, said):
+    """A dict used to fail as a missing 'timing_ms'; missed='gripper' (a string) counted five
+    misses per look, one per letter."""
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(TypeError, match=f"feedback.observe must return itg_vision.contracts"
+                                            f".Markers .*{said}"):
+            simulate(world, Constant([0.0, 0.0]), _Sees(seen), np.zeros((2, 3)))
