@@ -58,13 +58,15 @@ class Step:
 
     Attributes
     ----------
-    dq_deg : (n_joints,) joint increments (deg), before the servo limit.
+    dq_deg : (n_joints,) joint increments (deg), before the servo limit. The loop applies them
+        as given (under the servo limit), out of reach or not: a controller that holds the arm
+        at a set point it judges out of reach returns zeros, as the rule bases and IK do.
     fired : numbers of the rules that fired (rule bases; empty for other controllers).
-    out_of_reach : the controller judges the set point out of reach.
+    out_of_reach : the controller judges the set point out of reach (counted in ``n_flagged``).
     """
 
     dq_deg: np.ndarray
-    fired: tuple[int, ...]
+    fired: tuple[int, ...] = ()
     out_of_reach: bool = False
 
 
@@ -112,8 +114,13 @@ class Observation:
 class Controller(Protocol):
     """Anything that turns a desired point and marker estimates into joint increments.
 
-    ``uses_encoders``: whether :meth:`step` needs the joint angles (else it gets ``None``).
-    ``params()``: the parameters it runs with, units in their names (recorded in summaries).
+    The tracking loop (:func:`itg_vision.loop.simulate`) reads ``uses_encoders`` (whether
+    :meth:`step` needs the joint angles; else it gets ``None``) and calls :meth:`step`, which
+    must return a :class:`Step` with one increment per joint (else a one-line TypeError or
+    ValueError). ``params()``: the parameters it runs with, units in their names, which the
+    runner records in summaries; the runner, ``run`` and ``TrackingEnv`` build their
+    controllers from names (``itg``, ``ik``, ``jacobian``), so a controller of your own runs
+    through :func:`~itg_vision.loop.simulate` (README, "Your own controller").
     """
 
     uses_encoders: bool
@@ -126,8 +133,11 @@ class Controller(Protocol):
 
 @runtime_checkable
 class FeedbackSource(Protocol):
-    """Where marker estimates come from (model, truth, vision). ``reset(seed)`` makes its
-    randomness reproducible; ``observe(world)`` returns the estimates now."""
+    """Where marker estimates come from (model, truth, vision). ``observe(world)`` returns the
+    estimates now, a :class:`Markers` (the loop reads only this; anything else is a one-line
+    TypeError); ``reset(seed)`` makes its randomness reproducible (the runner calls it, the
+    loop does not). ``run`` and ``TrackingEnv`` build their feedback from names (``vision``,
+    ``model``, ``truth``): a source of your own runs through :func:`itg_vision.loop.simulate`."""
 
     name: str
 

@@ -12,7 +12,9 @@ Observation (a dict of float64 arrays, mm): ``desired_mm`` (the current set poin
 that was not measured keeps its last estimate, as in the loop). With ``images=True`` (vision
 feedback only) it also holds ``camera_images``: both cameras' whole frames (uint8 RGB, as the
 estimator saw them: distorted, noisy); the eye then renders whole frames instead of windows
-around the LEDs (the same pixels there, ~50x slower). The encoders' joint angles are in
+around the LEDs: the same rendered pixels there, but the sensor noise is drawn over the whole
+frame, so its samples, and the estimates, differ slightly from a run without images (0.03 mm
+in one measured episode), and each step costs more (15-50x, by the rig's image size). The encoders' joint angles are in
 ``info["q_deg"]``: a model-free controller does not read them.
 
 ``reset(seed=...)`` rebuilds the world at the start pose and reseeds the feedback: the same

@@ -8,7 +8,8 @@ with the semantics of the module docstring of :mod:`itg_vision.rules`:
 
 ``in`` holds :meth:`RuleBase.arguments` in :attr:`RuleBase.argument_names` order; it returns 1
 (and one fired rule) when an OUT_OF_REACH rule fires, else 0 with each joint's step in ``dq``
-and the fired rules (their positions in the rule file) in ``fired``. It uses nothing but
+and the fired rules (their positions in the rule file; the Python wrapper hands back their
+numbers) in ``fired``. It uses nothing but
 ``+ - * /``, comparisons, ``fabs`` and, for ``^`` other than a square, ``pow``: plain C99 for
 any target.
 

@@ -936,6 +936,10 @@ class RuleBase:
             if name in ELBOW_NAMES and name not in known:  # NaN: its comparisons never hold
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} reads the elbow "
                                 "LED, but a one-link arm has no elbow")
+            if name not in known and re.fullmatch(r"L\d+", name):
+                raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is link "
+                                f"{name[1:]}'s length, but only {len(self.links_mm)} link "
+                                f"length(s) were given (links_mm)")
             if name not in known:
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
                                 f"(known: {', '.join(sorted(known))})")
@@ -1029,7 +1033,10 @@ class RuleBase:
     # -------------------------------------------------------------- run
     @property
     def compiled(self):
-        """The compiled rule function; it takes :meth:`arguments` and returns (dq, fired)."""
+        """The compiled rule function; it takes :meth:`arguments` and returns ``(dq, fired)``:
+        a list of one step per joint (deg) and a list of the fired rules' numbers, in firing
+        order; when an OUT_OF_REACH rule fires, ``(None, (number,))`` (:meth:`step` turns both
+        into a :class:`~itg_vision.contracts.Step`)."""
         return self._fn
 
     def arguments(self, desired_mm, markers, q_deg) -> tuple[float, ...]:
@@ -1115,6 +1122,10 @@ def _check_arguments(n_joints, links_mm, params: dict) -> None:
     ValueError naming the first that no arm could have."""
     if not (is_whole(n_joints) and n_joints >= 1):
         raise ValueError(f"n_joints must be a whole number >= 1, got {n_joints!r}")
+    unknown = sorted(set(params) - set(PARAM_NAMES))
+    if unknown:
+        raise ValueError(f"unknown rule parameter(s) {', '.join(unknown)} (the rules' are "
+                         f"{', '.join(PARAM_NAMES)})")
     links = list(links_mm)  # L1..Ln for the rules: as many as given (tests probe with more joints)
     if not links or not all(is_real(v) and v > 0 for v in links):
         raise ValueError(f"links_mm must be finite lengths > 0 (mm), got {links}")

@@ -685,3 +685,14 @@ def test_the_library_run_and_paper_share_one_set_of_rule_defaults():
     ran = prepare(RunConfig(feedback="model")).controller
     assert (ran.f, ran.S, ran.w) == (lib.f, lib.S, lib.w)
     assert RULE_DEFAULTS == {"gain_deg_per_mm": 0.5, "step_deg": 2.0, "tolerance_mm": 0.5}
+
+
+def test_a_rule_base_built_from_code_names_what_its_arguments_lack():
+    """Too few link lengths used to read as an unknown name in the rule text, and a misspelt
+    parameter as a TypeError from the dataclass."""
+    text = "RULE 0: IF rd2 > (L1 + L2)^2 THEN OUT_OF_REACH\nRULE 1: IF xd > xg THEN q1 -= S, q2 HOLD\n"
+    with pytest.raises(UserError, match=r"<rules>:1:24: 'L2' is link 2's length, but only 1 link "
+                                        r"length\(s\) were given \(links_mm\)"):
+        RuleBase.from_text(text, 2, (100.0,))
+    with pytest.raises(ValueError, match=r"unknown rule parameter\(s\) g \(the rules' are f, S, w\)"):
+        load_rules("table2", 2, TWO, g=0.5)
