@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import signal
 import sys
 from typing import Callable
@@ -62,12 +64,26 @@ def points_arg(text: str) -> int:
     return n
 
 
+#: What the system says of a path the user chose (too long, on a full or read-only disk, not
+#: a folder, ...): one line naming the file, status 2, as for any other bad input.
+_REFUSED_PATH = {errno.ENAMETOOLONG, errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES,
+                 errno.EPERM, errno.ENOTDIR, errno.EISDIR, errno.ELOOP}
+
+
 def run_main(body: Callable[[], int]) -> int:
     """Run a command body; turn a `UserError` into one line on stderr and status 2.
 
     Ctrl-C prints ``interrupted`` on a line of its own (a progress bar may be half drawn on
-    the current one) and returns 130.
+    the current one) and returns 130. A path the system refuses (a name too long, a full or
+    read-only disk) is one line too, status 2; a closed standard output (``| head``) ends the
+    command quietly, status 1; a current folder deleted before the start is said, status 2.
     """
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        print("error: the current folder no longer exists (cd to another folder)",
+              file=sys.stderr)
+        return 2
     try:
         return body()
     except UserError as exc:
@@ -76,6 +92,15 @@ def run_main(body: Callable[[], int]) -> int:
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away: stop, and say nothing more there
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+    except OSError as exc:
+        if exc.errno not in _REFUSED_PATH:
+            raise
+        where = f"{os.fsdecode(exc.filename)}: " if exc.filename is not None else ""
+        print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
 
 
 def exit_status(status: int) -> int:

@@ -576,3 +576,48 @@ def test_calibrate_output_checks(tmp_path):
     (tmp_path / "p.calib.png").write_bytes(b"a user's picture")
     with pytest.raises(UserError, match="p.calib.png exists and would be replaced"):
         check_out(tmp_path / "p.calib.yaml", planar)
+
+
+def test_a_path_the_system_refuses_is_one_line_status_2(tmp_path, capsys):
+    """A name longer than the file system allows (255 bytes) used to end in an OSError
+    traceback; so did an --out path longer than PATH_MAX. Both are bad input."""
+    from itg_vision import run
+
+    long_name = str(tmp_path / ("a" * 300 + ".rules"))
+    assert run.main(["--rules", long_name, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and err[0].endswith("File name too long")
+    assert not (tmp_path / "o").exists()
+
+    def refused():
+        raise PermissionError(13, "Permission denied", "/x/y")
+
+    assert run_main(refused) == 2
+    assert capsys.readouterr().err == "error: /x/y: Permission denied\n"
+
+    def a_bug():
+        raise ConnectionResetError(104, "Connection reset by peer")  # not a path: a traceback
+
+    with pytest.raises(ConnectionResetError):
+        run_main(a_bug)
+
+
+def test_a_deleted_current_folder_is_said_before_anything_runs(monkeypatch, capsys):
+    def gone():
+        raise FileNotFoundError(2, "No such file or directory")
+
+    ran = []
+    monkeypatch.setattr(os, "getcwd", gone)
+    assert run_main(lambda: ran.append(1) or 0) == 2 and not ran
+    assert capsys.readouterr().err == ("error: the current folder no longer exists (cd to "
+                                       "another folder)\n")
+
+
+def test_a_closed_standard_output_ends_the_command_quietly():
+    """`bench speed | head -1` used to print a BrokenPipeError traceback."""
+    code = ("import sys\nfrom itg_vision.errors import run_main\n"
+            "def body():\n    for i in range(10**6):\n        print('line', i)\n    return 0\n"
+            "sys.exit(run_main(body))\n")
+    res = subprocess.run(f"{sys.executable} -c \"{code}\" | head -1", shell=True,
+                         capture_output=True, text=True, timeout=60)
+    assert res.stdout == "line 0\n" and res.stderr == ""
