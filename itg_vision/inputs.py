@@ -54,7 +54,8 @@ def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
     """The text of ``path`` (a ``what``: 'rule file', 'rig file', ...); raises `UserError`.
 
     Refused: a missing or unreadable file, a folder, more than ``limit`` bytes, bytes that are
-    not UTF-8 (reported at their line and column), NUL characters (a binary file).
+    not UTF-8 (reported at their line and column), NUL characters (a binary file). Line ends
+    are returned as ``\n`` whatever the file used (``\r\n``, ``\r``).
     """
     path = Path(path)
     try:
@@ -78,7 +79,9 @@ def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
     if nul >= 0:
         line, col = position(text, nul)
         raise UserError(f"{path}:{line}:{col}: NUL character: a binary file, not a {what}?")
-    return text
+    # Windows' and old Macs' line ends read as lines too (a rule file saved with CRs alone
+    # read as one comment line: "no rules found")
+    return text.replace("\r\n", "\n").replace("\r", "\n")
 
 
 def position(data: bytes | str, offset: int) -> tuple[int, int]:

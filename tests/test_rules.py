@@ -696,3 +696,17 @@ def test_a_rule_base_built_from_code_names_what_its_arguments_lack():
         RuleBase.from_text(text, 2, (100.0,))
     with pytest.raises(ValueError, match=r"unknown rule parameter\(s\) g \(the rules' are f, S, w\)"):
         load_rules("table2", 2, TWO, g=0.5)
+
+
+@pytest.mark.parametrize("newline", ["\n", "\r\n", "\r"])
+def test_a_rule_file_reads_alike_whatever_its_line_ends(tmp_path, newline):
+    """Saved with CRs alone (old Macs), Table 2 used to read as one comment line: 'no rules
+    found'. Every line end gives the same rules, at the same lines."""
+    from itg_vision.rules import RULES_DIR, RuleBase
+
+    text = (RULES_DIR / "table2.rules").read_text()
+    path = tmp_path / "t.rules"
+    path.write_bytes(text.replace("\n", newline).encode())
+    rb = RuleBase.from_file(path, 2, TWO)
+    ref = RuleBase.from_text(text, 2, TWO)
+    assert [(r.number, r.line, r.text) for r in rb.rules] == [(r.number, r.line, r.text) for r in ref.rules]
