@@ -257,7 +257,7 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
     Allowed: a path that does not exist, an empty folder, a folder whose manifest names
     ``command`` and that holds nothing but the entries that manifest lists (what an earlier run
     of ``command`` wrote) and ``own`` (what this run writes, once known; see
-    :func:`listing`), or any folder with ``force``. Never a file.
+    :func:`listing`), or any folder, and a symbolic link, with ``force``. Never a file.
 
     A manifest written before manifests listed their entries proves nothing about the rest of
     the folder: such a folder is refused (``force`` replaces it). The file managers' own
@@ -266,6 +266,12 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
     path = check_path(out, option)
     if not (path.exists() or path.is_symlink()):
         return path
+    if path.is_symlink():  # the user's link: replacing it would delete it (never its target)
+        if force:
+            return path
+        raise UserError(f"{option} {out}: is a symbolic link (to {os.readlink(path)}); give the "
+                        f"folder itself or another {option}, or add --force to write there "
+                        "anyway (the link is kept)")
     if not path.is_dir():
         raise UserError(f"{option} {out}: exists and is not a folder; choose another {option}")
     try:
@@ -450,15 +456,16 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         entries = listing(tmp)
         write_json(tmp / MANIFEST, manifest(command, key, entries))
         check_out_dir(out, command, force=force, option=option, own=entries)  # changed meanwhile?
-        keep = force and out.is_dir() and not out.is_symlink() and not _replaceable(
-            out, command, entries)
+        keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(
+            out, command, entries))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_dirs(created)
         raise
     old = None
-    if keep:  # --force over what this command did not make: kept, under a new name
-        old = keep_aside(out, f"{option} {out}: held what {command} did not write")
+    if keep:  # --force over what this command did not make (or a link): kept, renamed
+        old = keep_aside(out, f"{option} {out}: " + ("was a symbolic link" if out.is_symlink()
+                                                     else f"held what {command} did not write"))
     elif out.exists() or out.is_symlink():
         old = out.parent / f".{out.name}.old-{os.getpid()}"
         os.replace(out, old)

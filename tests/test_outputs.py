@@ -621,3 +621,23 @@ def test_a_closed_standard_output_ends_the_command_quietly():
     res = subprocess.run(f"{sys.executable} -c \"{code}\" | head -1", shell=True,
                          capture_output=True, text=True, timeout=60)
     assert res.stdout == "line 0\n" and res.stderr == ""
+
+
+def test_a_symbolic_link_given_as_out_is_the_users_and_never_deleted(tmp_path, capsys):
+    """`--out latest` where latest -> res1 (a result of ours) used to replace the link by a
+    folder without a word, --force or not. It is refused; --force writes there and keeps the
+    link, renamed, beside it (its target untouched either way)."""
+    _make(tmp_path / "res1", text="first")
+    link = tmp_path / "latest"
+    link.symlink_to("res1")
+    with pytest.raises(UserError, match=r"--out .*latest: is a symbolic link \(to res1\); give "
+                                        r"the folder itself"):
+        _make(link)
+    assert link.is_symlink() and (tmp_path / "res1" / "result.txt").read_text() == "first"
+    with outputs.staged_dir(link, "run", force=True) as tmp:
+        (tmp / "result.txt").write_text("new")
+    kept = tmp_path / "latest.replaced-1"
+    assert kept.is_symlink() and os.readlink(kept) == "res1"
+    assert not link.is_symlink() and (link / "result.txt").read_text() == "new"
+    assert (tmp_path / "res1" / "result.txt").read_text() == "first"
+    assert "was a symbolic link; kept as" in capsys.readouterr().err
