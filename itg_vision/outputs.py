@@ -324,15 +324,21 @@ def _pid_alive(pid: int) -> bool:
 def _remove_ours(folder: Path) -> None:
     """Remove a folder of ours (a staging folder, an old output folder), its manifest last: a
     removal cut short leaves the folder still marked as ours, so the next run finishes it."""
-    for e in os.scandir(folder):
-        if e.name == MANIFEST:
-            continue
-        if e.is_dir(follow_symlinks=False):
-            shutil.rmtree(e.path, ignore_errors=True)
-        else:
-            with contextlib.suppress(OSError):
-                os.unlink(e.path)
-    shutil.rmtree(folder, ignore_errors=True)  # the manifest, then the folder
+    with contextlib.suppress(OSError):  # unreadable: the rmtree below says so
+        for e in os.scandir(folder):
+            if e.name == MANIFEST:
+                continue
+            if e.is_dir(follow_symlinks=False):
+                shutil.rmtree(e.path, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    os.unlink(e.path)
+    try:
+        shutil.rmtree(folder)  # the manifest, then the folder
+    except OSError as exc:  # e.g. a result the user made read-only: say where it stays
+        if folder.exists():
+            print(f"note: could not remove {folder}, what this command replaced or left "
+                  f"unfinished ({exc.strerror or exc}); remove it yourself", file=sys.stderr)
 
 
 def _stale_pattern(name: str) -> re.Pattern:

@@ -641,3 +641,26 @@ def test_a_symbolic_link_given_as_out_is_the_users_and_never_deleted(tmp_path, c
     assert not link.is_symlink() and (link / "result.txt").read_text() == "new"
     assert (tmp_path / "res1" / "result.txt").read_text() == "first"
     assert "was a symbolic link; kept as" in capsys.readouterr().err
+
+
+def test_an_old_result_that_cannot_be_removed_is_said_not_left_in_silence(tmp_path, capsys,
+                                                                         monkeypatch):
+    """A previous result the user made read-only was left as a hidden .NAME.old-PID folder
+    without a word (rmtree ignored its errors). The new result is in place; the note says
+    where the old one stays. (As root, chmod does not stop a removal: the refusal is
+    simulated.)"""
+    _make(tmp_path / "r", text="first")
+    real = outputs.shutil.rmtree
+
+    def refuse_old(path, *args, **kwargs):
+        if ".r.old-" in str(path) and not kwargs.get("ignore_errors"):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(outputs.shutil, "rmtree", refuse_old)
+    _make(tmp_path / "r", text="second")
+    assert (tmp_path / "r" / "result.txt").read_text() == "second"
+    left = [p.name for p in tmp_path.iterdir() if p.name.startswith(".r.old-")]
+    err = capsys.readouterr().err
+    assert len(left) == 1 and f"note: could not remove {tmp_path / left[0]}" in err
+    assert "(Permission denied); remove it yourself" in err
