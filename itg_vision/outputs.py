@@ -92,8 +92,9 @@ def write_bytes(path: str | Path, data: bytes) -> None:
 
 
 def write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` atomically (newlines as given)."""
-    write_bytes(path, text.encode())
+    """Write ``text`` atomically (newlines as given), as UTF-8; a file name's bytes that are not
+    UTF-8 (lone surrogates, as Python decodes them) are written back as those bytes."""
+    write_bytes(path, text.encode("utf-8", "surrogateescape"))
 
 
 def json_safe(obj):

@@ -31,6 +31,12 @@ _MARKERS = ("o", "s", "^", "D", "P", "X", "*", "h")
 _STYLES = ("-", "--", "-.", ":")
 
 
+def _shown(text: str) -> str:
+    """A title as it can be drawn: a file name's bytes that are not UTF-8 (Python keeps them as
+    lone surrogates, which matplotlib cannot draw) become U+FFFD."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 def plain_log_ticks(axis) -> None:
     """Ticks of a log axis at 1, 2 and 5 per decade, written as plain decimals (0.05, 20), not
     as powers of ten."""
@@ -98,7 +104,7 @@ def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
-    ax.set_title(title, fontsize=9)
+    ax.set_title(_shown(title), fontsize=9)
     ax.legend(fontsize=8)
     _save(fig, path)
 
@@ -134,7 +140,7 @@ def error_figure(trace, title: str, path, *, laps: int = 1) -> None:
     ax.set_ylim(bottom=0)
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.grid(alpha=0.3)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(_shown(title), fontsize=9)
     _save(fig, path)
 
 
@@ -194,7 +200,7 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside: curves stay seen
-    ax.set_title(title, fontsize=9)
+    ax.set_title(_shown(title), fontsize=9)
     _save(fig, path)
 
 
@@ -215,11 +221,11 @@ def paths_figure(panels: list, title: str, path) -> None:
         for i, j, label in (jumps[0] if jumps else ()):
             ax.plot(d[[i, j], 0], d[[i, j], 1], "--", color="C3", lw=1, zorder=3, label=label)
         ax.set_aspect("equal")
-        ax.set_title(sub, fontsize=9)
+        ax.set_title(_shown(sub), fontsize=9)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.legend(fontsize=8)
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(_shown(title), fontsize=10)
     _save(fig, path)
 
 
@@ -277,5 +283,5 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside: dots stay seen
-    ax.set_title(title, fontsize=9)
+    ax.set_title(_shown(title), fontsize=9)
     _save(fig, path)

@@ -19,7 +19,9 @@ descriptor is pointed at /dev/null while trying.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -68,7 +70,8 @@ def open_writer(path: Path, fps: float, size: tuple[int, int]):
             writer.release()
             if target.exists() and target.stat().st_size == 0:
                 target.unlink()
-    raise UserError(f"{path}: this OpenCV can write none of H.264, VP9 or MPEG-4 video")
+    raise UserError("video: this OpenCV can write none of H.264, VP9 or MPEG-4 video (no "
+                    "FFmpeg backend, or one without those encoders)")
 
 
 class VideoRecorder:
@@ -83,6 +86,8 @@ class VideoRecorder:
         self.fps = fps
         self.codec_note = ""
         self._writer = None
+        self._written: Path | None = None  # where OpenCV writes (self.path, or a stand-in)
+        self._stand_in: Path | None = None  # a temporary folder for a path OpenCV cannot take
 
     def frame(self, feedback, desired_mm: np.ndarray) -> None:
         """One frame from ``feedback.last_observation`` (whole frames: the run forces
@@ -108,13 +113,28 @@ class VideoRecorder:
         frame = np.hstack(panels)
         if self._writer is None:
             h, w = frame.shape[:2]
-            self._writer, self.path, self.codec_note = open_writer(self.path, self.fps, (w, h))
+            target = self.path
+            try:
+                str(target).encode("utf-8")
+            except UnicodeEncodeError:  # a name's bytes that are not UTF-8: OpenCV's FFmpeg
+                # writer crashes the process on such a path; it writes under a plain one here
+                self._stand_in = Path(tempfile.mkdtemp(prefix="itg_vision-video-"))
+                target = self._stand_in / "video"
+            self._writer, self._written, self.codec_note = open_writer(target, self.fps, (w, h))
+            self.path = self.path.with_suffix(self._written.suffix)
         self._writer.write(frame)
 
     def close(self) -> None:
         if self._writer is not None:
             self._writer.release()
             self._writer = None
+        if self._stand_in is not None:  # the video to its place, the stand-in folder gone
+            try:
+                if self._written is not None and self._written.exists():
+                    shutil.move(self._written, self.path)
+            finally:
+                shutil.rmtree(self._stand_in, ignore_errors=True)
+                self._stand_in = None
 
     def __enter__(self) -> "VideoRecorder":
         return self

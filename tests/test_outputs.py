@@ -664,3 +664,10 @@ def test_an_old_result_that_cannot_be_removed_is_said_not_left_in_silence(tmp_pa
     err = capsys.readouterr().err
     assert len(left) == 1 and f"note: could not remove {tmp_path / left[0]}" in err
     assert "(Permission denied); remove it yourself" in err
+
+
+def test_text_written_keeps_a_file_names_bytes(tmp_path):
+    """A report naming a folder whose name holds a Latin-1 byte used to fail to encode (every
+    rerun of the sweep then failed the same way, and report.md was never written)."""
+    outputs.write_text(tmp_path / "r.md", "results in lat/b\udce9\n")
+    assert (tmp_path / "r.md").read_bytes() == b"results in lat/b\xe9\n"

@@ -117,3 +117,11 @@ def test_paths_figure_draws_a_jump_dashed_and_leaves_it_out_of_the_desired_path(
     assert sorted(len(ln.get_xdata()) for ln in desired) == [2, 2]  # cut between 1 and 2
     jump = next(ln for ln in ax.lines if ln.get_label() == "jump")
     assert jump.get_linestyle() == "--" and list(jump.get_xdata()) == [10, 50]
+
+
+def test_a_title_holding_bytes_that_are_not_utf8_is_drawn(figures):
+    """A file name with a Latin-1 byte reaches the title as a lone surrogate, which matplotlib
+    cannot draw: it becomes U+FFFD."""
+    d = np.c_[np.arange(3.0), np.zeros(3), np.zeros(3)]
+    plot.path_figure(_trace(d, d), "two-link traj\udce9 (table2)", "x.png")
+    assert figures[0].axes[0].get_title() == "two-link traj\ufffd (table2)"

@@ -1,6 +1,8 @@
 """`python -m itg_vision.run` end to end, and its bad inputs."""
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -332,3 +334,28 @@ def test_the_summary_says_where_each_rule_parameter_came_from(tmp_path):
     assert prep.info["controller_params_from"] == {"step_deg": "default", "tolerance_mm": "default"}
     _, s = execute(prepare(RunConfig(feedback="model", rules=str(lost), points=12)))
     assert "step_deg 2.0 (default), tolerance_mm 0.5 (default)" in summary_table(s, tmp_path)
+
+
+@pytest.mark.slow
+def test_names_whose_bytes_are_not_utf8_are_written_and_drawn(cli, tmp_path):
+    """A trajectory file and an --out folder whose names hold a Latin-1 byte (Python keeps it
+    as a lone surrogate): the figures' titles used to fail in matplotlib (a traceback after
+    the run's work), and --video crashed the process in OpenCV's FFmpeg writer (a segfault,
+    with stderr silenced). The video is written under a plain name, then moved to its place."""
+    import os
+
+    base = os.fsencode(str(tmp_path))
+    traj = base + b"/traj\xe9.csv"
+    with open(traj, "wb") as f:
+        f.write(b"x_mm,y_mm\n100,0\n0,100\n-100,0\n0,-100\n")
+    out = base + b"/v\xe9"
+    res = subprocess.run([sys.executable, "-m", "itg_vision.run", "--trajectory", traj,
+                          "--video", "--quiet", "--out", out], capture_output=True, timeout=600)
+    assert res.returncode == 0, res.stderr.decode(errors="replace")
+    names = sorted(os.listdir(out))
+    assert names == [b".itg_vision-output.json", b"error.png", b"path.png", b"summary.json",
+                     b"trace.csv", b"video.webm"] or b"video.mp4" in names
+    import cv2
+    moved = tmp_path / "moved.webm"  # OpenCV reads a plain name; the bytes are the same
+    moved.write_bytes(open(out + b"/video.webm", "rb").read())
+    assert cv2.VideoCapture(str(moved)).get(cv2.CAP_PROP_FRAME_COUNT) == 4
