@@ -78,6 +78,8 @@ def run_main(body: Callable[[], int]) -> int:
     read-only disk) is one line too, status 2; a closed standard output (``| head``) ends the
     command quietly, status 1; a current folder deleted before the start is said, status 2.
     """
+    if getattr(signal.getsignal(signal.SIGINT), "__name__", "") == "_interrupted_at_start":
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C in the body: below
     try:
         os.getcwd()
     except FileNotFoundError:

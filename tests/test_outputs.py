@@ -671,3 +671,29 @@ def test_text_written_keeps_a_file_names_bytes(tmp_path):
     rerun of the sweep then failed the same way, and report.md was never written)."""
     outputs.write_text(tmp_path / "r.md", "results in lat/b\udce9\n")
     assert (tmp_path / "r.md").read_bytes() == b"results in lat/b\xe9\n"
+
+
+@pytest.mark.parametrize("after_s", [0.3, 0.6])
+def test_ctrl_c_while_a_command_starts_says_interrupted_without_a_traceback(tmp_path, after_s):
+    """Ctrl-C in the first second of `python -m itg_vision.run` (its modules still loading)
+    used to print a KeyboardInterrupt traceback from inside matplotlib's import. Nothing is
+    written either way."""
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.run", "--laps", "3", "--out",
+                             str(tmp_path / "o")], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(after_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "interrupted"
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_library_import_leaves_ctrl_c_alone():
+    res = subprocess.run([sys.executable, "-c", "import signal, itg_vision; "
+                          "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"],
+                         capture_output=True, text=True, timeout=60)
+    assert res.stdout.strip() == "True", res.stderr
