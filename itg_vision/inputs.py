@@ -50,6 +50,11 @@ def file_sha256(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def _a(what: str) -> str:
+    """``what`` with its article ('an arm file', 'a rule file')."""
+    return ("an " if what[:1] in "aeiou" else "a ") + what
+
+
 def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
     """The text of ``path`` (a ``what``: 'rule file', 'rig file', ...); raises `UserError`.
 
@@ -62,11 +67,11 @@ def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
         with open(path, "rb") as f:
             data = f.read(limit + 1)
     except IsADirectoryError:
-        raise UserError(f"{path}: is a folder, not a {what}") from None
+        raise UserError(f"{path}: is a folder, not {_a(what)}") from None
     except OSError as exc:
         raise UserError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     if len(data) > limit:
-        raise UserError(f"{path}: {what} larger than {limit // 1024} KiB: not a {what}?")
+        raise UserError(f"{path}: {what} larger than {limit // 1024} KiB: not {_a(what)}?")
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
     try:
@@ -74,11 +79,11 @@ def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
     except UnicodeDecodeError as exc:
         line, col = position(data, exc.start)
         raise UserError(f"{path}:{line}:{col}: not UTF-8 text (byte 0x{data[exc.start]:02x}): "
-                        f"not a {what}?") from None
+                        f"not {_a(what)}?") from None
     nul = text.find("\0")
     if nul >= 0:
         line, col = position(text, nul)
-        raise UserError(f"{path}:{line}:{col}: NUL character: a binary file, not a {what}?")
+        raise UserError(f"{path}:{line}:{col}: NUL character: a binary file, not {_a(what)}?")
     # Windows' and old Macs' line ends read as lines too (a rule file saved with CRs alone
     # read as one comment line: "no rules found")
     return text.replace("\r\n", "\n").replace("\r", "\n")

@@ -236,6 +236,7 @@ CASES = [
     ("arm-nested", "run", RUN + ["--arm", "{arm-standoff-nested.yaml}"], "arm-standoff-nested.yaml: nested too deeply to be an arm file"),
     ("rig-dev-zero", "run", ["--quiet", "--rig", "/dev/zero"], "/dev/zero: rig file larger than"),
     ("rig-folder", "run", ["--quiet", "--rig", "{folder}"], "a-folder: is a folder, not a rig file"),
+    ("arm-folder", "run", ["--quiet", "--arm", "{folder}"], "a-folder: is a folder, not an arm file"),
     ("rig-fx-1e300", "run", ["--quiet", "--rig", "{rig-fx-huge}"], "cameras[1].camera_matrix: fx must be at most 1e+06 px"),
     ("rig-matrix-2x3", "run", ["--quiet", "--rig", "{rig-km-2x3}"], "rig-km-2x3.yaml: cameras[0].camera_matrix: rows x cols is 2 x 3, but data holds 9 values"),
     ("rig-distortion-1x4", "run", ["--quiet", "--rig", "{rig-dist-1x4}"], "rig-dist-1x4.yaml: cameras[0].distortion_coefficients: rows x cols is 1 x 4, but data holds 5 values"),
