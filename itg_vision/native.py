@@ -26,7 +26,9 @@ function, so that the compiler computes a definition only on the paths that read
 function computes every definition first, in file order). Modules are cached by the hash of
 their source, the compiler (command, flags, version), the machine and its C library under
 ``$ITG_VISION_CACHE`` (default ``~/.cache/itg_vision``), written to a temporary name and
-renamed; a cache that cannot be used is :class:`NativeUnavailable`, as a missing compiler is.
+renamed; a cache that cannot be used (not a folder, not writable) is said on stderr, and the
+module is built in a temporary folder for the process instead; a missing compiler is
+:class:`NativeUnavailable`.
 """
 
 from __future__ import annotations
@@ -263,17 +265,42 @@ def build(rule_bases) -> list:
                                     suffix, *_toolchain(tuple(cc))]).encode()).hexdigest()[:20]
     name = f"itg_native_{key}"
     if name not in _loaded:
-        path = cache_dir() / f"{name}{suffix}"
+        source = body + _module_init(rule_bases, name)
         try:
-            if not path.exists():
-                _compile(body + _module_init(rule_bases, name), cc, flags, path)
-            spec = importlib.util.spec_from_file_location(name, path)
-            module = importlib.util.module_from_spec(spec)
-            spec.loader.exec_module(module)
-        except (ImportError, OSError) as exc:  # the cache folder or a cached module unusable
-            raise NativeUnavailable(f"{path}: {type(exc).__name__}: {exc}") from None
+            module = _load(name, cache_dir() / f"{name}{suffix}", source, cc, flags)
+        except (ImportError, OSError) as exc:  # the cache unusable: build for this process only
+            where = _scratch_dir()
+            print(f"note: the compiled-rules cache {cache_dir()} cannot be used "
+                  f"({getattr(exc, 'strerror', None) or exc}); building in {where} for this run "
+                  "(set ITG_VISION_CACHE to a writable folder to keep the build)", file=sys.stderr)
+            try:
+                module = _load(name, where / f"{name}{suffix}", source, cc, flags)
+            except (ImportError, OSError) as exc2:
+                raise NativeUnavailable(f"{where}: {type(exc2).__name__}: {exc2}") from None
         _loaded[name] = module
     return [getattr(_loaded[name], f"step_{k}") for k in range(len(rule_bases))]
+
+
+def _load(name: str, path: Path, source: str, cc: list[str], flags: list[str]):
+    """The extension module ``name`` at ``path``, compiled there first if it is not yet."""
+    if not path.exists():
+        _compile(source, cc, flags, path)
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@functools.lru_cache(maxsize=None)
+def _scratch_dir() -> Path:
+    """A folder of this process's own for builds when the cache cannot be used; removed when
+    the process ends."""
+    import atexit
+    import shutil
+
+    where = Path(tempfile.mkdtemp(prefix="itg_vision-native-"))
+    atexit.register(shutil.rmtree, where, ignore_errors=True)
+    return where
 
 
 def compiler_version() -> str:
