@@ -31,6 +31,10 @@ def test_accuracy_out_saves_what_it_printed(tmp_path, capsys):
     default = r["settings"][r["default"]]
     for row in default["rows"]:
         assert f"{row['measured_rms_mm']:.4f}" in printed
+    # 5 poses cannot judge the ratio's 10 % band (its sampling error is ~0.2): no verdict
+    ratio_line = next(line for line in printed.splitlines() if "first-order prediction" in line)
+    assert "(undecided;" in ratio_line and "too few to judge" in ratio_line
+    assert default["ratio_se"] > (accuracy.TARGET_RATIO - 1) / 2
     # a second run replaces its own folder; the same seed gives the same figures
     rc, printed2, err = _run(accuracy.main, ["--poses", "5", "--out", str(out)], capsys)
     assert rc == 0, err

@@ -203,9 +203,12 @@ def main(argv: list[str] | None = None) -> int:
             f"({verdict(g <= TARGET_GRIPPER_MM)})")
         n, se = min(row["n"] for row in r["rows"]), r["ratio_se"]
         enough = 2 * se <= TARGET_RATIO - 1  # the band holds two standard errors
+        # too few samples to judge the band: no verdict either way (their scatter alone could
+        # put a ratio in or out of it)
+        judged = verdict(max(worst, 1 / worst) <= TARGET_RATIO) if enough else "undecided"
         say(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
             + ", ".join(f"{x:.3f}" for x in ratios)
-            + f" ({verdict(max(worst, 1 / worst) <= TARGET_RATIO)}; each ratio from {n} 3-D "
+            + f" ({judged}; each ratio from {n} 3-D "
               f"errors, its sampling error {se:.3f} from the rig's error ellipsoids there"
             + ("" if enough else f": too few to judge a {TARGET_RATIO - 1:.0%} band, raise --poses")
             + ")")
