@@ -71,20 +71,37 @@ def test_verdicts_follow_their_numbers(paper_run):
     text = paper.report(good, base)
     assert _row(text, 6).endswith("| agrees as given |")
     assert _row(text, "5b").endswith("| agrees |")
-    assert "disagrees" not in _row(text, 3)
+    assert "disagrees" not in _row(text, 3) and _row(text, 3).endswith("it holds for every f |")
+    # experiment 2 judges both laps: a flail on the second (as measured) disagrees; without it,
+    # the first lap's settled figures decide
+    assert _row(paper.report(r, base), 2).endswith("| disagrees |")
+    calm = copy.deepcopy(r)
+    calm["exp2"].update(e_av_after_settling_mm=4.0, e_max_after_settling_mm=9.0)
+    assert _row(paper.report(calm, base), 2).endswith("| agrees |")
+    # experiment 5's mechanisms: confirmed or refuted by the settled E_max against FLAIL_MM
+    mech = paper.report(r, base)
+    assert "refuted otherwise: refuted." in mech and "(no flail left): confirmed." in mech
+    turned = copy.deepcopy(r)
+    for v in turned["exp5"].values():
+        v["variants"]["sign of y_g instead of y_d"]["second_lap_e_max_mm"] = paper.FLAIL_MM
+        v["variants"]["pairing swapped where both levers are inverted"]["second_lap_e_max_mm"] = \
+            paper.FLAIL_MM + 1
+    mech = paper.report(turned, base)
+    assert "refuted otherwise: confirmed." in mech and "(no flail left): not confirmed." in mech
 
 
 @pytest.mark.slow
 def test_flail_mechanism_is_tested_by_changing_its_cause(paper_run):
     """Experiment 5: the sign-of-y_d explanation is refuted (the flail stays with y_g), the
-    lever-pairing one confirmed (swapping the pairing where both levers invert removes it)."""
+    lever-pairing one confirmed (swapping the pairing where both levers invert removes it):
+    each as the report computes it, against FLAIL_MM."""
     _, r = paper_run
     for n, v in r["exp5"].items():
         flail = v["second_lap_e_max_mm"]
         yg = v["variants"]["sign of y_g instead of y_d"]["second_lap_e_max_mm"]
         swap = v["variants"]["pairing swapped where both levers are inverted"]["second_lap_e_max_mm"]
-        assert flail > 100 and yg > 0.5 * flail, (n, flail, yg)
-        assert swap < 0.1 * flail, (n, flail, swap)
+        assert flail > 100 and yg > paper.FLAIL_MM, (n, flail, yg)
+        assert swap <= paper.FLAIL_MM, (n, flail, swap)
 
 
 def test_three_link_start_tie_is_decided_by_its_sign_not_by_the_links():
