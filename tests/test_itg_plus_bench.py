@@ -206,6 +206,11 @@ def test_memory_checks_test_the_explanation_by_changing_its_cause():
     same = [{**r, "track_median_mm": "1.2"} if r["controller"] == k.SUBJECT_FF
             and r["condition"] == "noise-1px" else r for r in rows]
     assert [t.met for t in k.memory_checks(same, ["ellipse-t1"])[0]] == [True, False, False, True]
+    # the explanation's verdict follows its checks (the heading promised 'tested' whatever
+    # they said)
+    assert k.memory_verdict(checks).startswith("All 4 checks met: on this sweep the explanation holds")
+    assert k.memory_verdict(k.memory_checks(same, ["ellipse-t1"])[0]).startswith(
+        "2 of 4 checks not met: this sweep does not support the explanation (first: 1 px:")
     assert k.memory_checks([r for r in rows if r["controller"] != k.DLS_FF], ["ellipse-t1"]) == ([], [])
     # a run that did not start, or a cell without a median, on one of two curves: the checks
     # are taken over the other curve and are not met

@@ -153,7 +153,7 @@ def tracking_targets(rows: list[dict], trajectories, bounds: dict | None = None,
 
 #: targets.md's heading and paragraph above the checks of :func:`memory_checks`.
 MEMORY_INTRO = [
-    "## Why the 1 px target is missed, tested", "",
+    "## Why the 1 px target is missed: the explanation, checked", "",
     "The explanation: without memory a tracker lands each step where the eye says the set point "
     "is, so under 1 px both trackers sit on the eye's error and land the same millimetres; "
     "ITG+, better clean, shows the larger ratio. The test changes the cause: both trackers get "
@@ -222,6 +222,17 @@ def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[st
     lines = [ratio_line(SUBJECT_FF, DLS_FF, "Memory for both"),
              ratio_line(SUBJECT_FF, DLS, "Memory for ITG+ alone (unequal: not counted)")]
     return checks, lines
+
+
+def memory_verdict(checks: list[Target]) -> str:
+    """The explanation's verdict, from its checks: it holds on this sweep only if every one is
+    met."""
+    missed = [c for c in checks if not c.met]
+    if not missed:
+        return (f"All {len(checks)} checks met: on this sweep the explanation holds (the miss "
+                "comes from ITG+'s clean advantage, not from a weakness under noise).")
+    return (f"{len(missed)} of {len(checks)} checks not met: this sweep does not support the "
+            "explanation (first: " + missed[0].what + ").")
 
 
 #: targets.md's heading and paragraph above the checks of :func:`preview_checks`.
@@ -569,7 +580,8 @@ def main(argv: list[str] | None = None) -> int:
                                        "report.md name them)" if n_gone else "") + ".", ""]
         checks, lines = memory_checks(rows["itg-plus"], two_link)
         if checks:
-            text += MEMORY_INTRO + table(checks, "check") + [""] + lines + [""]
+            text += MEMORY_INTRO + table(checks, "check") + [""] + [memory_verdict(checks)] \
+                + [""] + lines + [""]
         checks = preview_checks(rows["itg-plus"], two_link, plans)
         if checks:
             text += PREVIEW_INTRO + table(checks, "check") + [""]
