@@ -445,3 +445,19 @@ def test_bench_itg_plus_refuses_an_out_it_did_not_make(tmp_path, capsys, make):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: --out")
     assert (out.read_text() if make == "file" else (out / "notes.txt").read_text()) == "mine"
+
+
+def test_targets_header_lists_each_paths_limits_from_its_runs():
+    """targets.md's header said '2 laps' for every two-link path, abcd (open, one lap)
+    included, and gave no set points or seeds; it now reads them from the run specs."""
+    args = itg_plus.build_parser().parse_args(
+        ["--trajectories", "ellipse-t1,abcd", "--seeds", "2", "--seeds-three-link", "3",
+         "--points", "40"])
+    sweeps = itg_plus.build_sweeps(args)
+    line = itg_plus.limits_line(sweeps)
+    assert "ellipse-t1 (two-link) 40 set points, 2 laps, servo 20 deg/iteration, 1 iteration(s), 2 seeds" in line
+    assert "abcd (two-link) 40 set points, 1 lap, servo 20 deg/iteration" in line
+    assert "line-ab-reach (three-link) 40 set points, 1 lap, servo 2 deg/iteration, 5 iteration(s), 3 seeds" in line
+    for _, _, _, specs in sweeps:  # each figure is the specs' own
+        for s in specs:
+            assert f"{s.trajectory} ({s.arm})" in line

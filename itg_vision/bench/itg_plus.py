@@ -35,10 +35,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import outputs
+from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, worst
 from .store import Results, check_sweep_file, definition_hash, started
-from .sweep import FF_CORRECTION, SWEEPS, _parse_names
+from .sweep import FF_CORRECTION, SWEEPS, _default_points, _parse_names
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -222,6 +223,24 @@ def memory_checks(rows: list[dict], trajectories) -> tuple[list[Target], list[st
     lines = [ratio_line(SUBJECT_FF, DLS_FF, "Memory for both"),
              ratio_line(SUBJECT_FF, DLS, "Memory for ITG+ alone (unequal: not counted)")]
     return checks, lines
+
+
+def limits_line(sweeps) -> str:
+    """Per path, what its runs ran under, from their specs: set points per lap, laps, servo
+    limit, iterations, seeds (targets.md's header)."""
+    parts = []
+    for _, _, _, specs in sweeps:
+        by: dict[str, list] = {}
+        for s in specs:
+            by.setdefault(s.trajectory, []).append(s)
+        for t, ss in by.items():
+            s = ss[0]
+            n = s.points if s.points is not None else _default_points(t)
+            servo = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
+            parts.append(f"{t} ({s.arm}) {n} set points, {s.laps} lap{'s' if s.laps > 1 else ''}, "
+                         f"{servo}, {s.iterations} iteration(s), "
+                         f"{len({x.seed for x in ss})} seeds")
+    return "; ".join(parts)
 
 
 def memory_verdict(checks: list[Target]) -> str:
@@ -563,9 +582,10 @@ def main(argv: list[str] | None = None) -> int:
         costs = decision_costs()
         targets.append(speed_target(costs))
         text = ["# ITG+ against issue 13's targets", "", f"Produced by `{command.strip()}`.", "",
-                "Two-link: vision feedback, 2 laps, servo limit and iterations from "
-                "data/arms/two-link.yaml for every controller (tracking/report.md); three-link: "
-                "vision feedback, from the straight-up start (three-link/report.md). "
+                "Vision feedback; every controller of a path under the same limits, from the "
+                "arm files (data/arms): " + limits_line(sweeps) + f"; a run diverged when its "
+                f"tracking median exceeds {DIVERGED_MM:g} mm. Two-link: tracking/report.md; "
+                "three-link, from the straight-up start: three-link/report.md. "
                 "Verdicts are computed from the measured value and the threshold. Beside each "
                 "tracking median: mean and p95 (median over seeds) and max (worst seed); beside "
                 "each tracking max: the servo bound, the least any tracker that is on the path "
