@@ -235,3 +235,36 @@ def test_three_link_jacobian_tracker_follows_line_ab_reach_under_vision_sized_no
     top = sigma * _chi3_quantile(1 - 1e-3 / n)
     bottom = sigma * _chi3_quantile(1e-3 ** (1 / n))
     assert bottom < s["track_max_mm"] < top, (bottom, s["track_max_mm"], top)
+
+
+@pytest.mark.parametrize("name", ["two-link", "three-link"])
+def test_the_dls_step_is_the_damped_least_squares_solution(name):
+    """The tracker's step against an independent solve: dq minimises |J dq - e|^2 +
+    lambda^2 |dq|^2, i.e. the least-squares solution of [J; lambda I] dq = [e; 0] (its
+    Jacobian is tested against the simulator's finite differences above); under a servo limit
+    the step keeps its direction and its largest joint turns exactly the limit."""
+    from itg_vision.contracts import Markers
+    from itg_vision.identify import nominal_geometry
+
+    arm = ArmSpec.from_args(name)
+    rng = np.random.default_rng(21)
+    free = JacobianTracker(nominal_geometry(arm), arm.planar, arm.n_joints)
+    limited = JacobianTracker(nominal_geometry(arm), arm.planar, arm.n_joints, max_step_deg=2.0)
+    dim = 2 if arm.planar else 3
+    for q in random_poses(arm, 20, rng):
+        m = forward_kinematics(arm, q)
+        g, e = m["gripper"], m.get("elbow", np.full(3, np.nan))
+        desired = g + rng.normal(0, 30, 3) * ([1, 1, 0] if arm.planar else 1)
+        markers = Markers(g, e)
+        J = free.jacobian(g, e)
+        A = np.vstack([J, free.damping * np.eye(arm.n_joints)])
+        b = np.concatenate([(desired - g)[:dim], np.zeros(arm.n_joints)])
+        expected = np.degrees(np.linalg.lstsq(A, b, rcond=None)[0])
+        dq = free.step(desired, markers, None).dq_deg
+        assert np.allclose(dq, expected, rtol=1e-9, atol=1e-12), (q, dq, expected)
+        capped = limited.step(desired, markers, None).dq_deg
+        if np.max(np.abs(dq)) > 2.0:
+            assert np.max(np.abs(capped)) == pytest.approx(2.0, rel=1e-12)
+            assert np.allclose(capped / np.linalg.norm(capped), dq / np.linalg.norm(dq), atol=1e-12)
+        else:
+            assert np.allclose(capped, dq)
