@@ -32,12 +32,12 @@ def test_circle_fit_recovers_centre_axis_and_radius():
     ring = np.c_[80 * np.cos(np.radians(q + 20)), 80 * np.sin(np.radians(q + 20)), np.zeros(23)]
     P = ring @ R.T + centre
     c, n, r, rms = fit_circle(P)
-    assert np.allclose(c, centre, atol=1e-9) and r == pytest.approx(80, abs=1e-9) and rms < 1e-9
+    assert np.allclose(c, centre, rtol=0, atol=1e-9) and r == pytest.approx(80, abs=1e-9) and rms < 1e-9
     axis = rotation_sense_axis(c, n, P)
-    assert np.allclose(axis, R[:, 2], atol=1e-9)  # counter-clockwise with increasing angle
+    assert np.allclose(axis, R[:, 2], rtol=0, atol=1e-9)  # counter-clockwise with increasing angle
     # at q = 0 the point sat 20 deg past the ring's x axis
     assert np.allclose(zero_direction(c, axis, P, q),
-                       R @ [np.cos(np.radians(20)), np.sin(np.radians(20)), 0], atol=1e-9)
+                       R @ [np.cos(np.radians(20)), np.sin(np.radians(20)), 0], rtol=0, atol=1e-9)
     # 0.3 mm noise per coordinate on 23 points: the centre within ~0.3 / sqrt(23 / 2) ~ 0.1 mm
     c2, _, r2, rms2 = fit_circle(P + rng.normal(0, 0.3, P.shape))
     assert np.linalg.norm(c2 - centre) < 0.4 and abs(r2 - 80) < 0.4 and 0.1 < rms2 < 0.6

@@ -123,8 +123,8 @@ def test_window_and_fallback():
     near = find_led(img, cam, RED, predicted_uv=(95, 45))
     far = find_led(img, cam, RED, predicted_uv=(20, 100))  # window misses: full frame
     assert full.ok and near.ok and far.ok
-    assert np.allclose(near.uv_raw_px, full.uv_raw_px, atol=1e-9)
-    assert np.allclose(far.uv_raw_px, full.uv_raw_px, atol=1e-9)
+    assert np.allclose(near.uv_raw_px, full.uv_raw_px, rtol=0, atol=1e-9)
+    assert np.allclose(far.uv_raw_px, full.uv_raw_px, rtol=0, atol=1e-9)
 
 
 def test_a_prediction_in_a_window_of_the_frame_is_searched_in_frame_pixels():
@@ -139,7 +139,7 @@ def test_a_prediction_in_a_window_of_the_frame_is_searched_in_frame_pixels():
     window = Patch(img[20:100, 60:150], (60, 20), (160, 120))
     for predicted in ((100, 41), (95, 45), (70, 90), (10, 10), (40, 21)):
         d = locate_led_near(window, RED, predicted)
-        assert d.ok and np.allclose(d.uv_raw_px, whole.uv_raw_px, atol=1e-9), predicted
+        assert d.ok and np.allclose(d.uv_raw_px, whole.uv_raw_px, rtol=0, atol=1e-9), predicted
 
 
 def _sphere_image_centre(cam: Camera, X_mm, r_mm: float) -> np.ndarray:

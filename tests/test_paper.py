@@ -108,6 +108,10 @@ def test_three_link_start_tie_is_decided_by_its_sign_not_by_the_links():
     """rg2 - re2 < 0 at the straight-up start sends q3 the wrong way (RULE 6) and the arm
     diverges; > 0 tracks; the same for nominal and 5 % long links."""
     rows = paper.tie_experiment()
+    # every bias for both link sets: an empty or one-sided result would skip the checks below
+    assert sorted((tuple(r["links_mm"]), r["elbow_bias_mm"]) for r in rows) == sorted(
+        (links, b) for links in paper.TIE_LINKS_MM
+        for b in (paper.TIE_BIAS_MM, -paper.TIE_BIAS_MM, 0.0))
     for row in rows:
         if row["elbow_bias_mm"] > 0:  # elbow farther out: rg2 < re2
             assert row["rg2_minus_re2_mm2"] < 0 and row["first_q3_rule"] == 6
