@@ -124,8 +124,8 @@ def error_figure(trace, title: str, path, *, laps: int = 1) -> None:
                 label=f"a marker missed ({missed.sum()} set points)")
     for k, part in enumerate(lap_slices(len(e), laps)[1:], start=2):
         ax.axvline(part.start - 0.5, color="0.6", ls=":", lw=0.8)
-        ax.annotate(f"lap {k}", (part.start, 1), xycoords=("data", "axes fraction"),
-                    xytext=(2, -10), textcoords="offset points", fontsize=7, color="0.4")
+        ax.annotate(f"lap {k}", (part.start, 0), xycoords=("data", "axes fraction"),
+                    xytext=(2, 3), textcoords="offset points", fontsize=7, color="0.4")
     m = trace.metrics()  # the summary's numbers, not a second computation of them
     tracked = m["track_max_mm"] is not None
     if tracked:
