@@ -317,7 +317,8 @@ def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[
         cfg = dataclasses.replace(cfg, max_step_deg=servo)
     if cfg.step_deg is not None and cfg.step_deg != servo:
         raise ConfigError("step_deg", f"{source}: S is the servo limit ({servo:g} deg per "
-                                      "iteration): set max_step_deg instead")
+                                      "iteration): set the servo limit instead (max_step_deg; "
+                                      "run's --max-step)")
     return cfg, f"S = servo limit = {servo:g} deg/iteration, from {note}"
 
 
