@@ -78,7 +78,9 @@ def run_main(body: Callable[[], int]) -> int:
     read-only disk) is one line too, status 2; a closed standard output (``| head``) ends the
     command quietly, status 1; a current folder deleted before the start is said, status 2.
     """
-    if getattr(signal.getsignal(signal.SIGINT), "__name__", "") == "_interrupted_at_start":
+    package = sys.modules.get(__package__)
+    start_handler = getattr(package, "_interrupted_at_start", None)  # only under python -m
+    if start_handler is not None and signal.getsignal(signal.SIGINT) is start_handler:
         signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C in the body: below
     try:
         os.getcwd()

@@ -12,6 +12,7 @@ and the field. :func:`clip` shortens a user's text quoted in a message.
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import numbers
 import re
@@ -43,10 +44,8 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
 
 
 def file_sha256(path: str | Path) -> str:
-    """The SHA-256 of a file's bytes, as 64 hex digits (a calibrated rig's
-    ``true_rig_sha256``)."""
-    import hashlib
-
+    """The SHA-256 of a file's bytes, as 64 hex digits: a calibrated rig's ``true_rig_sha256``,
+    and, cut short, a run's input digests and a sweep's file hashes."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 

@@ -99,9 +99,9 @@ def exp1(base, out) -> dict:
 def exp2(base, out) -> dict:
     """T1 as the paper runs it, then a second lap: a flail hides in the later laps of a closed
     path, so the settled part, which the verdict judges, runs to the end of the second."""
-    trace, s = _run(base, arm="two-link", trajectory="ellipse-t1", laps=2)
+    trace, _ = _run(base, arm="two-link", trajectory="ellipse-t1", laps=2)
     e = trace.error_mm()
-    n = len(e) // 2
+    n = trace.tracking_start  # where the second lap starts
     i0 = settle_index(e, 10.0)
     plot.paths_figure([("experiment 2: ellipse T1, 180 points, 2 laps", trace)], "Fig. 4.2",
                       out / "exp2_path.png")

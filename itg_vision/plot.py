@@ -37,11 +37,15 @@ def _shown(text: str) -> str:
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
 
 
+#: Tick labels as plain decimals (0.05, 20), not powers of ten.
+_PLAIN = FuncFormatter(lambda v, _: f"{v:g}")
+
+
 def plain_log_ticks(axis) -> None:
     """Ticks of a log axis at 1, 2 and 5 per decade, written as plain decimals (0.05, 20), not
     as powers of ten."""
     axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_major_formatter(_PLAIN)
     axis.set_minor_formatter(NullFormatter())
 
 
@@ -138,7 +142,7 @@ def error_figure(trace, title: str, path, *, laps: int = 1) -> None:
     ax.set_ylabel("E_i (mm)\nlog scale, linear below 0.01")
     ax.set_yscale("symlog", linthresh=0.01)  # log above 0.01 mm, so that the tracking shows
     ax.set_ylim(bottom=0)
-    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_major_formatter(_PLAIN)
     ax.grid(alpha=0.3)
     ax.set_title(_shown(title), fontsize=9)
     _save(fig, path)
@@ -150,6 +154,27 @@ def _floored(y, logy: bool):
     y = np.asarray(y, float)
     below = logy & np.isfinite(y) & (y < FLOOR_MM)
     return np.where(below, FLOOR_MM, y), below
+
+
+def _floor_and_spread(ax, x, y, below, spread, color, logy: bool) -> None:
+    """What a series of :func:`lines_figure` or :func:`grouped_dots_figure` draws besides its
+    values: an open downward triangle at the floor for each value below it, and, if ``spread``
+    is (q1s, q3s), the interquartile range as whiskers."""
+    if below.any():
+        ax.plot(x[below], y[below], "v", mfc="none", ms=6, color=color)
+    if spread:
+        lo, hi = (_floored(v, logy)[0] for v in spread)
+        ax.vlines(x, lo, hi, color=color, lw=0.9, alpha=0.7)
+
+
+def _legend_notes(ax, below: bool, spread: bool, flag_label: str = "") -> None:
+    """Legend entries for the marks drawn: values below the floor, whiskers, ringed cells."""
+    if below:
+        ax.plot([], [], "v", mfc="none", color="0.3", label=f"below {FLOOR_MM:g} mm, drawn there")
+    if spread:
+        ax.plot([], [], "|", color="0.3", ms=10, label="whisker: interquartile range")
+    if flag_label:
+        ax.plot([], [], "o", ms=11, mfc="none", mec="C3", mew=1.3, label=flag_label)
 
 
 def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, logx=False,
@@ -171,13 +196,9 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
         line, = ax.plot(x, np.where(below, np.nan, y), marker=mk, ms=4, lw=1.2,
                         ls=_STYLES[(i // 10) % len(_STYLES)] if len(series) > 10 else "-",
                         mfc="none" if i % 2 else None, label=label)
-        if spread:  # (q1, q3): the interquartile range over seeds, as a whisker
-            lo, hi = (_floored(v, logy)[0] for v in spread)
-            ax.vlines(x, lo, hi, color=line.get_color(), lw=0.9, alpha=0.7)
-            any_spread = True
-        if below.any():
-            any_below = True
-            ax.plot(x[below], y[below], "v", mfc="none", ms=6, color=line.get_color())
+        _floor_and_spread(ax, x, y, below, spread, line.get_color(), logy)
+        any_spread |= bool(spread)
+        any_below |= bool(below.any())
     for j, (label, (x, y)) in enumerate((references or {}).items()):
         ax.plot(x, y, ls=_STYLES[1 + j % 3], color="0.45", lw=0.9, label=label)
     for y, label, *color in hlines:
@@ -186,10 +207,7 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
     for x0, x1, label in vspans:
         ax.axvspan(x0, x1, color="0.85", zorder=0, label=None if label in shown else label)
         shown.add(label)
-    if any_below:
-        ax.plot([], [], "v", mfc="none", color="0.3", label=f"below {FLOOR_MM:g} mm, drawn there")
-    if any_spread:
-        ax.plot([], [], "|", color="0.3", ms=10, label="whisker: interquartile range")
+    _legend_notes(ax, any_below, any_spread)
     if logx:
         ax.set_xscale("log")
         plain_log_ticks(ax.xaxis)
@@ -249,12 +267,8 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
         ys, below = _floored(ys, logy)
         dots, = ax.plot(np.where(below, np.nan, xs), ys, _MARKERS[i % len(_MARKERS)], ms=5,
                         ls="none", label=label)
-        if below.any():
-            any_below = True
-            ax.plot(xs[below], ys[below], "v", mfc="none", ms=6, color=dots.get_color())
-        if spread and label in spread:
-            lo, hi = (_floored(v, logy)[0] for v in spread[label])
-            ax.vlines(xs, lo, hi, color=dots.get_color(), lw=0.9, alpha=0.7)
+        _floor_and_spread(ax, xs, ys, below, (spread or {}).get(label), dots.get_color(), logy)
+        any_below |= bool(below.any())
         for xv, yv, b in zip(xs, ys, below):
             if np.isfinite(yv):
                 ax.annotate(f"<{FLOOR_MM:g}" if b else f"{yv:.3g}", (xv, yv), xytext=(0, 5),
@@ -266,12 +280,7 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
             ax.plot(xs[hit], ys[hit], "o", ms=11, mfc="none", mec="C3", mew=1.3)
     for k in range(1, len(categories)):  # where one category ends
         ax.axvline(k - 0.5, color="0.85", lw=0.8, zorder=0)
-    if any_below:
-        ax.plot([], [], "v", mfc="none", color="0.3", label=f"below {FLOOR_MM:g} mm, drawn there")
-    if spread:
-        ax.plot([], [], "|", color="0.3", ms=10, label="whisker: interquartile range")
-    if any_flag:
-        ax.plot([], [], "o", ms=11, mfc="none", mec="C3", mew=1.3, label=flag_label)
+    _legend_notes(ax, any_below, bool(spread), flag_label if any_flag else "")
     ax.set_xticks(x)
     ax.set_xticklabels(categories, rotation=35, ha="right", fontsize=8)
     ax.set_xlim(-0.5, len(categories) - 0.5)

@@ -24,7 +24,7 @@ from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
 from .feedback import DEFAULT_SUPERSAMPLE
-from .inputs import FILE_TYPES
+from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
 from .rules import shipped_rules
@@ -203,7 +203,7 @@ def run_key(prep) -> dict:
     digests = {}
     for key, path in files.items():
         try:
-            digests[key] = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+            digests[key] = file_sha256(path)[:16]
         except OSError:
             digests[key] = None
     return {"config": outputs.json_safe(config_dict(prep.config)), "inputs_sha256": digests}

@@ -37,7 +37,7 @@ import numpy as np
 from .. import outputs
 from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
-from .report import _float as _f, worst
+from .report import _float as _f, spec_limits, worst
 from .store import Results, check_sweep_file, definition_hash, started
 from .sweep import FF_CORRECTION, SWEEPS, _default_points, _parse_names
 
@@ -230,16 +230,12 @@ def limits_line(sweeps) -> str:
     limit, iterations, seeds (targets.md's header)."""
     parts = []
     for _, _, _, specs in sweeps:
-        by: dict[str, list] = {}
-        for s in specs:
-            by.setdefault(s.trajectory, []).append(s)
-        for t, ss in by.items():
-            s = ss[0]
-            n = s.points if s.points is not None else _default_points(t)
-            servo = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
-            parts.append(f"{t} ({s.arm}) {n} set points, {s.laps} lap{'s' if s.laps > 1 else ''}, "
-                         f"{servo}, {s.iterations} iteration(s), "
-                         f"{len({x.seed for x in ss})} seeds")
+        for t in dict.fromkeys(s.trajectory for s in specs):  # in the sweep's order
+            lim = spec_limits(specs, t)
+            n = lim["points"] if lim["points"] is not None else _default_points(t)
+            parts.append(f"{t} ({lim['arm']}) {n} set points, {lim['laps']} "
+                         f"lap{'s' if lim['laps'] > 1 else ''}, {lim['servo']}, "
+                         f"{lim['iterations']} iteration(s), {lim['seeds']} seeds")
     return "; ".join(parts)
 
 

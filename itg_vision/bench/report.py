@@ -316,15 +316,24 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     return plots
 
 
-def _sweep_line(specs: list[RunSpec], traj: str) -> str:
-    """What a figure of ``traj`` shows, for its title: set points, laps, seeds, limits."""
+def spec_limits(specs: list[RunSpec], traj: str) -> dict:
+    """What the runs of ``traj`` ran under, from their specs (every controller alike): its arm,
+    set points per lap (None: the path's own), laps, iterations, servo limit (as text) and the
+    number of seeds."""
     mine = [s for s in specs if s.trajectory == traj]
     s = mine[0]
-    seeds = sorted({x.seed for x in mine})
-    pts = "the path's set points" if s.points is None else f"{s.points} set points"
-    limit = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
-    return (f"{pts}{', %d laps' % s.laps if s.laps > 1 else ''}, {s.iterations} iteration(s), "
-            f"{limit}; {len(seeds)} seed{'s' if len(seeds) > 1 else ''}")
+    servo = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
+    return {"arm": s.arm, "points": s.points, "laps": s.laps, "iterations": s.iterations,
+            "servo": servo, "seeds": len({x.seed for x in mine})}
+
+
+def _sweep_line(specs: list[RunSpec], traj: str) -> str:
+    """What a figure of ``traj`` shows, for its title: set points, laps, seeds, limits."""
+    lim = spec_limits(specs, traj)
+    pts = "the path's set points" if lim["points"] is None else f"{lim['points']} set points"
+    laps = f", {lim['laps']} laps" if lim["laps"] > 1 else ""
+    return (f"{pts}{laps}, {lim['iterations']} iteration(s), {lim['servo']}; "
+            f"{lim['seeds']} seed{'s' if lim['seeds'] > 1 else ''}")
 
 
 def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> list[Path]:

@@ -36,6 +36,7 @@ from pathlib import Path
 
 from ..arm import ArmSpec
 from ..errors import UserError
+from ..inputs import file_sha256
 from ..rules import resolve_rules_path
 
 #: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
@@ -382,7 +383,7 @@ def _calibrated_rig_sha(arm: str) -> str:
 
 
 def _file_sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    return file_sha256(path)[:12]
 
 
 def inputs_sha(trajectory: str, vision: bool) -> str:
