@@ -275,7 +275,8 @@ def tie_experiment(max_step_deg: float = 2.0, iterations: int = 5) -> list[dict]
                               planar=False, max_step_deg=max_step_deg)
             rows.append({"links_mm": list(links), "elbow_bias_mm": bias, "rg2_minus_re2_mm2": tie,
                          "first_q3_rule": next((r for r in tr.fired[0] if r in (6, 7)), None),
-                         **{k: tr.metrics()[k] for k in ("track_median_mm", "track_max_mm")}})
+                         **{k: tr.metrics()[k] for k in ("track_median_mm", "track_mean_mm",
+                                                         "track_p95_mm", "track_max_mm")}})
     return rows
 
 
@@ -463,12 +464,13 @@ def report(r: dict, base: RunConfig) -> str:
         "carry only the 12 mm stand-off), so Table 2's elbow rules (RULES 6/7 of `three-link.rules`) face a tie, which the "
         "paper resolves as 'no update'. Any measurement error decides it. Deciding it on purpose, with ideal LED "
         f"positions and the elbow moved {TIE_BIAS_MM} mm outwards (+) or inwards (-), 2 deg/iteration, 5 iterations:")
-    L += ["", "| links (mm) | elbow bias (mm) | rg2 - re2 at the start (mm^2) | first q3 rule | tracking median / max (mm) |",
+    L += ["", "| links (mm) | elbow bias (mm) | rg2 - re2 at the start (mm^2) | first q3 rule | tracking median / mean / p95 / max (mm) |",
           "| --- | --- | --- | --- | --- |"]
     for row in tie:
         L.append(f"| {'/'.join(f'{v:g}' for v in row['links_mm'])} | {row['elbow_bias_mm']:+g} | "
                  f"{row['rg2_minus_re2_mm2']:+.2f} | {row['first_q3_rule']} | "
-                 f"{_fmt(row['track_median_mm'])} / {_fmt(row['track_max_mm'])} |")
+                 + " / ".join(_fmt(row[k]) for k in ("track_median_mm", "track_mean_mm",
+                                                      "track_p95_mm", "track_max_mm")) + " |")
     L += ["", "The sign of rg2 - re2 at the start, not the link lengths, decides whether the arm tracks or diverges. "
           "How often noise decides it badly: `python -m itg_vision.bench noise --sweep start-tie` (40 seeds per cell).", ""]
     L += ["## The figures, each beside the paper's claim", "",
