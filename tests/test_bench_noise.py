@@ -16,9 +16,11 @@ from itg_vision.bench import execute, noise
 from itg_vision.bench.execute import run_one
 from itg_vision.bench.noise import main
 from itg_vision.bench.store import definition_hash
-from itg_vision.bench.sweep import (CONTROLLERS, RIG_ANGLE_DEG, RIG_SHIFT_MM, RunSpec, build_sweep,
-                                    run_config)
+from itg_vision.arm import ArmSpec, forward_kinematics
+from itg_vision.bench.sweep import (CONTROLLERS, RIG_ANGLE_DEG, RIG_SHIFT_MM, TRAJECTORIES, RunSpec,
+                                    build_sweep, load_trajectory, run_config)
 from itg_vision.camera import perturbed
+from itg_vision.rules import resolve_rules_path
 
 
 def perturb_rig(rig, seed, each_camera=False):
@@ -607,3 +609,96 @@ def test_figure_titles_say_which_sweep_they_show():
     assert len({x.seed for x in mine}) == 2
     assert _sweep_line(specs, "ellipse-t1") == ("60 set points, 2 laps, 1 iteration(s), "
                                                 "servo 20 deg/iteration; 2 seeds")
+
+
+# ---------------------------------------------------------------------------- --rules
+def _write_rules(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def test_a_users_rule_base_runs_beside_the_sweeps_controllers_on_the_arms_it_fits(tmp_path):
+    mine = _write_rules(tmp_path / "mine.rules", Path(resolve_rules_path("table2")).read_text())
+    specs = build_sweep(rules=(str(mine),))  # the robustness sweep: two- and three-link paths
+    by_traj = {}
+    for s in specs:
+        by_traj.setdefault(s.trajectory, set()).add(s.controller)
+    for t, ctrls in by_traj.items():
+        two_link = TRAJECTORIES[t] == "two-link"
+        assert {"mine-vision", "mine-model"} <= ctrls if two_link else not ctrls & {
+            "mine-vision", "mine-model"}, t
+        assert set(CONTROLLERS) <= ctrls
+    ours = [s for s in specs if s.controller.startswith("mine-")]
+    assert {s.rules for s in ours} == {str(mine.resolve())}
+    assert {(s.rc_controller, s.feedback) for s in ours} == {("itg", "vision"), ("itg", "model")}
+    # the same cells as the shipped ITG: every condition and seed, under the same limits
+    theirs = {(s.trajectory, s.condition, s.seed, s.feedback, s.max_step_deg, s.iterations, s.laps)
+              for s in specs if s.controller in ("itg-vision", "itg-model")
+              and TRAJECTORIES[s.trajectory] == "two-link"}
+    assert {(s.trajectory, s.condition, s.seed, s.feedback, s.max_step_deg, s.iterations, s.laps)
+            for s in ours} == theirs
+    # --controllers may name them, and then decides
+    only = build_sweep(quick=True, rules=(str(mine),), controllers=("mine-vision", "ik"))
+    assert {s.controller for s in only} == {"mine-vision", "ik"}
+
+
+def test_a_users_rule_base_is_what_its_controllers_run(tmp_path):
+    """A copy of Table 2 tracks exactly as the shipped ITG does (same seeds, same numbers); a
+    rule base that holds every joint leaves the gripper at its start, so its E_av is the mean
+    distance from the start to the set points (forward kinematics of the start pose)."""
+    table2 = Path(resolve_rules_path("table2")).read_text()
+    _write_rules(tmp_path / "copy.rules", table2)
+    _write_rules(tmp_path / "still.rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n")
+    out = tmp_path / "o"
+    assert main(["--quick", "--conditions", "clean,noise-1px", "--seeds", "1", "--rules",
+                 str(tmp_path / "copy.rules"), "--rules", str(tmp_path / "still.rules"),
+                 "--controllers", "itg-vision,copy-vision,still-model", "--out", str(out),
+                 "--workers", "1", "--quiet"]) == 0
+    rows = {(r["controller"], r["condition"]): r for r in _rows(out)}
+    metrics = ("e_av_mm", "e_max_mm", "track_median_mm", "track_max_mm", "n_missed")
+    for cond in ("clean", "noise-1px"):
+        assert [rows["copy-vision", cond][m] for m in metrics] == \
+               [rows["itg-vision", cond][m] for m in metrics]
+    arm = ArmSpec.from_args("two-link")
+    start = forward_kinematics(arm, arm.start_q_deg)["gripper"][:2]
+    lap = load_trajectory("ellipse-t1", 60).points_mm[:, :2]
+    dist = np.linalg.norm(lap - start, axis=1)
+    # the row keeps six digits (%.6g): the closed form agrees to that rounding
+    assert float(rows["still-model", "clean"]["e_av_mm"]) == pytest.approx(dist.mean(), rel=1e-5)
+    assert float(rows["still-model", "clean"]["e_max_mm"]) == pytest.approx(dist.max(), rel=1e-5)
+    report = (out / "report.md").read_text()
+    assert "## Conclusion for `copy-vision` (your rule base)" in report
+    assert f"your rule base {(tmp_path / 'still.rules').resolve()} (--rules) fed by encoders" \
+        in report
+
+
+def test_the_default_out_of_a_sweep_with_rules_is_its_own(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "mine.rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n")
+    assert main(["--quick", "--conditions", "clean", "--seeds", "1", "--controllers",
+                 "mine-model", "--rules", "mine.rules", "--workers", "1", "--quiet"]) == 0
+    assert (tmp_path / "runs" / "bench-noise-quick-mine" / "results.csv").is_file()
+    assert not (tmp_path / "runs" / "bench-noise-quick").exists()
+
+
+@pytest.mark.parametrize("text, given, what", [
+    ("RULE 1: IF xg > THEN q1 +S\n", "bad.rules", "--rules bad.rules: bad.rules:1:"),
+    ("RULE 1: IF 1 > 0 THEN q1 HOLD\n", "one.rules",
+     "--rules one.rules: fits none of the sweep's arms (two-link, three-link"),
+    (None, "missing.rules", "--rules missing.rules: missing.rules: rule file not found"),
+    ("RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n", "itg.rules",
+     "--rules itg.rules: its controllers would be called itg-vision and itg-model"),
+])
+def test_a_rule_base_the_sweep_cannot_run_exits_2_with_one_line_and_writes_nothing(
+        tmp_path, monkeypatch, capsys, text, given, what):
+    monkeypatch.chdir(tmp_path)
+    if text is not None:
+        _write_rules(tmp_path / given, text)
+    assert main(["--rules", given, "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, what)
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
+    assert main(["--quick", "--controllers", "mine-vision", "--out", str(tmp_path / "o")]) == 2
+    _one_line_error(capsys, "unknown controller 'mine-vision'")

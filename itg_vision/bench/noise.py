@@ -23,7 +23,7 @@ from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
                     started)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
-                    _parse_names, build_sweep)
+                    _parse_names, build_sweep, rules_controllers)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -90,6 +90,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="only these conditions (see --list)")
     ap.add_argument("--controllers", metavar="A,B,...",
                     help="only these controllers: " + ", ".join(ALL_CONTROLLERS))
+    ap.add_argument("--rules", action="append", default=[], metavar="FILE",
+                    help="also run this rule base (a .rules file, or a shipped name) as two "
+                         "controllers, STEM-vision and STEM-model, on the sweep's trajectories "
+                         "of the arms it fits, beside the sweep's controllers (or those "
+                         "--controllers names); repeat for more")
     ap.add_argument("--trajectories", metavar="A,B,...",
                     help="only these trajectories: " + ", ".join(TRAJECTORIES))
     ap.add_argument("--points", type=points_arg, metavar="N",
@@ -109,18 +114,20 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         args = build_parser().parse_args(argv)
         conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
-        ctrls = _parse_names(args.controllers, ALL_CONTROLLERS, "controllers", "controller")
+        mine = [name for given in args.rules for name in rules_controllers(given)]
+        ctrls = _parse_names(args.controllers, [*ALL_CONTROLLERS, *mine], "controllers",
+                             "controller")
         plot_metrics = _parse_names(args.plot_metrics, PLOT_METRICS, "plot-metrics", "metric")
         trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         if args.list:
-            print("controllers: " + ", ".join(ALL_CONTROLLERS))
+            print("controllers: " + ", ".join([*ALL_CONTROLLERS, *mine]))
             print("conditions:  " + ", ".join(CONDITIONS))
             print("trajectories: " + ", ".join(TRAJECTORIES))
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
-                            sweep=args.sweep)
+                            sweep=args.sweep, rules=tuple(args.rules))
         if args.list:
             cost = sum(s.cost_s() for s in specs)
             print(f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
@@ -130,10 +137,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
+            if args.rules:  # its own folder: the sweep without them keeps its own
+                out = out.with_name(f"{out.name}-" + "-".join(Path(r).stem for r in args.rules))
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
-                   "points": args.points}
+                   "points": args.points, "rules": args.rules or None}
         command = "python -m itg_vision.bench noise " + " ".join(
             a for a in argv if a not in ("--quiet",))
         status, _ = run_sweep(specs, out, options, command.strip(), workers=args.workers,

@@ -13,7 +13,8 @@ import numpy as np
 from .. import outputs
 from ..loop import DIVERGED_MM
 from .store import started
-from .sweep import ALL_CONTROLLERS, CONDITIONS, CONTROLLER_TITLES, TRAJECTORIES, Condition, RunSpec
+from .sweep import (CONDITIONS, CONTROLLER_TITLES, TRAJECTORIES, Condition, RunSpec,
+                    controller_title)
 
 def _float(v: str) -> float:
     try:
@@ -262,10 +263,12 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
               + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
     L += ["## Setup", "",
           "Controllers, on the same runs (same trajectory, condition, seed, servo limit):", ""]
-    rules = {s.controller: s.rules for s in specs}
-    L += [f"- `{k}`: {CONTROLLER_TITLES[k]} (RunConfig controller={ALL_CONTROLLERS[k][0]}, "
-          f"feedback={ALL_CONTROLLERS[k][1]}" + (f", rules {rules[k]}" if rules.get(k) else "")
-          + ")" for k in ctrls]
+    first = {}
+    for s in specs:
+        first.setdefault(s.controller, s)
+    L += [f"- `{k}`: {controller_title(s)} (RunConfig controller={s.rc_controller}, "
+          f"feedback={s.feedback}" + (f", rules {s.rules}" if s.rules else "") + ")"
+          + _arms_note(specs, s) for k, s in first.items()]
     L += ["", "Trajectories: " + ", ".join(
         f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points per lap)"
         for t in trajs) + ".", ""]
@@ -301,6 +304,10 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     if "itg-plus-vision" in ctrls:
         L += ["## Conclusion for ITG+", ""] + conclusion(summary, trajs, conds, ctrls,
                                                            subject="itg-plus-vision") + [""]
+    for k, s in first.items():  # a user's rule bases (--rules), fed by vision
+        if k not in CONTROLLER_TITLES and s.feedback == "vision":
+            L += [f"## Conclusion for `{k}` (your rule base)", ""] + conclusion(
+                summary, trajs, conds, ctrls, subject=k) + [""]
     for t in trajs:
         lim = _limits_line(specs, t)
         L += [f"## {t}: E_av (mm), median [IQR] over seeds", "", lim, ""] \
@@ -314,6 +321,16 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
         L += ["## Plots", "", "None: no run of this sweep has finished.", ""]
     outputs.write_text(out / "report.md", "\n".join(L))
     return plots
+
+
+def _arms_note(specs: list[RunSpec], spec: RunSpec) -> str:
+    """`` (only on the two-link arm's trajectories)`` for a controller that skips some of the
+    sweep's trajectories (a rule base for one arm), else ``""``."""
+    all_arms = list(dict.fromkeys(s.arm for s in specs))
+    its = list(dict.fromkeys(s.arm for s in specs if s.controller == spec.controller))
+    if its == all_arms:
+        return ""
+    return f" (only on the {' and '.join(its)} arm's trajectories: the rule base fits no other)"
 
 
 def spec_limits(specs: list[RunSpec], traj: str) -> dict:

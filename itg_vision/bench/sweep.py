@@ -37,7 +37,7 @@ from pathlib import Path
 from ..arm import ArmSpec
 from ..errors import UserError
 from ..inputs import file_sha256
-from ..rules import resolve_rules_path
+from ..rules import RULES_DIR, resolve_rules_path
 
 #: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
 #: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
@@ -312,18 +312,99 @@ def calibrated_rig_path(arm: str) -> Path:
     return default_rig_path(arm, calibrated=True)
 
 
+@dataclass(frozen=True)
+class UserRules:
+    """A user's rule base in the sweep (``bench noise --rules``): two controllers,
+    ``STEM-vision`` and ``STEM-model`` (:func:`rules_controllers`), run on the trajectories of
+    the arms it fits (it moves or holds every joint of those and names no other), beside the
+    shipped controllers. Its parameters are ``run``'s defaults; S is the servo limit if the
+    file says so (``#! S is the servo limit``), as for the shipped ITG+ rules."""
+
+    rules: str  # a shipped rule base's name, or the file's absolute path (the same runs
+    #             wherever the command is started)
+    arms: tuple[str, ...]  # the arms it fits
+
+    @property
+    def controllers(self) -> dict[str, tuple[str, str, float, str | None]]:
+        """Its controllers, as :data:`ALL_CONTROLLERS` gives the shipped ones."""
+        vision, model = rules_controllers(self.rules)
+        return {vision: ("itg", "vision", 0.0, None), model: ("itg", "model", 0.0, None)}
+
+
+def rules_controllers(given: str) -> tuple[str, str]:
+    """The names of a ``--rules`` file's controllers: its stem with ``-vision`` and ``-model``."""
+    stem = Path(given).stem
+    return f"{stem}-vision", f"{stem}-model"
+
+
+def user_rules(given_rules, trajectories) -> tuple[UserRules, ...]:
+    """The rule bases ``given_rules`` (``--rules``: shipped names or files, as ``run --rules``
+    reads them) as :class:`UserRules`, each tried on the arms of ``trajectories``; a
+    `UserError` naming the file when it fits none of them (the file's own error: unreadable,
+    a syntax error, a rule base for another arm), or when its controllers' names are taken
+    (a shipped controller's, or another file's with the same stem)."""
+    from ..rules import load_rules
+
+    arms = list(dict.fromkeys(TRAJECTORIES[t] for t in trajectories))
+    out, taken = [], set(ALL_CONTROLLERS)
+    for given in given_rules:
+        try:
+            path = resolve_rules_path(given)
+        except UserError as exc:
+            raise UserError(f"--rules {given}: {exc}") from None
+        fits, why = [], {}
+        for arm in arms:
+            spec = ArmSpec.from_args(arm)
+            try:
+                load_rules(str(path), spec.n_joints, spec.links_mm,
+                           S=float(spec.benchmark["max_step_deg"]))
+            except UserError as exc:
+                why[arm] = str(exc)
+            else:
+                fits.append(arm)
+        if not fits:
+            reasons = set(why.values())  # one: the file's own error, whatever the arm
+            raise UserError(f"--rules {given}: " + (
+                next(iter(reasons)) if len(reasons) == 1 else
+                f"fits none of the sweep's arms ({', '.join(arms)}; choose trajectories of its "
+                f"arm with --trajectories); on the {arms[0]} arm: {why[arms[0]]}"))
+        shipped = path.parent.resolve() == RULES_DIR.resolve() and path.stem == given
+        u = UserRules(given if shipped else str(path.resolve()), tuple(fits))
+        clash = sorted(taken & set(u.controllers))
+        if clash:
+            raise UserError(f"--rules {given}: its controllers would be called "
+                            f"{' and '.join(u.controllers)}, but {clash[0]} is taken (a shipped "
+                            "controller or another --rules file): rename the file")
+        taken |= set(u.controllers)
+        out.append(u)
+    return tuple(out)
+
+
+def controller_title(spec: RunSpec) -> str:
+    """What a controller of the sweep is, for the report."""
+    if spec.controller in CONTROLLER_TITLES:
+        return CONTROLLER_TITLES[spec.controller]
+    fed = ("vision (no model)" if spec.feedback == "vision"
+           else "encoders + nominal model")
+    return f"your rule base {spec.rules} (--rules) fed by {fed}"
+
+
 def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
                 controllers=None, trajectories=None, points: int | None = None,
-                sweep: str = "robustness") -> list[RunSpec]:
+                sweep: str = "robustness", rules=()) -> list[RunSpec]:
     """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller).
 
     Every controller of a trajectory runs under the same limits (``LIMITS`` of its arm);
-    closed trajectories run ``LAPS`` laps.
+    closed trajectories run ``LAPS`` laps. ``rules``: a user's rule bases (``--rules``, as
+    given: :func:`user_rules`), their controllers run beside the sweep's (or as ``controllers``
+    says, which may name them), on the trajectories of the arms each fits.
     """
     base = SWEEPS[sweep]
     conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
-    ctrls = controllers or base["controllers"]
     trajs = trajectories or (QUICK["trajectories"] if quick else base["trajectories"])
+    mine = {name: (u, entry) for u in user_rules(rules, trajs)
+            for name, entry in u.controllers.items()}
+    ctrls = controllers or (*base["controllers"], *mine)
     n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
     if n_seeds < 1:
         raise UserError(f"--seeds: must be >= 1, got {n_seeds}")
@@ -352,14 +433,20 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                 sha = rig_sha[arm]
             for seed in range(n_seeds):
                 for ctrl in ctrls:
-                    rc, fb, noise_mm, rules_key = ALL_CONTROLLERS[ctrl]
-                    rules = spec_arm.defaults[rules_key] if rules_key else ""
-                    if rules not in rules_sha:
-                        rules_sha[rules] = _file_sha(resolve_rules_path(rules))
+                    if ctrl in mine:
+                        user, (rc, fb, noise_mm, _) = mine[ctrl]
+                        if arm not in user.arms:
+                            continue  # a rule base for another arm
+                        rule_base = user.rules
+                    else:
+                        rc, fb, noise_mm, rules_key = ALL_CONTROLLERS[ctrl]
+                        rule_base = spec_arm.defaults[rules_key] if rules_key else ""
+                    if rule_base not in rules_sha:
+                        rules_sha[rule_base] = _file_sha(resolve_rules_path(rule_base))
                     specs.append(RunSpec(
                         controller=ctrl, condition=cname, trajectory=traj_name, arm=arm,
                         points=n, seed=seed, rc_controller=rc, feedback=fb,
-                        rules=rules, rules_sha=rules_sha[rules],
+                        rules=rule_base, rules_sha=rules_sha[rule_base],
                         noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
                         rig=cond.rig, rig_sha=sha, inputs_sha=inputs[fb == "vision"],
                         link_error=cond.link_error,
