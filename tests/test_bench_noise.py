@@ -681,24 +681,76 @@ def test_the_default_out_of_a_sweep_with_rules_is_its_own(tmp_path, monkeypatch)
     assert not (tmp_path / "runs" / "bench-noise-quick").exists()
 
 
-@pytest.mark.parametrize("text, given, what", [
-    ("RULE 1: IF xg > THEN q1 +S\n", "bad.rules", "--rules bad.rules: bad.rules:1:"),
-    ("RULE 1: IF 1 > 0 THEN q1 HOLD\n", "one.rules",
-     "--rules one.rules: fits none of the sweep's arms (two-link, three-link"),
-    (None, "missing.rules", "--rules missing.rules: missing.rules: rule file not found"),
-    ("RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n", "itg.rules",
-     "--rules itg.rules: its controllers would be called itg-vision and itg-model"),
-])
-def test_a_rule_base_the_sweep_cannot_run_exits_2_with_one_line_and_writes_nothing(
-        tmp_path, monkeypatch, capsys, text, given, what):
-    monkeypatch.chdir(tmp_path)
-    if text is not None:
-        _write_rules(tmp_path / given, text)
-    assert main(["--rules", given, "--out", "o", "--quiet"]) == 2
-    _one_line_error(capsys, what)
-    assert not (tmp_path / "o").exists()
-
-
 def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
     assert main(["--quick", "--controllers", "mine-vision", "--out", str(tmp_path / "o")]) == 2
     _one_line_error(capsys, "unknown controller 'mine-vision'")
+
+
+# ---------------------------------------------------------------------------- trajectory files
+def test_a_users_trajectory_file_is_what_the_runs_track(tmp_path, monkeypatch):
+    """A copy of a shipped path gives that path's numbers; a rule base that holds every joint
+    on a file of one's own gives the closed-form E_av and E_max of that file's points (the
+    distance from the start pose's gripper), so the runs read the file given."""
+    monkeypatch.chdir(tmp_path)
+    lap = load_trajectory("ellipse-t1", 40).points_mm[:, :2]
+    mine = tmp_path / "mine.csv"
+    mine.write_text("x_mm,y_mm\n" + "".join(f"{float(x)!r},{float(y)!r}\n"
+                                            for x, y in lap + [5.0, -7.0]))
+    _write_rules(tmp_path / "still.rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n")
+    (tmp_path / "pea.csv").write_text(
+        (Path(resolve_rules_path("table2")).parents[1] / "trajectories" / "peanut.csv").read_text())
+    assert main(["--conditions", "clean", "--seeds", "1", "--controllers", "still-model,itg-vision",
+                 "--rules", "still.rules", "--trajectories", "mine.csv,pea.csv,peanut",
+                 "--workers", "1", "--quiet"]) == 0
+    out = tmp_path / "runs" / "bench-noise-still-mine-pea"  # its own folder
+    rows = {(r["controller"], Path(r["trajectory"]).stem): r for r in _rows(out)}
+    arm = ArmSpec.from_args("two-link")
+    start = forward_kinematics(arm, arm.start_q_deg)["gripper"][:2]
+    dist = np.linalg.norm(lap + [5.0, -7.0] - start, axis=1)
+    assert float(rows["still-model", "mine"]["e_av_mm"]) == pytest.approx(dist.mean(), rel=1e-5)
+    assert float(rows["still-model", "mine"]["e_max_mm"]) == pytest.approx(dist.max(), rel=1e-5)
+    assert rows["still-model", "mine"]["trajectory"] == str(mine.resolve())
+    metrics = ("e_av_mm", "e_max_mm", "track_median_mm", "track_max_mm", "laps", "points")
+    assert [rows["itg-vision", "pea"][m] for m in metrics] == \
+           [rows["itg-vision", "peanut"][m] for m in metrics]
+    report = (out / "report.md").read_text()
+    assert f"`mine` (two-link, 40 set points per lap, your file {mine.resolve()})" in report
+    assert "## mine: E_av (mm)" in report and (out / "e_av_by_condition-mine.png").is_file()
+
+
+def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
+    t = np.linspace(0, 2 * np.pi, 30, endpoint=False)
+    circle = tmp_path / "circle.csv"  # the one-link arm's reach: its 100 mm circle
+    circle.write_text("x_mm,y_mm\n" + "".join(
+        f"{float(100 * np.cos(a))!r},{float(100 * np.sin(a))!r}\n" for a in t))
+    specs = build_sweep(quick=True, trajectories=(str(circle),), arm="one-link")
+    assert {s.arm for s in specs} == {"one-link"} and {s.laps for s in specs} == {2}
+    assert {s.max_step_deg for s in specs} == {ArmSpec.from_args("one-link").benchmark["max_step_deg"]}
+    # the same file on the two-link arm: other runs
+    other = build_sweep(quick=True, trajectories=(str(circle),))
+    assert not {s.run_id for s in specs} & {s.run_id for s in other}
+
+
+@pytest.mark.parametrize("option, text, given, what", [
+    ("--rules", "RULE 1: IF xg > THEN q1 +S\n", "bad.rules", "--rules bad.rules: bad.rules:1:"),
+    ("--rules", "RULE 1: IF 1 > 0 THEN q1 HOLD\n", "one.rules",
+     "--rules one.rules: fits none of the sweep's arms (two-link, three-link"),
+    ("--rules", None, "missing.rules", "--rules missing.rules: missing.rules: rule file not found"),
+    ("--rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n", "itg.rules",
+     "--rules itg.rules: its controllers would be called itg-vision and itg-model"),
+    ("--trajectories", None, "gone.csv", "--trajectories gone.csv: gone.csv: trajectory file not found"),
+    ("--trajectories", "x_mm,y_mm\n1,a\n2,3\n", "bad.csv",
+     "--trajectories bad.csv: bad.csv:2: field y_mm"),
+    ("--trajectories", "x_mm,y_mm\n1000,0\n1001,0\n", "far.csv",
+     "--trajectories far.csv: none of its 2 set points is in reach of the two-link arm"),
+    ("--trajectories", "x_mm,y_mm\n100,0\n110,0\n", "abcd.csv",
+     "--trajectories abcd.csv: the report and plots would call it 'abcd', a name already taken"),
+])
+def test_a_file_of_yours_the_sweep_cannot_run_exits_2_with_one_line_and_writes_nothing(
+        tmp_path, monkeypatch, capsys, option, text, given, what):
+    monkeypatch.chdir(tmp_path)
+    if text is not None:
+        (tmp_path / given).write_text(text)
+    assert main([option, given, "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, what)
+    assert not (tmp_path / "o").exists()

@@ -17,13 +17,15 @@ import sys
 from pathlib import Path
 
 from .. import outputs
+from ..arm import arm_names
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
                     started)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
-                    _parse_names, build_sweep, rules_controllers)
+                    _parse_names, build_sweep, is_trajectory_file, rules_controllers,
+                    trajectory_label)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -96,7 +98,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "of the arms it fits, beside the sweep's controllers (or those "
                          "--controllers names); repeat for more")
     ap.add_argument("--trajectories", metavar="A,B,...",
-                    help="only these trajectories: " + ", ".join(TRAJECTORIES))
+                    help="only these trajectories: " + ", ".join(TRAJECTORIES)
+                         + "; or your own CSV files (a name ending in .csv or holding a folder "
+                           "separator), tracked by the arm --arm names")
+    ap.add_argument("--arm", default="two-link", choices=arm_names(),
+                    help="the arm that tracks the trajectory files given to --trajectories "
+                         "(default %(default)s; the benchmark's own trajectories keep theirs)")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points per trajectory (default: the trajectory's; --quick "
                          f"{QUICK['points']})")
@@ -118,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         ctrls = _parse_names(args.controllers, [*ALL_CONTROLLERS, *mine], "controllers",
                              "controller")
         plot_metrics = _parse_names(args.plot_metrics, PLOT_METRICS, "plot-metrics", "metric")
-        trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory")
+        trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory",
+                             files=is_trajectory_file)
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         if args.list:
@@ -127,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
             print("trajectories: " + ", ".join(TRAJECTORIES))
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
-                            sweep=args.sweep, rules=tuple(args.rules))
+                            sweep=args.sweep, rules=tuple(args.rules), arm=args.arm)
         if args.list:
             cost = sum(s.cost_s() for s in specs)
             print(f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
@@ -137,8 +145,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
-            if args.rules:  # its own folder: the sweep without them keeps its own
-                out = out.with_name(f"{out.name}-" + "-".join(Path(r).stem for r in args.rules))
+            yours = [Path(r).stem for r in args.rules] + [
+                trajectory_label(t) for t in trajs or () if is_trajectory_file(t)]
+            if yours:  # a folder of its own: the sweep without your files keeps its results
+                out = out.with_name(f"{out.name}-" + "-".join(yours))
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
@@ -247,7 +257,8 @@ def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, fail
     try:
         for spec, res in results(executor, todo, in_flight):
             if "error" in res:
-                failures[spec.run_id] = f"{spec.controller} {spec.condition} {spec.trajectory} " \
+                failures[spec.run_id] = f"{spec.controller} {spec.condition} " \
+                                        f"{trajectory_label(spec.trajectory)} " \
                                         f"seed {spec.seed}: {res['error']}"
                 bar.write(f"run failed: {failures[spec.run_id]}", file=sys.stderr)
                 if res.get("traceback"):  # the run's own error (not a lost worker): where

@@ -13,8 +13,8 @@ import numpy as np
 from .. import outputs
 from ..loop import DIVERGED_MM
 from .store import started
-from .sweep import (CONDITIONS, CONTROLLER_TITLES, TRAJECTORIES, Condition, RunSpec,
-                    controller_title)
+from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, controller_title,
+                    is_trajectory_file, trajectory_label)
 
 def _float(v: str) -> float:
     try:
@@ -72,7 +72,8 @@ def summarize(rows: list[dict]) -> dict:
     """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["trajectory"], r["condition"], r["controller"]), []).append(r)
+        groups.setdefault((trajectory_label(r["trajectory"]), r["condition"], r["controller"]),
+                          []).append(r)
     out = {}
     for key, rs in groups.items():
         ran = started(rs)
@@ -99,7 +100,7 @@ def worst(rows: list[dict], col: str = "track_max_mm") -> float:
 
 
 def _limits_line(specs: list[RunSpec], traj: str) -> str:
-    s = next(s for s in specs if s.trajectory == traj)
+    s = next(s for s in specs if trajectory_label(s.trajectory) == traj)
     phase = (f"{s.laps} laps, tracking phase = laps 2..{s.laps}" if s.laps > 1
              else "tracking phase = second half of the set points")
     limit = ("no servo limit" if s.max_step_deg is None
@@ -233,13 +234,13 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
 
     ids = {s.run_id for s in specs}
     rows = [r for r in rows if r["run_id"] in ids]
-    trajs = list(dict.fromkeys(s.trajectory for s in specs))
+    trajs = list(dict.fromkeys(trajectory_label(s.trajectory) for s in specs))
     conds = list(dict.fromkeys(s.condition for s in specs))
     ctrls = list(dict.fromkeys(s.controller for s in specs))
     summary = summarize(rows)
     seeds = sorted({s.seed for s in specs})
     ran = started(rows)
-    pts = {t: sorted({int(_float(r["points"])) for r in ran if r["trajectory"] == t})
+    pts = {t: sorted({int(_float(r["points"])) for r in ran if trajectory_label(r["trajectory"]) == t})
            for t in trajs}
     wall = sum(_float(r["wall_s"]) for r in ran)
     n_gone = len(rows) - len(ran)
@@ -270,8 +271,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
           f"feedback={s.feedback}" + (f", rules {s.rules}" if s.rules else "") + ")"
           + _arms_note(specs, s) for k, s in first.items()]
     L += ["", "Trajectories: " + ", ".join(
-        f"`{t}` ({TRAJECTORIES[t]}, {'/'.join(map(str, pts[t])) or '?'} set points per lap)"
-        for t in trajs) + ".", ""]
+        f"`{t}` ({spec_limits(specs, t)['arm']}, {'/'.join(map(str, pts[t])) or '?'} set points "
+        f"per lap{_file_note(specs, t)})" for t in trajs) + ".", ""]
     L += [f"- `{t}`: {_limits_line(specs, t)}" for t in trajs]
     L += ["", "Under vision (or truth) feedback the rules' link lengths and the Jacobian "
           "tracker's shoulder and LED stand-off are measured from the LEDs at start-up "
@@ -323,6 +324,12 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     return plots
 
 
+def _file_note(specs: list[RunSpec], traj: str) -> str:
+    """``, your file PATH`` for a user's trajectory file (``--trajectories FILE``), else ``""``."""
+    path = next(s.trajectory for s in specs if trajectory_label(s.trajectory) == traj)
+    return f", your file {path}" if is_trajectory_file(path) else ""
+
+
 def _arms_note(specs: list[RunSpec], spec: RunSpec) -> str:
     """`` (only on the two-link arm's trajectories)`` for a controller that skips some of the
     sweep's trajectories (a rule base for one arm), else ``""``."""
@@ -337,7 +344,7 @@ def spec_limits(specs: list[RunSpec], traj: str) -> dict:
     """What the runs of ``traj`` ran under, from their specs (every controller alike): its arm,
     set points per lap (None: the path's own), laps, iterations, servo limit (as text) and the
     number of seeds."""
-    mine = [s for s in specs if s.trajectory == traj]
+    mine = [s for s in specs if trajectory_label(s.trajectory) == traj]
     s = mine[0]
     servo = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
     return {"arm": s.arm, "points": s.points, "laps": s.laps, "iterations": s.iterations,

@@ -31,6 +31,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -275,9 +276,46 @@ def _default_points(trajectory: str) -> int:
     """Set points of one lap (a file's own count: read once per process)."""
     from ..trajectory import DEFAULT_POINTS
 
-    if trajectory in TRAJECTORY_FILES:
+    if trajectory in TRAJECTORY_FILES or is_trajectory_file(trajectory):
         return len(load_trajectory(trajectory))
     return DEFAULT_POINTS[trajectory]
+
+
+def is_trajectory_file(name: str) -> bool:
+    """Whether a ``--trajectories`` entry is a user's CSV file (it ends in .csv or holds a
+    folder separator), not one of the benchmark's :data:`TRAJECTORIES`."""
+    return name.lower().endswith(".csv") or "/" in name or os.sep in name
+
+
+def trajectory_label(trajectory: str) -> str:
+    """What the report, the plots' file names and the progress call a trajectory: a user's
+    file by its stem (:func:`user_trajectory` keeps stems apart from the shipped names)."""
+    return Path(trajectory).stem if is_trajectory_file(trajectory) else trajectory
+
+
+def user_trajectory(given: str, arm: str, taken) -> str:
+    """A user's trajectory file (``--trajectories FILE``) for the sweep, on ``arm``: its
+    absolute path (the same runs wherever the command is started), read and checked now (a
+    `UserError` naming it: not found, malformed at a line, no set point in the arm's reach, a
+    stem that ``taken`` (the shipped names and other files' stems) already has)."""
+    from ..trajectory import load
+
+    path = Path(given)
+    try:
+        traj = load(str(path))
+    except UserError as exc:
+        raise UserError(f"--trajectories {given}: {exc}") from None
+    spec = ArmSpec.from_args(arm)
+    if not any(spec.reachable(p) for p in traj.points_mm):
+        lo, hi = spec.reach_mm()
+        raise UserError(f"--trajectories {given}: none of its {len(traj.points_mm)} set points "
+                        f"is in reach of the {spec.name} arm ({lo:g} to {hi:g} mm from its "
+                        "shoulder; --arm names the arm of trajectory files)")
+    if path.stem in taken:
+        raise UserError(f"--trajectories {given}: the report and plots would call it "
+                        f"{path.stem!r}, a name already taken (a benchmark trajectory or "
+                        "another file): rename the file")
+    return str(path.resolve())
 
 
 def trajectory_source(name: str) -> str:
@@ -288,20 +326,24 @@ def trajectory_source(name: str) -> str:
 
 
 def load_trajectory(name: str, points: int | None = None):
-    """A benchmark trajectory (one lap, ``points`` set points of a named one), placed on its arm."""
+    """A benchmark trajectory (one lap, ``points`` set points of a named one), placed on its
+    arm; or a user's file (:func:`user_trajectory`), as it is."""
     from ..trajectory import load
 
-    return load(trajectory_source(name), points, arm=ArmSpec.from_args(TRAJECTORIES[name]))
+    arm = None if is_trajectory_file(name) else ArmSpec.from_args(TRAJECTORIES[name])
+    return load(trajectory_source(name), points, arm=arm)
 
 
-def _parse_names(text: str | None, known, what: str, noun: str) -> tuple[str, ...] | None:
+def _parse_names(text: str | None, known, what: str, noun: str,
+                 files=lambda name: False) -> tuple[str, ...] | None:
+    """The names of a comma-separated option, each ``known`` (or a file, by ``files``)."""
     if text is None:
         return None
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     if not names:
         raise UserError(f"--{what}: give at least one name (choose from {', '.join(known)})")
     for n in names:
-        if n not in known:
+        if n not in known and not files(n):
             raise UserError(f"--{what}: unknown {noun} {n!r} (choose from {', '.join(known)})")
     return tuple(dict.fromkeys(names))
 
@@ -337,15 +379,14 @@ def rules_controllers(given: str) -> tuple[str, str]:
     return f"{stem}-vision", f"{stem}-model"
 
 
-def user_rules(given_rules, trajectories) -> tuple[UserRules, ...]:
+def user_rules(given_rules, arms) -> tuple[UserRules, ...]:
     """The rule bases ``given_rules`` (``--rules``: shipped names or files, as ``run --rules``
-    reads them) as :class:`UserRules`, each tried on the arms of ``trajectories``; a
+    reads them) as :class:`UserRules`, each tried on the sweep's ``arms``; a
     `UserError` naming the file when it fits none of them (the file's own error: unreadable,
     a syntax error, a rule base for another arm), or when its controllers' names are taken
     (a shipped controller's, or another file's with the same stem)."""
     from ..rules import load_rules
 
-    arms = list(dict.fromkeys(TRAJECTORIES[t] for t in trajectories))
     out, taken = [], set(ALL_CONTROLLERS)
     for given in given_rules:
         try:
@@ -391,18 +432,26 @@ def controller_title(spec: RunSpec) -> str:
 
 def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
                 controllers=None, trajectories=None, points: int | None = None,
-                sweep: str = "robustness", rules=()) -> list[RunSpec]:
+                sweep: str = "robustness", rules=(), arm: str = "two-link") -> list[RunSpec]:
     """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller).
 
     Every controller of a trajectory runs under the same limits (``LIMITS`` of its arm);
     closed trajectories run ``LAPS`` laps. ``rules``: a user's rule bases (``--rules``, as
     given: :func:`user_rules`), their controllers run beside the sweep's (or as ``controllers``
-    says, which may name them), on the trajectories of the arms each fits.
+    says, which may name them), on the trajectories of the arms each fits. ``trajectories``
+    may name a user's CSV files (:func:`is_trajectory_file`), tracked by the arm ``arm``.
     """
     base = SWEEPS[sweep]
     conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
-    trajs = trajectories or (QUICK["trajectories"] if quick else base["trajectories"])
-    mine = {name: (u, entry) for u in user_rules(rules, trajs)
+    trajs = list(trajectories or (QUICK["trajectories"] if quick else base["trajectories"]))
+    arm_of = {t: TRAJECTORIES[t] for t in trajs if not is_trajectory_file(t)}
+    taken = set(TRAJECTORIES)
+    for i, t in enumerate(trajs):
+        if is_trajectory_file(t):
+            trajs[i] = user_trajectory(t, arm, taken)
+            arm_of[trajs[i]] = arm
+            taken.add(Path(t).stem)
+    mine = {name: (u, entry) for u in user_rules(rules, list(dict.fromkeys(arm_of.values())))
             for name, entry in u.controllers.items()}
     ctrls = controllers or (*base["controllers"], *mine)
     n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
@@ -416,12 +465,13 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     rules_sha: dict[str, str] = {"": ""}
     specs = []
     for traj_name in trajs:
-        arm = TRAJECTORIES[traj_name]
+        arm = arm_of[traj_name]
         spec_arm = ArmSpec.from_args(arm)
-        inputs = {v: inputs_sha(traj_name, vision=v) for v in (False, True)}
+        inputs = {v: inputs_sha(traj_name, vision=v, arm=arm) for v in (False, True)}
         limits = spec_arm.benchmark  # the servo limit every controller runs under
         laps = LAPS if load_trajectory(traj_name).closed else 1
-        n = None if traj_name in TRAJECTORY_FILES else points  # a file has its own points
+        file = traj_name in TRAJECTORY_FILES or is_trajectory_file(traj_name)
+        n = None if file else points  # a file has its own points
         if n is not None and traj_name == "abcd" and n % 2:
             n += 1  # abcd needs an even number of points (two segments)
         for cname in conds:
@@ -473,7 +523,7 @@ def _file_sha(path: Path) -> str:
     return file_sha256(path)[:12]
 
 
-def inputs_sha(trajectory: str, vision: bool) -> str:
+def inputs_sha(trajectory: str, vision: bool, arm: str | None = None) -> str:
     """A hash of the files a run of ``trajectory`` reads besides its rule base and calibrated
     rig: its arm file, the trajectory's file (a named trajectory is code) and, for a run fed by
     vision, the arm's true rig (what renders the images). An edited file is a new run of
@@ -481,9 +531,9 @@ def inputs_sha(trajectory: str, vision: bool) -> str:
     from ..arm import arm_path
     from ..camera import default_rig_path
 
-    arm = TRAJECTORIES[trajectory]
+    arm = arm or TRAJECTORIES[trajectory]
     files = [arm_path(arm)] + ([default_rig_path(arm)] if vision else [])
-    if trajectory in TRAJECTORY_FILES:
+    if trajectory in TRAJECTORY_FILES or is_trajectory_file(trajectory):
         files.append(Path(trajectory_source(trajectory)))
     return hashlib.sha256("".join(_file_sha(f) for f in files).encode()).hexdigest()[:12]
 
