@@ -547,6 +547,10 @@ def test_run_spec_maps_controllers_and_conditions_onto_run_config():
     cfg = run_config(specs["itg-vision", "noise-1px+links+5%"])
     assert (cfg.controller, cfg.feedback, cfg.noise_px) == ("itg", "vision", 1.0)
     assert cfg.true_links_mm == pytest.approx((105.0, 105.0))
+    # the column says its unit: links+5% is link_error_pct 5, and lengths 100 mm * 1.05 to the
+    # nearest double (bit for bit what the former fraction column gave)
+    assert specs["itg-vision", "links+5%"].link_error_pct == 5.0
+    assert run_config(specs["itg-vision", "links+5%"]).true_links_mm == (round(100.0 * 1.05, 9),) * 2
     assert run_config(specs["jacobian-vision", "offset-1deg"]).joint_offset_deg == (1.0, 1.0)
     three = [s for s in build_sweep(trajectories=("line-ab-reach",), conditions=("clean",), seeds=1)]
     assert all(isinstance(s, RunSpec) and s.arm == "three-link" and s.max_step_deg == 2.0

@@ -36,7 +36,7 @@ RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median
                "start_error_mm", "first_error_mm", "wall_s"]
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
-            "inputs_sha", "link_error", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
+            "inputs_sha", "link_error_pct", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
             "measured_links_mm", "iterations", "max_step_deg", "correction", "preview", "rules",
             "rules_sha", "controller_params"]
            + RUN_METRICS

@@ -132,11 +132,11 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 8  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
+SCHEMA = 9  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
 #            5: inputs_sha, and the no_start column; 6: correction; 7: n_out_of_reach counts the
 #            set points the simulated arm cannot reach (was: those the controller flagged, now
 #            n_flagged), and the metrics leave out those, the same for every controller;
-#            8: preview
+#            8: preview; 9: link_error (a fraction) became link_error_pct (in %)
 
 
 @dataclass(frozen=True)
@@ -246,7 +246,7 @@ class RunSpec:
     rig: str  # true | calibrated | perturbed | perturbed-cams
     rig_sha: str  # content hash of the calibrated rig file ("" otherwise)
     inputs_sha: str  # content hash of the arm file, the trajectory file (if any), the true rig (vision)
-    link_error: float
+    link_error_pct: float  # the simulated links are this many % longer than the nominal model
     offset_deg: float
     iterations: int
     max_step_deg: float | None
@@ -499,7 +499,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         rules=rule_base, rules_sha=rules_sha[rule_base],
                         noise_mm=noise_mm, noise_px=cond.noise_px, dropout=cond.dropout,
                         rig=cond.rig, rig_sha=sha, inputs_sha=inputs[fb == "vision"],
-                        link_error=cond.link_error,
+                        link_error_pct=round(100 * cond.link_error, 9),
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
                         max_step_deg=float(limits["max_step_deg"]), laps=laps,
                         correction=CORRECTIONS.get(ctrl, 1.0), preview=ctrl in WITH_PREVIEW))
@@ -543,8 +543,8 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
     from ..runner import RunConfig
 
     nominal = ArmSpec.from_args(spec.arm).links_mm
-    true_links = (tuple(round(v * (1.0 + spec.link_error), 9) for v in nominal)
-                  if spec.link_error else None)
+    true_links = (tuple(round(v * (1.0 + spec.link_error_pct / 100), 9) for v in nominal)
+                  if spec.link_error_pct else None)
     offset = (spec.offset_deg,) * len(nominal) if spec.offset_deg else None
     # a condition's vision parameters reach vision-fed runs only (elsewhere they do nothing)
     vision = spec.feedback == "vision"
