@@ -17,6 +17,7 @@ from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
 from .inputs import is_whole
 from .loop import Trace, distance_mm, simulate
+from .outputs import code_hash
 from .preview import Preview, plan
 from .rules import PARAM_DEFAULTS, PARAM_FIELDS, load_rules
 from .world import World
@@ -348,6 +349,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                                       prep.model.planar),
         "first_error_mm": float(trace.error_mm()[0]),
         "arm": prep.model.name,
+        "arm_file": shown_path(prep.model.source),
         "links_mm": list(prep.model.links_mm),
         "true_links_mm": list(prep.true_arm.links_mm),
         "joint_offset_deg": list(prep.true_arm.joint_offset_deg),
@@ -365,6 +367,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
             cfg, feedback.supersample if cfg.feedback == "vision" else None),
         "seed": cfg.seed,
         "wall_s": wall_s,
+        "code": code_hash(),  # the package's sources and data files that made these numbers
         **prep.info,
         **{k: shown_path(prep.info[k]) for k in ("rules", "estimate_rig", "render_rig")
            if k in prep.info},

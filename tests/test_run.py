@@ -43,7 +43,7 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
     assert "E_av" in res.stdout and "pybullet" not in res.stdout + res.stderr
     s = json.loads((out / "summary.json").read_text())
     assert set(s) == {
-        "arm", "controller", "controller_params", "controller_params_from", "e_av_mm", "e_max_mm", "e_rms_mm",
+        "arm", "arm_file", "code", "controller", "controller_params", "controller_params_from", "e_av_mm", "e_max_mm", "e_rms_mm",
         "est_elbow_rms_mm", "est_gripper_rms_mm", "feedback", "feedback_params", "geometry",
         "iterations", "joint_offset_deg", "laps", "links_mm", "max_step_deg", "correction", "preview", "n_missed",
         "n_out_of_reach", "n_flagged", "n_aim_out_of_reach", "n_setpoints", "rules", "seed", "start_error_mm", "first_error_mm",
@@ -270,9 +270,19 @@ def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
 
     _, shipped = execute(prepare(RunConfig(points=20)))
     # shipped files relative to the project, the same on every machine; a name as given
-    assert (shipped["rules"], shipped["estimate_rig"], shipped["trajectory"]) == (
-        "data/rules/table2.rules", "cameras/planar.yaml", "ellipse-t1")
+    assert (shipped["rules"], shipped["estimate_rig"], shipped["trajectory"], shipped["arm_file"]) == (
+        "data/rules/table2.rules", "cameras/planar.yaml", "ellipse-t1", "data/arms/two-link.yaml")
     root = Path(__file__).resolve().parents[1]
+    # the code that made the numbers: the same hash as the benchmark rows
+    from itg_vision.bench.store import make_row
+    from itg_vision.bench.sweep import build_sweep
+
+    assert shipped["code"] == make_row(build_sweep(quick=True)[0], None)["code"]
+    assert len(shipped["code"]) == 12 and int(shipped["code"], 16) >= 0
+    (tmp_path / "arm.yaml").write_text((root / "data/arms/two-link.yaml").read_text())
+    arm_file = execute(prepare(RunConfig(arm=str(tmp_path / "arm.yaml"), points=20,
+                                         feedback="model")))[1]["arm_file"]
+    assert arm_file == str(tmp_path / "arm.yaml")
     (tmp_path / "mine.rules").write_text((root / shipped["rules"]).read_text())
     (tmp_path / "path.csv").write_text("x_mm,y_mm\n100,50\n101,50\n102,50\n")
     monkeypatch.chdir(tmp_path)  # a user's files, named relative to where they ran

@@ -26,6 +26,7 @@ from collections import Counter
 from pathlib import Path
 
 from .. import outputs
+from ..outputs import code_hash
 from ..errors import UserError
 from .sweep import SCHEMA, RunSpec
 
@@ -199,24 +200,6 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
     if foreign:
         raise UserError(f"--out {out} holds {len(foreign)} results of a different sweep "
                         "definition (no sweep.json): choose another --out")
-
-
-@functools.cache
-def code_hash() -> str:
-    """A hash of what decides a run's numbers besides its parameters: the package's Python
-    sources and the arm, rig and trajectory files beside it (those that exist)."""
-    from ..arm import ARMS_DIR
-    from ..camera import CAMERAS_DIR
-    from ..trajectory import TRAJECTORIES_DIR
-
-    package = Path(__file__).resolve().parents[1]
-    root = package.parent
-    files = sorted(package.rglob("*.py")) + sorted(ARMS_DIR.glob("*.yaml")) \
-        + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(TRAJECTORIES_DIR.glob("*.csv"))
-    h = hashlib.sha256()
-    for f in files:
-        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
-    return h.hexdigest()[:12]
 
 
 def code_warning(results: Results) -> str | None:
