@@ -32,7 +32,6 @@ Rules (what every command follows):
 from __future__ import annotations
 
 import contextlib
-import functools
 import csv
 import io
 import json
@@ -138,27 +137,6 @@ def read_manifest(folder: str | Path) -> dict | None:
     except (OSError, ValueError):
         return None
     return doc if isinstance(doc, dict) and doc.get("made_by") == "itg_vision" else None
-
-
-@functools.cache
-def code_hash() -> str:
-    """A hash of what decides a run's numbers besides its parameters: the package's Python
-    sources and the arm, rig and trajectory files beside it (those that exist). A run's
-    ``summary.json`` and each row of a benchmark's ``results.csv`` record it (``code``)."""
-    import hashlib
-
-    from .arm import ARMS_DIR
-    from .camera import CAMERAS_DIR
-    from .trajectory import TRAJECTORIES_DIR
-
-    package = Path(__file__).resolve().parent
-    root = package.parent
-    files = sorted(package.rglob("*.py")) + sorted(ARMS_DIR.glob("*.yaml")) \
-        + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(TRAJECTORIES_DIR.glob("*.csv"))
-    h = hashlib.sha256()
-    for f in files:
-        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
-    return h.hexdigest()[:12]
 
 
 def manifest(command: str, key=None, entries: list[str] | None = None) -> dict:

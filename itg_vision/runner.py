@@ -17,7 +17,7 @@ from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
 from .inputs import is_whole
 from .loop import Trace, distance_mm, simulate
-from .outputs import code_hash
+from .provenance import code_hash
 from .preview import Preview, plan
 from .rules import PARAM_DEFAULTS, PARAM_FIELDS, load_rules
 from .world import World

@@ -26,7 +26,7 @@ from collections import Counter
 from pathlib import Path
 
 from .. import outputs
-from ..outputs import code_hash
+from ..provenance import code_hash
 from ..errors import UserError
 from .sweep import SCHEMA, RunSpec
 
