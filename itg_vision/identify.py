@@ -19,7 +19,7 @@ The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -52,7 +52,6 @@ class ArmGeometry:
     standoff_mm: float = 0.0
     source: str = "nominal model"
     residual_mm: float = 0.0
-    samples: dict = field(default_factory=dict, compare=False, repr=False)
 
     def record(self) -> dict:
         """Plain values for ``summary.json``."""
@@ -242,4 +241,4 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     return ArmGeometry(links, (0.0, 0.0, L1), standoff,
                        "measured: circle through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
-                       "|gripper - elbow|", rms, {"elbow_mm": np.array(elbows)})
+                       "|gripper - elbow|", rms)

@@ -86,7 +86,6 @@ class RenderPlan:
     margin_px : int, extra pinhole pixels on every side of the camera's frame.
     supersample : int, render-resolution factor.
     width, height : int, size of the rendered (supersampled, enlarged) image.
-    K_render : ndarray (3, 3), intrinsics of the rendered image.
     view_gl, proj_gl : ndarray (16,), OpenGL matrices for ``World.render``.
     map1, map2 : remap tables (fixed point) from the camera frame into the enlarged pinhole
         image at 1x; ``None`` if the camera has no distortion.
@@ -96,7 +95,6 @@ class RenderPlan:
     supersample: int
     width: int
     height: int
-    K_render: np.ndarray
     view_gl: np.ndarray
     proj_gl: np.ndarray
     map1: np.ndarray | None
@@ -172,7 +170,7 @@ def render_plan(camera: Camera, supersample: int = 2, near_m: float = NEAR_M,
     K[0, 2] = s * (camera.cx + margin) + (s - 1) / 2
     K[1, 2] = s * (camera.cy + margin) + (s - 1) / 2
     proj = gl_projection_matrix(K, Wr, Hr, near_m, far_m)
-    return RenderPlan(margin, s, Wr, Hr, K, camera.gl_view(), proj, map1, map2)
+    return RenderPlan(margin, s, Wr, Hr, camera.gl_view(), proj, map1, map2)
 
 
 def render_pinhole(world, camera: Camera, supersample: int = 2, lighting=None) -> np.ndarray:

@@ -143,12 +143,6 @@ class World:
         return np.degrees(q) - np.degrees(self._offset_rad)
 
     # ------------------------------------------------------------------ extra bodies
-    def add_box(self, half_extents_mm, rgba=(1, 1, 1, 1)) -> int:
-        """A visual-only box (e.g. a calibration board); returns its body id."""
-        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[v * _MM for v in half_extents_mm],
-                                  rgbaColor=list(rgba), physicsClientId=self.client)
-        return p.createMultiBody(baseMass=0, baseVisualShapeIndex=vis, physicsClientId=self.client)
-
     def add_mesh(self, path: str, scale: float = 1.0, rgba=(1, 1, 1, 1)) -> int:
         """A visual-only mesh body (OBJ file with UVs, in metres times ``scale``)."""
         vis = p.createVisualShape(p.GEOM_MESH, fileName=path, meshScale=[scale] * 3,
