@@ -18,17 +18,15 @@ descriptor is pointed at /dev/null while trying.
 
 from __future__ import annotations
 
-import os
 import shutil
-import sys
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from .errors import UserError
+from .stdio import quiet_c_streams
 from .urdf import LED_RGB
 
 
@@ -39,29 +37,9 @@ CODECS = (("avc1", ".mp4", "H.264"),
                            "encode neither H.264 nor VP9"))
 
 
-@contextmanager
-def _quiet_stderr():
-    """Silence C-level writes to stderr (FFmpeg's messages about encoders it cannot open)."""
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # stderr replaced (pytest capture, notebooks)
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(fd)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, fd)
-    try:
-        yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-        os.close(devnull)
-
-
 def open_writer(path: Path, fps: float, size: tuple[int, int]):
     """The first codec of :data:`CODECS` this OpenCV can write: (writer, path, note)."""
-    with _quiet_stderr():
+    with quiet_c_streams("stderr"):
         for fourcc, suffix, note in CODECS:
             target = path.with_suffix(suffix)
             writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*fourcc), fps, size)

@@ -5,43 +5,18 @@ Joints are set kinematically (``resetJointState``): the paper's experiments need
 
 from __future__ import annotations
 
-import ctypes
 import math
 import os
-import sys
 import tempfile
 import weakref
-from contextlib import contextmanager
 
 import cv2
 import numpy as np
 
-
-@contextmanager
-def _quiet_c_stdout():
-    """Silence C-level writes to stdout and stderr (pybullet's 'build time' banner)."""
-    try:
-        fds = [sys.stdout.fileno(), sys.stderr.fileno()]
-    except (AttributeError, OSError, ValueError):  # streams replaced (pytest capture, notebooks)
-        yield
-        return
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(fd) for fd in fds]
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    for fd in fds:
-        os.dup2(devnull, fd)
-    try:
-        yield
-    finally:
-        ctypes.CDLL(None).fflush(None)
-        for fd, keep in zip(fds, saved):
-            os.dup2(keep, fd)
-            os.close(keep)
-        os.close(devnull)
+from .stdio import quiet_c_streams
 
 
-with _quiet_c_stdout():
+with quiet_c_streams("stdout", "stderr"):
     import pybullet as p
 
 
@@ -67,7 +42,7 @@ class World:
 
     def __init__(self, arm: ArmSpec, q_deg: np.ndarray | None = None):
         self.arm = arm
-        with _quiet_c_stdout():
+        with quiet_c_streams("stdout", "stderr"):
             self.client = p.connect(p.DIRECT)
         # a World dropped without close() still frees its client (~28 MB) when collected
         self._disconnect = weakref.finalize(self, _disconnect, self.client)
