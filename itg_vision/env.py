@@ -95,11 +95,12 @@ class TrackingEnv(gym.Env):
             cfg = dataclasses.replace(cfg, full_frame=True)
         self.config = cfg
         self.images = bool(images)
-        # you are the controller: the config's controller and rule settings are not checked
-        # against a rule base that never runs (the Jacobian tracker takes no parameter)
+        # you are the controller: none is built, and the config's controller and rule settings
+        # are not checked; "jacobian" (model-free) makes the start-up measure the lengths
+        # whatever the config names (start_up_geometry gives "ik" the nominal ones)
         self._prep = prepare(dataclasses.replace(cfg, controller="jacobian", rules=None,
                                                  gain_deg_per_mm=None, step_deg=None,
-                                                 tolerance_mm=None))
+                                                 tolerance_mm=None), with_controller=False)
         model = self._prep.model
         self.marker_names = model.marker_names
         box = gym.spaces.Box(-POSITION_BOUND_MM, POSITION_BOUND_MM, (3,), np.float64)

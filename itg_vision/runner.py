@@ -170,11 +170,13 @@ class Prepared:
     preview: Preview | None = None  # the preview's plan (None: no preview)
 
 
-def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
+def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) -> Prepared:
     """Validate every input (files included) and build the pieces; raises ``UserError``.
 
     ``estimate_rig``: a :class:`itg_vision.camera.Rig` built in code to estimate with, in place
     of the file ``cfg.rig_path`` (it renders with the rig its ``true_rig`` names).
+    ``with_controller=False``: no controller is built (``Prepared.controller`` is None) and its
+    settings are not checked: the caller is the controller (``TrackingEnv``).
     """
     cfg.validate()
     model = ArmSpec.from_args(cfg.arm, cfg.links_mm)
@@ -204,7 +206,9 @@ def prepare(cfg: RunConfig, estimate_rig=None) -> Prepared:
                           f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")
     info: dict = {}
     given = {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
-    if cfg.controller == "itg":
+    if not with_controller:
+        controller = None
+    elif cfg.controller == "itg":
         params = {**RULE_DEFAULTS, **given}
         controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
                                 **{RULE_NAMES[k]: v for k, v in params.items()})
