@@ -19,7 +19,7 @@ import numpy as np
 
 from .arm import ArmSpec, forward_kinematics
 from .camera import MAX_SUPERSAMPLE
-from .contracts import Markers, Observation
+from .contracts import MARKERS, Markers, Observation
 from .detect import Detection, locate_led_near
 from .imaging import Patch
 from .inputs import is_real, is_whole
@@ -160,7 +160,7 @@ class VisionFeedback:
         """New generator from ``seed`` (anything ``numpy.random.default_rng`` takes); forget the
         last estimates."""
         self.rng = np.random.default_rng(seed)
-        self._last = {n: np.full(3, np.nan) for n in ("gripper", "elbow")}
+        self._last = {n: np.full(3, np.nan) for n in MARKERS}
         self.last_observation = None
 
     # -------------------------------------------------------------- the three steps

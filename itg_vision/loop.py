@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from .contracts import Controller, Markers, Step
+from .contracts import MARKERS, Controller, Markers, Step
 from .inputs import is_real, is_whole
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
@@ -114,7 +114,7 @@ class Trace:
     n_joints: int
     tracking_start: int = 0
     records: list[SetPointRecord] = field(default_factory=list)
-    est_err_mm: dict = field(default_factory=lambda: {"gripper": [], "elbow": []})
+    est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
     n_missed: int = 0
     timing_ms: dict = field(default_factory=dict)
 
