@@ -90,9 +90,10 @@ def score_image(image: np.ndarray, rgb) -> np.ndarray:
     -------
     score : uint8, shape (H, W).
     """
-    c = int(np.argmax(rgb))
-    others = [i for i in range(3) if i != c]
-    return cv2.subtract(image[..., c], cv2.max(image[..., others[0]], image[..., others[1]]))
+    c = max(range(3), key=lambda i: rgb[i])  # the first largest, as np.argmax
+    planes = cv2.split(image)  # contiguous planes: one call, not three strided copies
+    o1, o2 = (planes[i] for i in range(3) if i != c)
+    return cv2.subtract(planes[c], cv2.max(o1, o2))
 
 
 def blob_centroid(score: np.ndarray, method: str = "coverage"
@@ -116,13 +117,14 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return _nan2(), 0.0, 0.0, NOT_FOUND
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    best = int(np.argmax(areas)) + 1
-    if areas.max() < MIN_AREA_PX:
-        return _nan2(), float(areas.max()), 0.0, TOO_SMALL
-    if n > 2 and np.sort(areas)[-2] >= max(MIN_AREA_PX, 0.2 * areas.max()):
-        return _nan2(), float(areas.max()), 0.0, SEVERAL
-    x, y, w, h = stats[best, :4]
+    areas = stats[1:, cv2.CC_STAT_AREA].tolist()  # Python ints from here: no numpy scalars
+    biggest = max(areas)
+    best = areas.index(biggest) + 1  # the first largest, as np.argmax
+    if biggest < MIN_AREA_PX:
+        return _nan2(), float(biggest), 0.0, TOO_SMALL
+    if n > 2 and sorted(areas)[-2] >= max(MIN_AREA_PX, 0.2 * biggest):
+        return _nan2(), float(biggest), 0.0, SEVERAL
+    x, y, w, h = stats[best, :4].tolist()
     x0, y0 = max(x - 1, 0), max(y - 1, 0)
     x1, y1 = min(x + w + 1, score.shape[1]), min(y + h + 1, score.shape[0])
     s = score[y0:y1, x0:x1].astype(np.float32)
