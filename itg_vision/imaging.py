@@ -21,6 +21,7 @@ s = 3 cost a twentieth of one 640x480 frame.
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
@@ -226,7 +227,7 @@ def gaussian_noise(shape, sigma_gray: float, rng: np.random.Generator) -> np.nda
 
 def _draw(table: np.ndarray, shape, rng: np.random.Generator) -> np.ndarray:
     """Values of a 65536-entry table at two random bytes per value, shape ``shape``."""
-    idx = np.frombuffer(rng.bytes(2 * int(np.prod(shape))), dtype=np.uint16)
+    idx = np.frombuffer(rng.bytes(2 * math.prod(shape)), dtype=np.uint16)
     return table[idx].reshape(shape)
 
 
@@ -245,11 +246,9 @@ def add_sensor_noise(image: np.ndarray, camera: Camera,
         return image
     if camera.exposure == 1.0:
         # Integer path (2x faster): rounding the noise first equals rounding the sum, as the
-        # image is integer.
-        out = image.astype(np.int16)
-        out += _rounded_noise(out.shape, camera.noise_sigma_gray, rng)
-        np.clip(out, 0, 255, out=out)
-        return out.astype(np.uint8)
+        # image is integer; OpenCV adds in int and saturates to uint8 (numpy's clip, exactly)
+        noise = _rounded_noise(image.shape, camera.noise_sigma_gray, rng)
+        return cv2.add(image, noise, dtype=cv2.CV_8U)
     out = image.astype(np.float32) * np.float32(camera.exposure)
     if noisy:
         out += gaussian_noise(out.shape, camera.noise_sigma_gray, rng)
@@ -302,6 +301,9 @@ def capture(world, camera: Camera, rng: np.random.Generator | None, *,
 #: The 16 directions around a silhouette's rim that :func:`led_windows` projects.
 _RIM_ANGLES = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
 _RIM_COS, _RIM_SIN = np.cos(_RIM_ANGLES), np.sin(_RIM_ANGLES)
+#: The y and x axes (one row each), and no rotation or translation (cv2.projectPoints in the
+#: camera's frame): made once, not at every call.
+_Y_AXIS, _X_AXIS, _ZERO3 = np.array([[0.0, 1.0, 0.0]]), np.array([[1.0, 0.0, 0.0]]), np.zeros(3)
 
 
 def _norms(v: np.ndarray) -> np.ndarray:
@@ -336,25 +338,22 @@ def led_windows(camera: Camera, centres_mm, radius_mm: float, margin_px: int = 2
     ok = (Xc[:, 2] - radius_mm > 1e3 * NEAR_M) & (D > radius_mm)
     ray = Xc / np.where(ok, D, 1.0)[:, None]
     # two unit vectors across each ray: ray x (y or x axis), then ray x that
-    pick = np.where(np.abs(ray[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    pick = np.where(np.abs(ray[:, 1:2]) < 0.9, _Y_AXIS, _X_AXIS)
     e1 = _cross(ray, pick)
     e1 /= _norms(e1)[:, None]
     e2 = _cross(ray, e1)
     rho = radius_mm * D / np.sqrt(np.where(ok, D * D - radius_mm**2, 1.0))
     rim = (Xc[:, None] + rho[:, None, None] * (_RIM_COS[None, :, None] * e1[:, None]
                                                + _RIM_SIN[None, :, None] * e2[:, None]))
-    uv, _ = cv2.projectPoints(rim.reshape(-1, 3), np.zeros(3), np.zeros(3), camera.K,
-                              camera.dist_coeffs)
+    uv, _ = cv2.projectPoints(rim.reshape(-1, 3), _ZERO3, _ZERO3, camera.K, camera.dist_coeffs)
     uv = np.floor(uv.reshape(-1, 16, 2) + 0.5)  # the pixels holding the rim points
-    lo = uv.min(axis=1).astype(int) - margin_px
-    hi = uv.max(axis=1).astype(int) + margin_px + 1
+    lo = (uv.min(axis=1).astype(int) - margin_px).tolist()
+    hi = (uv.max(axis=1).astype(int) + margin_px + 1).tolist()
     W, H = camera.size
     out = []
-    for k in range(len(Xc)):
-        x0, y0 = max(lo[k, 0], 0), max(lo[k, 1], 0)
-        x1, y1 = min(hi[k, 0], W), min(hi[k, 1], H)
-        out.append((int(x0), int(y0), int(x1), int(y1))
-                   if ok[k] and x1 - x0 >= 3 and y1 - y0 >= 3 else None)
+    for (u0, v0), (u1, v1), seen in zip(lo, hi, ok.tolist()):
+        x0, y0, x1, y1 = max(u0, 0), max(v0, 0), min(u1, W), min(v1, H)
+        out.append((x0, y0, x1, y1) if seen and x1 - x0 >= 3 and y1 - y0 >= 3 else None)
     return out
 
 
@@ -372,12 +371,16 @@ def window_lens_maps(camera: Camera, supersample: int, box) -> tuple[np.ndarray,
         part = src[y0:y1, x0:x1]
     else:
         H, W = src.shape[:2]
-        ys = np.clip(np.arange(y0 - 1, y1 + 1), 0, H - 1)
-        xs = np.clip(np.arange(x0 - 1, x1 + 1), 0, W - 1)
-        part = cv2.resize(src[ys[:, None], xs[None, :]], (s * (x1 - x0 + 2), s * (y1 - y0 + 2)),
+        if 0 < x0 and 0 < y0 and x1 < W and y1 < H:  # inside: a slice (no copy) does
+            near = src[y0 - 1:y1 + 1, x0 - 1:x1 + 1]
+        else:
+            ys = np.clip(np.arange(y0 - 1, y1 + 1), 0, H - 1)
+            xs = np.clip(np.arange(x0 - 1, x1 + 1), 0, W - 1)
+            near = src[ys[:, None], xs[None, :]]
+        part = cv2.resize(near, (s * (x1 - x0 + 2), s * (y1 - y0 + 2)),
                           interpolation=cv2.INTER_LINEAR)[s:-s, s:-s]
-    part = s * (part + render_plan(camera, s).margin_px) + (s - 1) / 2
-    return cv2.convertMaps(part.astype(np.float32), None, cv2.CV_16SC2)
+    part = s * (part + render_plan(camera, s).margin_px) + (s - 1) / 2  # float32 stays float32
+    return cv2.convertMaps(np.asarray(part, np.float32), None, cv2.CV_16SC2)
 
 
 def window_intrinsics(camera: Camera, x0: float, y0: float, supersample: int) -> np.ndarray:
@@ -394,9 +397,48 @@ def window_intrinsics(camera: Camera, x0: float, y0: float, supersample: int) ->
     return K
 
 
+#: Render pixels kept around a region when deciding what it cannot see: TinyRenderer draws the
+#: integer pixels inside a triangle, whose coordinates differ from K's (pixel centres at
+#: integers) by at most 1 px (its +1 on cy); one more for rounding.
+CULL_PAD_PX = 2
+
+
+def link_extents_px(bounds, camera: Camera) -> tuple[tuple[int, ...], np.ndarray]:
+    """Where the arm's links can appear in the camera's pinhole image (1x, no distortion):
+    per link, the extent (u_min, v_min, u_max, v_max) of the projections of the corners
+    around its shapes (``bounds``: :meth:`itg_vision.world.World.link_bounds_mm`); NaN for a
+    link with a corner nearer than the near plane (no bound: never skipped). Shape (links, 4).
+    """
+    links, corners = bounds
+    x = corners @ camera.P.T  # (links, n, 3): u z, v z, z
+    z = x[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = x[..., 0] / z, x[..., 1] / z
+    ext = np.stack([u.min(axis=1), v.min(axis=1), u.max(axis=1), v.max(axis=1)], axis=1)
+    ext[z.min(axis=1) <= 1e3 * NEAR_M] = np.nan
+    return links, ext
+
+
+def unseen_links(extents, camera: Camera, K: np.ndarray, width: int, height: int
+                 ) -> tuple[int, ...]:
+    """The links a pinhole region of the camera's view (intrinsics ``K`` from
+    :func:`window_intrinsics`, ``width`` x ``height`` render pixels) cannot see: the
+    extent of the link's corners (:func:`link_extents_px`), taken to the region's pixels
+    (u' = s u + K'[0, 2] - s cx), lies outside it grown by :data:`CULL_PAD_PX`. A convex
+    shape lies inside its box, so its image inside the corners' projections: skipping such
+    a link leaves every pixel as it was."""
+    links, ext = extents
+    s = K[0, 0] / camera.fx
+    r = s * ext + [K[0, 2] - s * camera.cx, K[1, 2] - s * camera.cy] * 2
+    pad = CULL_PAD_PX
+    out = ((r[:, 2] < -pad) | (r[:, 0] > width - 1 + pad)
+           | (r[:, 3] < -pad) | (r[:, 1] > height - 1 + pad))  # NaN: False, kept
+    return tuple(link for link, o in zip(links, out.tolist()) if o)
+
+
 def capture_window(world, camera: Camera, rng: np.random.Generator | None,
                    box: tuple[int, int, int, int], *, supersample: int = 2,
-                   lighting=None) -> Patch:
+                   lighting=None, link_extents=None) -> Patch:
     """What the camera sees in the window ``box`` = (x0, y0, x1, y1) of its frame (end
     exclusive): the same pixels as ``capture(..., lens_first=True)``'s frame there (up to the
     sensor noise, drawn for the window only). See the module docstring.
@@ -408,6 +450,8 @@ def capture_window(world, camera: Camera, rng: np.random.Generator | None,
     x0, y0, x1, y1 = box
     s = int(supersample)
     plan = render_plan(camera, s)
+    if link_extents is None:
+        link_extents = link_extents_px(world.link_bounds_mm(), camera)
     maps = None if plan.map1 is None else window_lens_maps(camera, s, box)
     if maps is None:  # no lens: the window at s-fold is the pinhole region itself
         a, b, A, B = s * x0, s * y0, s * (x1 - x0), s * (y1 - y0)
@@ -421,6 +465,7 @@ def capture_window(world, camera: Camera, rng: np.random.Generator | None,
     # (a - (s - 1) / 2) / s - m at its centre; as a region origin: (a / s) - m
     K = window_intrinsics(camera, a / s - m, b / s - m, s)
     img = world.render(A, B, plan.view_gl, gl_projection_matrix(K, A, B, NEAR_M, FAR_M),
+                       skip_links=unseen_links(link_extents, camera, K, A, B),
                        **(lighting or {}))
     if maps is not None:
         shift = np.array([a, b], np.int16)
