@@ -167,7 +167,7 @@ class VisionFeedback:
     def capture_pair(self, world) -> dict[str, tuple[Patch | None, ...]]:
         """What both cameras see: marker -> per camera a window around its LED, or the whole
         frame (see the class docstring). Sensor noise from the feedback's generator."""
-        from .imaging import capture_window, led_windows, link_extents_px
+        from .imaging import capture_window, led_windows
         from .urdf import ARM_RGB, LED_RADIUS_MM, LED_RGB
 
         cams = self.render_rig.cameras
@@ -178,14 +178,12 @@ class VisionFeedback:
             if self.full_frame and not self.strobe:
                 frame = tuple(self._frame(world, c) for c in cams)
                 return {n: frame for n in names}
-            boxes, extents = {}, ()
+            boxes = {}
             if not self.full_frame:
                 centres = world.led_centres_mm()
                 X = np.array([centres[n] for n in names])
                 per_cam = [led_windows(c, X, LED_RADIUS_MM) for c in cams]
                 boxes = {n: [b[k] for b in per_cam] for k, n in enumerate(names)}
-                bounds = world.link_bounds_mm()  # where the links are, once per look
-                extents = [link_extents_px(bounds, c) for c in cams]
             for lit in names:
                 if self.strobe:
                     for n in names:
@@ -194,8 +192,8 @@ class VisionFeedback:
                     out[lit] = tuple(self._frame(world, c) for c in cams)
                     continue
                 out[lit] = tuple(None if box is None else capture_window(
-                    world, c, self.rng, box, supersample=s, lighting=light, link_extents=ext)
-                    for c, box, ext in zip(cams, boxes[lit], extents))
+                    world, c, self.rng, box, supersample=s, lighting=light)
+                    for c, box in zip(cams, boxes[lit]))
         finally:
             if self.strobe:
                 for n in names:

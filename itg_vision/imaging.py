@@ -397,48 +397,9 @@ def window_intrinsics(camera: Camera, x0: float, y0: float, supersample: int) ->
     return K
 
 
-#: Render pixels kept around a region when deciding what it cannot see: TinyRenderer draws the
-#: integer pixels inside a triangle, whose coordinates differ from K's (pixel centres at
-#: integers) by at most 1 px (its +1 on cy); one more for rounding.
-CULL_PAD_PX = 2
-
-
-def link_extents_px(bounds, camera: Camera) -> tuple[tuple[int, ...], np.ndarray]:
-    """Where the arm's links can appear in the camera's pinhole image (1x, no distortion):
-    per link, the extent (u_min, v_min, u_max, v_max) of the projections of the corners
-    around its shapes (``bounds``: :meth:`itg_vision.world.World.link_bounds_mm`); NaN for a
-    link with a corner nearer than the near plane (no bound: never skipped). Shape (links, 4).
-    """
-    links, corners = bounds
-    x = corners @ camera.P.T  # (links, n, 3): u z, v z, z
-    z = x[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u, v = x[..., 0] / z, x[..., 1] / z
-    ext = np.stack([u.min(axis=1), v.min(axis=1), u.max(axis=1), v.max(axis=1)], axis=1)
-    ext[z.min(axis=1) <= 1e3 * NEAR_M] = np.nan
-    return links, ext
-
-
-def unseen_links(extents, camera: Camera, K: np.ndarray, width: int, height: int
-                 ) -> tuple[int, ...]:
-    """The links a pinhole region of the camera's view (intrinsics ``K`` from
-    :func:`window_intrinsics`, ``width`` x ``height`` render pixels) cannot see: the
-    extent of the link's corners (:func:`link_extents_px`), taken to the region's pixels
-    (u' = s u + K'[0, 2] - s cx), lies outside it grown by :data:`CULL_PAD_PX`. A convex
-    shape lies inside its box, so its image inside the corners' projections: skipping such
-    a link leaves every pixel as it was."""
-    links, ext = extents
-    s = K[0, 0] / camera.fx
-    r = s * ext + [K[0, 2] - s * camera.cx, K[1, 2] - s * camera.cy] * 2
-    pad = CULL_PAD_PX
-    out = ((r[:, 2] < -pad) | (r[:, 0] > width - 1 + pad)
-           | (r[:, 3] < -pad) | (r[:, 1] > height - 1 + pad))  # NaN: False, kept
-    return tuple(link for link, o in zip(links, out.tolist()) if o)
-
-
 def capture_window(world, camera: Camera, rng: np.random.Generator | None,
                    box: tuple[int, int, int, int], *, supersample: int = 2,
-                   lighting=None, link_extents=None) -> Patch:
+                   lighting=None) -> Patch:
     """What the camera sees in the window ``box`` = (x0, y0, x1, y1) of its frame (end
     exclusive): the same pixels as ``capture(..., lens_first=True)``'s frame there (up to the
     sensor noise, drawn for the window only). See the module docstring.
@@ -450,8 +411,6 @@ def capture_window(world, camera: Camera, rng: np.random.Generator | None,
     x0, y0, x1, y1 = box
     s = int(supersample)
     plan = render_plan(camera, s)
-    if link_extents is None:
-        link_extents = link_extents_px(world.link_bounds_mm(), camera)
     maps = None if plan.map1 is None else window_lens_maps(camera, s, box)
     if maps is None:  # no lens: the window at s-fold is the pinhole region itself
         a, b, A, B = s * x0, s * y0, s * (x1 - x0), s * (y1 - y0)
@@ -465,7 +424,6 @@ def capture_window(world, camera: Camera, rng: np.random.Generator | None,
     # (a - (s - 1) / 2) / s - m at its centre; as a region origin: (a / s) - m
     K = window_intrinsics(camera, a / s - m, b / s - m, s)
     img = world.render(A, B, plan.view_gl, gl_projection_matrix(K, A, B, NEAR_M, FAR_M),
-                       skip_links=unseen_links(link_extents, camera, K, A, B),
                        **(lighting or {}))
     if maps is not None:
         shift = np.array([a, b], np.int16)

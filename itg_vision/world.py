@@ -31,35 +31,6 @@ def _disconnect(client: int) -> None:
         p.disconnect(client)
 
 
-#: Bullet's margin (m) around the convex shapes TinyRenderer tessellates (boxes keep their size;
-#: cylinders grow by it).
-_CONVEX_MARGIN_M = 0.001
-
-
-def _local_corners(shapes) -> dict[int, np.ndarray]:
-    """Per link, the corners (mm, link frame) of a box around each of its box, sphere and
-    cylinder visual shapes (``getVisualShapeData`` rows), grown by the convex margin; a link
-    with any other shape is left out."""
-    out: dict[int, list] = {}
-    other = set()
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    for s in shapes:
-        link, kind, dims, pos, orn = s[1], s[2], s[3], s[5], s[6]
-        if kind == p.GEOM_BOX:
-            half = np.array(dims[:3]) / 2
-        elif kind == p.GEOM_SPHERE:
-            half = np.full(3, dims[0])
-        elif kind == p.GEOM_CYLINDER:  # dims: length, radius; along the shape's z
-            half = np.array([dims[1], dims[1], dims[0] / 2])
-        else:
-            other.add(link)
-            continue
-        R = np.array(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
-        local = (signs * (half + _CONVEX_MARGIN_M)) @ R.T + np.array(pos)
-        out.setdefault(link, []).append(local / _MM)
-    return {link: np.concatenate(c) for link, c in out.items() if link not in other}
-
-
 class World:
     """One PyBullet DIRECT client holding the true arm.
 
@@ -90,13 +61,6 @@ class World:
         self._joints = [names[n] for n in arm.joint_names]
         self._leds = {m: names[f"{m}_led"] for m in arm.marker_names}
         self._offset_rad = np.radians(np.asarray(arm.joint_offset_deg or (0.0,) * arm.n_joints))
-        shapes = p.getVisualShapeData(self.body, physicsClientId=self.client)
-        # each link's shapes' colours as drawn, in TinyRenderer's order (to restore a hidden link)
-        self._rgba: dict[int, list] = {}
-        for s in shapes:
-            self._rgba.setdefault(s[1], []).append(list(s[7]))
-        self._corners = self._corner_sets(shapes)
-        self._bounds: tuple | None = None
         self.q_deg = np.zeros(arm.n_joints)
         self.set_q(arm.start_q_deg if q_deg is None else q_deg)
 
@@ -110,7 +74,6 @@ class World:
                              f"expected, got {q_deg.tolist()}")
         self._check_open()
         self.q_deg = q_deg
-        self._bounds = None
         q = np.radians(self.q_deg) + self._offset_rad
         for j, qj in zip(self._joints, q):
             p.resetJointState(self.body, j, float(qj), physicsClientId=self.client)
@@ -139,46 +102,6 @@ class World:
         """Recolour one LED (for strobing: a dark LED is drawn in the arm's colour)."""
         p.changeVisualShape(self.body, self._leds[name], rgbaColor=[*rgb, 1.0],
                             physicsClientId=self.client)
-        self._rgba[self._leds[name]] = [[*rgb, 1.0] for _ in self._rgba[self._leds[name]]]
-
-    def _corner_sets(self, shapes) -> tuple:
-        """(links with corners, the base first if drawn; the moving links' corners in their
-        own frames, (links, n, 3) mm; the base's in the world, homogeneous (0 or 1, n, 4): it
-        is fixed). Links with fewer shapes repeat a corner."""
-        corners = _local_corners(shapes)
-        n = max((len(c) for c in corners.values()), default=1)
-        corners = {k: np.pad(c, ((0, n - len(c)), (0, 0)), "edge") for k, c in corners.items()}
-        moving = tuple(k for k in corners if k != -1)
-        base = np.zeros((0, n, 4))
-        if -1 in corners:  # the base's frame is its centre of mass's: URDF frame = COM * inertial^-1
-            pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
-            ipos, iorn = p.getDynamicsInfo(self.body, -1, physicsClientId=self.client)[3:5]
-            pos, orn = p.multiplyTransforms(pos, orn, *p.invertTransform(ipos, iorn))
-            R = np.array(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
-            X = corners[-1] @ R.T + np.array(pos) / _MM
-            base = np.concatenate([X, np.ones((n, 1))], -1)[None]
-        local = np.array([corners[k] for k in moving]).reshape(-1, n, 3)
-        return ((-1,) if -1 in corners else ()) + moving, local, base
-
-    def link_bounds_mm(self) -> tuple[tuple[int, ...], np.ndarray]:
-        """Where each of the arm's drawn links can be (for a renderer to skip those a view
-        cannot see): (link indices, -1 the base; corners, shape (links, n, 4), homogeneous,
-        mm, world frame), the corners of a box around each of the link's visual shapes as
-        TinyRenderer draws them, grown by Bullet's 1 mm convex margin (a cylinder is drawn as
-        the hull of its 32-gon grown by it). Links drawn from a mesh or another shape are left
-        out (never skipped). Recomputed after the joints move."""
-        self._check_open()
-        if self._bounds is None:
-            links, local, base = self._corners
-            moving = [k for k in links if k != -1]
-            states = p.getLinkStates(self.body, moving, computeForwardKinematics=True,
-                                     physicsClientId=self.client) if moving else []
-            R = np.array([p.getMatrixFromQuaternion(s[5]) for s in states]).reshape(-1, 3, 3)
-            pos = np.array([s[4] for s in states]).reshape(-1, 1, 3) / _MM
-            X = np.einsum("lij,lnj->lni", R, local) + pos
-            X = np.concatenate([base, np.concatenate([X, np.ones(X.shape[:2] + (1,))], -1)])
-            self._bounds = links, X
-        return self._bounds
 
     def inverse_kinematics(self, target_mm, marker: str = "gripper",
                            start_q_deg=None) -> np.ndarray:
@@ -215,28 +138,17 @@ class World:
     # ------------------------------------------------------------------ camera
     def render(self, width: int, height: int, view_gl, proj_gl, *,
                light_direction=(0.3, -0.4, 1.0), ambient: float = 0.75,
-               diffuse: float = 0.35, skip_links=()) -> np.ndarray:
+               diffuse: float = 0.35) -> np.ndarray:
         """Render an RGB image (uint8, shape (height, width, 3)) with TinyRenderer.
 
         ``view_gl`` and ``proj_gl`` are OpenGL matrices flattened column-major (16 floats), as
-        made by :mod:`itg_vision.camera`. ``skip_links``: links of the arm not drawn (made
-        transparent, which TinyRenderer skips whole, then given back their colours): only for
-        links the view cannot see (:meth:`link_bounds_mm`), or the image changes.
+        made by :mod:`itg_vision.camera`.
         """
-        c = self.client
-        for link in skip_links:
-            p.changeVisualShape(self.body, link, rgbaColor=[0.0, 0.0, 0.0, 0.0], physicsClientId=c)
-        try:
-            _, _, rgba, _, _ = p.getCameraImage(
-                width, height, viewMatrix=list(view_gl), projectionMatrix=list(proj_gl),
-                renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, shadow=0,
-                lightDirection=list(light_direction), lightAmbientCoeff=ambient,
-                lightDiffuseCoeff=diffuse, lightSpecularCoeff=0.0, physicsClientId=c)
-        finally:
-            for link in skip_links:
-                for k, colour in enumerate(self._rgba[link]):
-                    p.changeVisualShape(self.body, link, shapeIndex=k, rgbaColor=colour,
-                                        physicsClientId=c)
+        _, _, rgba, _, _ = p.getCameraImage(
+            width, height, viewMatrix=list(view_gl), projectionMatrix=list(proj_gl),
+            renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, shadow=0,
+            lightDirection=list(light_direction), lightAmbientCoeff=ambient,
+            lightDiffuseCoeff=diffuse, lightSpecularCoeff=0.0, physicsClientId=self.client)
         rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (height, width, 4))
         return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)  # 20x faster than a strided copy
 
