@@ -3,6 +3,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from itg_vision.bench import accuracy, speed
@@ -70,6 +71,57 @@ def test_speed_out_saves_what_it_printed(tmp_path, capsys):
     assert r["target"]["met"] == (r["target"]["ratio"] >= r["target"]["at_least"])
     assert f"{us['ik_pybullet_us']:.3f}" in printed
     assert len(r["ik_pybullet_miss_mm"]) == 720 and r["stereo_loop"]["rows"] == []
+    # beside each median the mean and the slowest pass, printed and saved
+    for key in ("rules_compiled_us", "itg_plus_compiled_us", "ik_pybullet_us"):
+        assert us[f"{key}_mean"] <= us[f"{key}_max"]
+        assert f"{us[key]:.3f}{us[key + '_mean']:>10.3f}{us[key + '_max']:>10.3f}" in printed
+    states = r["decision_states"]
+    assert (states["trajectory"], states["set_points"], states["max_step_deg"]) == \
+        ("ellipse-t1", 720, 20.0)
+    far = states["gripper_from_set_point_mm"]
+    assert set(far) == {"table2", "itg_plus"}
+    assert f"Table 2 {far['table2']['median']:.2f} / {far['table2']['mean']:.2f}" in printed
+
+
+def test_speed_times_each_rule_base_at_the_states_it_reaches():
+    """The decision timings feed each rule base what it is given while tracking ellipse T1
+    (its own replay: ideal feedback, the arm file's servo limit), not unrelated poses: the
+    set points in order; markers that are the forward kinematics of the joint angles (ideal
+    feedback); consecutive joint angles one servo-limited step apart (random poses are ~113
+    deg apart per joint); and each gripper where the previous decision left it, so within
+    E_(k-1) + |p_k - p_(k-1)| of its set point, E from the loop's own trace of the same rule
+    base and limit."""
+    from itg_vision.arm import ArmSpec, forward_kinematics
+    from itg_vision.feedback import TruthFeedback
+    from itg_vision.loop import simulate
+    from itg_vision.rules import load_rules
+    from itg_vision import trajectory as traj
+    from itg_vision.world import World
+
+    n = 120
+    c = speed.decision_costs(n_points=n, repeat=1)
+    arm = ArmSpec.from_args("two-link")
+    servo = float(arm.benchmark["max_step_deg"])
+    assert c["max_step_deg"] == servo
+    pts = traj.named("ellipse-t1", n).points_mm
+    step = np.linalg.norm(pts - np.roll(pts, 1, axis=0), axis=1)
+    for name, rules in (("table2", load_rules("table2", 2, arm.links_mm, f=0.5)),
+                        ("itg_plus", load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
+                                                S=servo, w=0.5))):
+        states = c["states"][name]
+        assert len(states) == n
+        assert np.array_equal(np.array([s[0] for s in states]), pts)
+        q = np.array([s[3] for s in states])
+        for (_, m, _, _), qk in zip(states, q):
+            fk = forward_kinematics(arm, qk)
+            assert np.allclose(m.gripper_mm, fk["gripper"], atol=1e-6)
+            assert np.allclose(m.elbow_mm, fk["elbow"], atol=1e-6)
+        assert np.abs(np.diff(q, axis=0)).max() <= servo + 1e-9
+        with World(arm) as world:
+            trace = simulate(world, rules, TruthFeedback(), pts, max_step_deg=servo)
+        e = trace.error_mm()
+        far = c["from_set_point_mm"][name]
+        assert np.all(far[1:] <= e[:-1] + step[1:] + 1e-9), name
 
 
 @pytest.mark.parametrize("made_by", ["user", "bench accuracy"])

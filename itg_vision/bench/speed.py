@@ -1,9 +1,10 @@
 """python -m itg_vision.bench speed: the cost of one decision, rules against inverse kinematics.
 
 The paper claims its rules are cheaper than trigonometry and matrix inversion. Measured here in
-one run, same set points: one compiled Table 2 rule step, the closed-form two-link inverse
-kinematics, one call of PyBullet's ``calculateInverseKinematics`` from the previous set point's
-solution (with how near its set point it lands); then the stereo loop at 640x480 with
+one run, same set points: one compiled Table 2 rule step (and ITG+'s), each at the states its
+rule base reaches tracking those set points, the closed-form two-link inverse kinematics, one
+call of PyBullet's ``calculateInverseKinematics`` from the previous set point's solution (with
+how near its set point it lands); then the stereo loop at 640x480 with
 windows around the LEDs at supersampling 1-4 beside whole frames, on the same states, with the
 issue-11 targets beside the measured values.
 """
@@ -23,7 +24,7 @@ from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
 from ..controllers import two_link_ik
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, run_main
-from ..feedback import DEFAULT_SUPERSAMPLE, Markers, VisionFeedback
+from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..rules import RuleBase, load_rules
 from .. import native, outputs, trajectory as traj
 from ..world import World
@@ -31,9 +32,9 @@ from ..world import World
 
 def _per_call_us(methods: dict, repeat: int) -> dict:
     """Median over ``repeat`` passes of the mean time per call (microseconds) of each method
-    (name -> (function, argument tuples)), and beside it (``<name>_max``) the slowest pass's.
-    The passes interleave the methods, so a slow patch of the machine falls on all of them
-    alike and their ratios hold."""
+    (name -> (function, argument tuples)), and beside it the mean over the passes
+    (``<name>_mean``) and the slowest pass's (``<name>_max``). The passes interleave the
+    methods, so a slow patch of the machine falls on all of them alike and their ratios hold."""
     times: dict = {name: [] for name in methods}
     for _ in range(repeat):
         for name, (fn, args_list) in methods.items():
@@ -42,33 +43,73 @@ def _per_call_us(methods: dict, repeat: int) -> dict:
                 fn(*a)
             times[name].append((time.perf_counter() - t0) / len(args_list))
     out = {name: float(np.median(t) * 1e6) for name, t in times.items()}
-    return out | {f"{name}_max": float(np.max(t) * 1e6) for name, t in times.items()}
+    return (out | {f"{name}_mean": float(np.mean(t) * 1e6) for name, t in times.items()}
+            | {f"{name}_max": float(np.max(t) * 1e6) for name, t in times.items()})
 
 
 #: Interleaved passes of the decision timings (``--passes`` is the stereo loop's).
 DECISION_PASSES = 7
+#: The decisions' trajectory and its set points.
+DECISION_PATH, DECISION_POINTS = "ellipse-t1", 720
 #: The stereo loop's default sample: states of the replay per pass, and passes.
 DEFAULT_FRAMES, DEFAULT_PASSES = 40, 3
 
 
-def decision_costs(n_points: int = 720, repeat: int = DECISION_PASSES) -> dict:
-    """Microseconds per decision for the same set points and arm states (two-link arm)."""
+class _Recording:
+    """A controller that records what each decision is given (the set point, the markers, the
+    joint angles the loop passes it: None for rules that read none) and the arm's joint
+    angles then, and decides as ``controller`` does."""
+
+    def __init__(self, controller, world):
+        self.controller, self.world, self.seen = controller, world, []
+        self.uses_encoders = controller.uses_encoders
+
+    def params(self) -> dict:
+        return self.controller.params()
+
+    def step(self, desired_mm, markers, q_deg):
+        self.seen.append((np.array(desired_mm, float), markers,
+                          None if q_deg is None else np.array(q_deg, float),
+                          self.world.q_deg.copy()))
+        return self.controller.step(desired_mm, markers, q_deg)
+
+
+def decision_states(arm, rules, points_mm, max_step_deg: float | None) -> list[tuple]:
+    """What ``rules`` is given at each decision while tracking ``points_mm`` with ``arm``
+    (``itg_vision.loop.simulate``: ideal feedback, one iteration per set point, joints clipped
+    to ``max_step_deg`` per iteration; None: no limit): per decision (set point (3,), markers,
+    the joint angles given to the rules or None, the arm's joint angles (deg))."""
+    from ..feedback import TruthFeedback
+    from ..loop import simulate
+
+    with World(arm) as world:
+        rec = _Recording(rules, world)
+        simulate(world, rec, TruthFeedback(), points_mm, max_step_deg=max_step_deg)
+    return rec.seen
+
+
+def _from_set_point_mm(states) -> np.ndarray:
+    """Distance (x-y, mm) of each state's gripper from its set point."""
+    return np.array([np.linalg.norm((m.gripper_mm - p)[:2]) for p, m, _, _ in states])
+
+
+def decision_costs(n_points: int = DECISION_POINTS, repeat: int = DECISION_PASSES) -> dict:
+    """Microseconds per decision of the two-link arm on ellipse T1's ``n_points`` set points:
+    each rule base at the states it reaches tracking them (:func:`decision_states` under the
+    arm file's benchmark servo limit), the inverse kinematics at the same set points."""
     arm = ArmSpec.from_args("two-link")
+    servo = float(arm.benchmark["max_step_deg"])
     rb = load_rules("table2", 2, arm.links_mm, f=0.5)
-    pts = traj.named("ellipse-t1", n_points).points_mm
-    rng = np.random.default_rng(0)
-    qs = rng.uniform(-170, 170, (n_points, 2))
-    states = []
-    for q in qs:
-        m = forward_kinematics(arm, q)
-        states.append(Markers(m["gripper"], m["elbow"]))
-    rule_args = [(p, s, q) for p, s, q in zip(pts, states, qs)]
+    plus = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm, S=servo, w=0.5)
+    pts = traj.named(DECISION_PATH, n_points).points_mm
+    seen = {"table2": decision_states(arm, rb, pts, servo),
+            "itg_plus": decision_states(arm, plus, pts, servo)}
+    rule_args = [a[:3] for a in seen["table2"]]
+    plus_step = [a[:3] for a in seen["itg_plus"]]
     # the compiled function alone (what a microcontroller port would run) and RuleBase.step
     raw_args = [rb.arguments(*a) for a in rule_args]
+    plus_args = [plus.arguments(*a) for a in plus_step]
     ik_args = [(float(p[0]), float(p[1]), 100.0, 100.0) for p in pts]
-    plus = load_rules(arm.defaults["itg_plus_rules"], 2, arm.links_mm,
-                      S=float(arm.benchmark["max_step_deg"]), w=0.5)
-    plus_args = [plus.arguments(*a) for a in rule_args]
     methods = {"rules_compiled_us": (rb.compiled, raw_args),
                "rules_step_us": (rb.step, rule_args),
                "itg_plus_compiled_us": (plus.compiled, plus_args),
@@ -92,7 +133,9 @@ def decision_costs(n_points: int = 720, repeat: int = DECISION_PASSES) -> dict:
         landed = [forward_kinematics(arm, world.inverse_kinematics(*a))["gripper"]
                   for a in ik_from_previous]
     miss = np.linalg.norm(np.array(landed) - np.array(goals), axis=1)
-    return out | {"native_error": native_error, "ik_pybullet_miss_mm": miss}
+    return out | {"native_error": native_error, "ik_pybullet_miss_mm": miss,
+                  "max_step_deg": servo, "states": seen,
+                  "from_set_point_mm": {k: _from_set_point_mm(v) for k, v in seen.items()}}
 
 
 #: Vision settings timed side by side: (label, supersample, full_frame): windows at 1-4,
@@ -122,16 +165,8 @@ def itg_plus_speed(costs: dict) -> tuple[float, str]:
 def replay_states(arm, rules, points_mm, settle: int, frames: int) -> list:
     """(joint angles, set point) of the two-link arm tracking ``points_mm`` with the rules
     under ideal feedback, after ``settle`` set points: the same states for every setting."""
-    from ..feedback import TruthFeedback
-
-    truth = TruthFeedback()
-    out = []
-    with World(arm) as world:
-        for k, p in enumerate(points_mm[:settle + frames]):
-            if k >= settle:
-                out.append((world.q_deg.copy(), p))
-            world.move(rules.step(p, truth.observe(world), world.q_deg).dq_deg)
-    return out
+    seen = decision_states(arm, rules, points_mm[:settle + frames], None)
+    return [(q, p) for p, _, _, q in seen[settle:]]
 
 
 def vision_costs(settings=SETTINGS, frames: int = DEFAULT_FRAMES, settle: int = SETTLE,
@@ -233,6 +268,30 @@ def vision_report(rows: list[dict], default_supersample: int) -> list[str]:
     return L
 
 
+def _tails(v) -> dict:
+    """Median, mean, p95 and max of ``v``."""
+    return {"median": float(np.median(v)), "mean": float(np.mean(v)),
+            "p95": float(np.percentile(v, 95)), "max": float(np.max(v))}
+
+
+def decision_header(c: dict) -> list[str]:
+    """What the decision timings ran on: the states each rule base was timed at, and how far
+    their grippers were from the set points (median / mean / p95 / max, mm)."""
+    far = "; ".join(f"{name} {t['median']:.2f} / {t['mean']:.2f} / {t['p95']:.2f} / "
+                    f"{t['max']:.1f}" for name, t in (
+                        ("Table 2", _tails(c["from_set_point_mm"]["table2"])),
+                        ("ITG+", _tails(c["from_set_point_mm"]["itg_plus"]))))
+    n = len(c["ik_pybullet_miss_mm"])
+    return [f"one decision, two-link arm, ellipse T1's {n} set points: each rule base timed at "
+            "the states it reaches tracking them (its own replay: ideal feedback, one iteration "
+            f"per set point, servo limit {c['max_step_deg']:g} deg per iteration), the inverse "
+            "kinematics at the same set points (median, mean and slowest of "
+            f"{DECISION_PASSES} interleaved passes; one core)",
+            f"the replayed grippers' distance from their set points, median / mean / p95 / max "
+            f"mm: {far} (each max is the start transient: the arm starts "
+            f"{c['from_set_point_mm']['table2'][0]:.0f} mm from the first set point)"]
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m itg_vision.bench speed",
                         description=__doc__.split("\n\n")[0])
@@ -290,9 +349,9 @@ def main(argv: list[str] | None = None) -> int:
         say(machine)
         c = decision_costs()
         base = c["rules_compiled_us"]
-        say(f"one decision, two-link arm, same 720 set points (median of {DECISION_PASSES} "
-            "interleaved passes, and the slowest pass; one core)")
-        say(f"{'method':<44}{'us/step':>10}{'slowest':>10}{'x rules':>10}")
+        for line in decision_header(c):
+            say(line)
+        say(f"{'method':<44}{'us/step':>10}{'mean':>10}{'slowest':>10}{'x rules':>10}")
         for key, label in (("rules_compiled_us", "Table 2 rules, compiled to Python"),
                            ("rules_native_us", "Table 2 rules, compiled to C"),
                            ("rules_step_us", "Table 2 rules, RuleBase.step (with wrapping)"),
@@ -302,7 +361,8 @@ def main(argv: list[str] | None = None) -> int:
                            ("ik_closed_form_us", "closed-form inverse kinematics (math)"),
                            ("ik_pybullet_us", "pybullet.calculateInverseKinematics")):
             if key in c:
-                say(f"{label:<44}{c[key]:>10.3f}{c[key + '_max']:>10.3f}{c[key] / base:>10.2f}")
+                say(f"{label:<44}{c[key]:>10.3f}{c[key + '_mean']:>10.3f}{c[key + '_max']:>10.3f}"
+                    f"{c[key] / base:>10.2f}")
         if c["native_error"]:
             say(f"rules compiled to C: not timed ({c['native_error']})")
         miss = c["ik_pybullet_miss_mm"]
@@ -334,9 +394,15 @@ def main(argv: list[str] | None = None) -> int:
             for line in vision_report(rows, DEFAULT_SUPERSAMPLE):
                 say(line)
         if args.out is not None:
+            far = c["from_set_point_mm"]
             results = {"machine": machine, "decision_passes": DECISION_PASSES,
                        "decision_us": {k: v for k, v in c.items()
-                                       if k.endswith(("_us", "_us_max"))},
+                                       if k.endswith(("_us", "_us_mean", "_us_max"))},
+                       "decision_states": {
+                           "trajectory": DECISION_PATH, "set_points": len(c["ik_pybullet_miss_mm"]),
+                           "feedback": "truth", "iterations_per_set_point": 1,
+                           "max_step_deg": c["max_step_deg"],
+                           "gripper_from_set_point_mm": {k: _tails(v) for k, v in far.items()}},
                        "native_error": c["native_error"],
                        "ik_pybullet_miss_mm": c["ik_pybullet_miss_mm"],
                        "target": {"ratio": ratio, "compiled_to": compiled,
