@@ -246,9 +246,11 @@ def add_sensor_noise(image: np.ndarray, camera: Camera,
         return image
     if camera.exposure == 1.0:
         # Integer path (2x faster): rounding the noise first equals rounding the sum, as the
-        # image is integer; OpenCV adds in int and saturates to uint8 (numpy's clip, exactly)
-        noise = _rounded_noise(image.shape, camera.noise_sigma_gray, rng)
-        return cv2.add(image, noise, dtype=cv2.CV_8U)
+        # image is integer.
+        out = image.astype(np.int16)
+        out += _rounded_noise(out.shape, camera.noise_sigma_gray, rng)
+        np.clip(out, 0, 255, out=out)
+        return out.astype(np.uint8)
     out = image.astype(np.float32) * np.float32(camera.exposure)
     if noisy:
         out += gaussian_noise(out.shape, camera.noise_sigma_gray, rng)

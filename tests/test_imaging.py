@@ -71,24 +71,6 @@ def test_sensor_noise_statistics_and_seed(cam):
     assert abs(n.std() - 3.0) < 0.05
 
 
-def test_noise_saturates_as_numpy_clips(cam):
-    """The integer noise path adds with OpenCV, saturating to uint8: exactly the sum in int16
-    clipped to 0..255 (numpy), at the ends of the range too (sigma 200 grey levels pushes
-    most of a black-and-white image past them)."""
-    from dataclasses import replace
-
-    from itg_vision.imaging import _rounded_noise
-
-    loud = replace(cam, noise_sigma_gray=200.0)
-    img = np.zeros((31, 17, 3), np.uint8)
-    img[::2] = 255
-    got = add_sensor_noise(img, loud, np.random.default_rng(4))
-    noise = _rounded_noise(img.shape, 200.0, np.random.default_rng(4))
-    assert noise.min() < -255 and noise.max() > 255
-    want = np.clip(img.astype(np.int16) + noise, 0, 255).astype(np.uint8)
-    assert got.dtype == np.uint8 and np.array_equal(got, want)
-
-
 def test_exposure_gain_and_clipping(cam):
     from dataclasses import replace
 
