@@ -99,8 +99,11 @@ class World:
         return out
 
     def set_led_lit(self, name: str, rgb: tuple[float, float, float]) -> None:
-        """Recolour one LED (for strobing: a dark LED is drawn in the arm's colour)."""
-        p.changeVisualShape(self.body, self._leds[name], rgbaColor=[*rgb, 1.0],
+        """Recolour one LED's sphere (for strobing: a dark LED is drawn in the arm's colour).
+        Its post keeps the arm's colour: the sphere is its link's first visual shape
+        (:func:`itg_vision.urdf._led_link`), and a call without ``shapeIndex`` recolours every
+        visual of the link, so the post was drawn lit too, from the first strobed look on."""
+        p.changeVisualShape(self.body, self._leds[name], shapeIndex=0, rgbaColor=[*rgb, 1.0],
                             physicsClientId=self.client)
 
     def inverse_kinematics(self, target_mm, marker: str = "gripper",
