@@ -24,10 +24,10 @@ from .detect import Detection, locate_led_near
 from .imaging import Patch
 from .inputs import is_real, is_whole
 
-#: Default supersampling of the vision loop: the most accurate setting that keeps the stereo
+#: Default supersampling of the vision loop: the most accurate setting that kept the stereo
 #: loop at >= 300 Hz on one core (``python -m itg_vision.bench speed`` and ``accuracy``:
-#: s = 3 ran at 346-392 Hz with 0.024 px centroid RMS; s = 4 at 252-282 Hz, 0.020 px; s = 2 at
-#: 460-530 Hz, 0.037 px).
+#: centroid RMS 0.024 px at s = 3, 0.021 at s = 4, 0.036 at s = 2; s = 3 ran at 276-392 Hz on
+#: this project's host over several days, 300-305 Hz on 2026-12-04, s = 4 under 300 Hz).
 DEFAULT_SUPERSAMPLE = 3
 
 
