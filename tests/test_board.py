@@ -9,7 +9,7 @@ from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig
 from itg_vision.world import World
 
-from conftest import ROOT, random_rotation
+from conftest import ROOT, random_rotation, roundoff
 
 PLANAR = ROOT / "cameras" / "planar.yaml"
 
@@ -80,5 +80,5 @@ def test_a_board_showing_its_back_is_not_visible():
     R = pose.R @ np.diag([1.0, -1.0, -1.0])
     centre = pose.points(board.centre_mm())
     back = brd.BoardPose(R, centre - R @ board.centre_mm())
-    assert np.allclose(back.points(board.centre_mm()), centre)
+    assert np.allclose(back.points(board.centre_mm()), centre, rtol=0, atol=roundoff(1000))  # ~700 mm away
     assert not brd.board_visible(cam, board, back)

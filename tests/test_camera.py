@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import roundoff
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -31,7 +32,7 @@ def _points(rng, n):
 
 def test_look_at_rotation_is_a_rotation_and_looks_at_the_target():
     R = look_at_rotation([100, -300, 500], [10, 20, 30], up=[0, 0, 1])
-    assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.allclose(R @ R.T, np.eye(3), rtol=0, atol=roundoff(1.0))
     assert np.isclose(np.linalg.det(R), 1.0)
     cam = Camera.from_arrays("c", (640, 480), [[600, 0, 320], [0, 600, 240], [0, 0, 1]],
                              np.zeros(5), R, -R @ np.array([100, -300, 500.0]))
@@ -57,8 +58,9 @@ def test_undistort_inverts_distortion(rig):
     rng = np.random.default_rng(1)
     for cam in rig.cameras:
         X = _points(rng, 500)
+        # undistortPoints stops at 1e-10 in normalised coordinates: 6e-8 px at f = 600 px
         assert np.allclose(cam.undistort(cam.project(X)), cam.project(X, distort=False),
-                           atol=1e-6)
+                           rtol=0, atol=1e-6)
 
 
 def test_projection_matrix_matches_project(rig):
@@ -66,8 +68,9 @@ def test_projection_matrix_matches_project(rig):
     X = _points(rng, 100)
     for cam in rig.cameras:
         h = np.hstack([X, np.ones((len(X), 1))]) @ cam.P.T
-        assert np.allclose(h[:, :2] / h[:, 2:], cam.project(X, distort=False), atol=1e-9)
-        assert np.allclose(cam.to_camera(cam.position_mm), 0, atol=1e-9)
+        assert np.allclose(h[:, :2] / h[:, 2:], cam.project(X, distort=False), rtol=0,
+                           atol=roundoff(1000))  # float64 round-off at ~650 px
+        assert np.allclose(cam.to_camera(cam.position_mm), 0, rtol=0, atol=roundoff(1000))  # ~700 mm
 
 
 @settings(max_examples=40, deadline=None)
@@ -84,7 +87,8 @@ def test_gl_matrices_match_opencv_with_tinyrenderer_rule(seed):
     ndc = clip[:, :3] / clip[:, 3:]
     W, H = cam.size
     uv = np.stack([(ndc[:, 0] + 1) * W / 2, (1 - ndc[:, 1]) * H / 2 - 1], axis=1)
-    assert np.allclose(uv, cam.project(X, distort=False), atol=1e-6)
+    # float64 round-off through view, projection and the divide, at ~650 px
+    assert np.allclose(uv, cam.project(X, distort=False), rtol=0, atol=roundoff(1000))
     assert np.all(np.abs(ndc[:, 2]) < 1)  # inside the near/far range
 
 
@@ -145,7 +149,8 @@ def test_rotation_deg_form_equals_look_at_form(rig, tmp_path):
     path = tmp_path / "rv.yaml"
     path.write_text(yaml.safe_dump(doc))
     other = Rig.from_yaml(path).cameras[0]
-    assert np.allclose(other.R, cam.R, atol=1e-12) and np.allclose(other.t_mm, cam.t_mm)
+    assert np.allclose(other.R, cam.R, rtol=0, atol=roundoff(1.0))  # Rodrigues and back
+    assert np.allclose(other.t_mm, cam.t_mm, rtol=0, atol=roundoff(1000))  # ~700 mm
 
 
 def _set(doc, keys, value):
@@ -311,5 +316,7 @@ def test_scaled_rig_keeps_the_field_of_view_at_pixel_centres(rig, factor):
     X = np.random.default_rng(2).uniform([-150, -150, 0], [150, 150, 50], (20, 3))
     for c0, c1 in zip(rig.cameras, scaled.cameras):
         assert c1.size == (round(c0.image_width * factor), round(c0.image_height * factor))
-        assert np.allclose(c1.project(X), (c0.project(X) + 0.5) * factor - 0.5, atol=1e-9)
-        assert np.allclose(c1.R, c0.R) and np.allclose(c1.t_mm, c0.t_mm) and c1.dist == c0.dist
+        assert np.allclose(c1.project(X), (c0.project(X) + 0.5) * factor - 0.5, rtol=0,
+                           atol=roundoff(2000))  # float64 round-off at up to 1900 px
+        # scaling leaves the pose alone: the same numbers
+        assert np.array_equal(c1.R, c0.R) and np.array_equal(c1.t_mm, c0.t_mm) and c1.dist == c0.dist

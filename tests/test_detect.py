@@ -81,7 +81,7 @@ def test_rejections():
     d = find_led(_disc_image(**_HIDDEN), cam, RED)
     assert not d.ok and "round" in d.reason
     ok = find_led(_disc_image([(80.3, 60.6)]), cam, RED)
-    assert ok.ok and np.allclose(ok.uv_px, [80.3, 60.6], atol=0.12)  # as above
+    assert ok.ok and np.allclose(ok.uv_px, [80.3, 60.6], rtol=0, atol=0.12)  # as above
     assert find_led(_disc_image([(80.3, 60.6)]), cam, GREEN).reason == "not found"
 
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import PYBULLET_RTOL, roundoff
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.world import World
@@ -17,15 +18,19 @@ def test_marker_positions_match_the_kinematic_model(name):
             world.set_q(q)
             truth, model = world.true_markers(), forward_kinematics(arm, q)
             for m in arm.marker_names:
-                # 1e-6 m = 1e-3 mm: PyBullet's link transforms are exact up to float rounding
-                assert np.allclose(truth[m], model[m], atol=1e-3), (m, q)
+                # PyBullet's positions are float32 metres: one float32 ulp of each coordinate
+                # (a coordinate near 0: the model's float64 round-off at 300 mm)
+                assert np.allclose(truth[m], model[m], rtol=PYBULLET_RTOL, atol=roundoff(300)), (m, q)
 
 
 def test_start_pose_is_the_papers():
     with World(ArmSpec.from_args("two-link")) as w:
-        assert np.allclose(w.true_markers()["gripper"][:2], [0, 200], rtol=0, atol=1e-3)
+        # float32 positions (conftest.PYBULLET_RTOL); the 0: float64 round-off of cos(90 deg) 200 mm
+        assert np.allclose(w.true_markers()["gripper"][:2], [0, 200], rtol=PYBULLET_RTOL,
+                           atol=roundoff(300))
     with World(ArmSpec.from_args("three-link")) as w:
-        assert np.allclose(w.true_markers()["gripper"], [0, -12, 300], rtol=0, atol=1e-3)  # LED 12 mm towards -y
+        assert np.allclose(w.true_markers()["gripper"], [0, -12, 300], rtol=PYBULLET_RTOL,
+                           atol=roundoff(300))  # LED 12 mm towards -y
 
 
 def test_joint_offset_and_link_error_move_the_true_arm_not_the_model():
@@ -33,9 +38,10 @@ def test_joint_offset_and_link_error_move_the_true_arm_not_the_model():
     true_arm = ArmSpec.from_args("two-link", (105.0, 104.0)).with_joint_offset((1.0, 0.0))
     q = np.array([30.0, 40.0])
     with World(true_arm, q) as w:
-        assert np.allclose(w.true_markers()["gripper"], forward_kinematics(true_arm, q)["gripper"], atol=1e-3)
+        assert np.allclose(w.true_markers()["gripper"], forward_kinematics(true_arm, q)["gripper"],
+                           rtol=PYBULLET_RTOL, atol=roundoff(300))
         assert not np.allclose(w.true_markers()["gripper"], forward_kinematics(nominal, q)["gripper"], atol=1.0)
-        assert np.allclose(w.q_deg, q)  # the encoders read the commanded angle
+        assert np.allclose(w.q_deg, q, rtol=0, atol=roundoff(180))  # the encoders read the commanded angle
 
 
 @pytest.mark.parametrize("links, bad", [((100.0,), "needs 2"), ((100.0, -1.0), "link 2"),
