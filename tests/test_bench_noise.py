@@ -53,7 +53,13 @@ def test_quick_sweep_end_to_end(tmp_path):
         for m in ("e_av_mm", "e_max_mm", "e_rms_mm", "track_median_mm", "track_mean_mm",
                   "track_p95_mm", "track_max_mm", "wall_s"):
             assert math.isfinite(float(r[m])), (r["controller"], r["condition"], m)
-        int(r["n_missed"]), int(r["n_out_of_reach"])
+        v = {m: float(r[m]) for m in ("e_av_mm", "e_max_mm", "e_rms_mm", "track_median_mm",
+                                      "track_mean_mm", "track_p95_mm", "track_max_mm")}
+        # a mean is at most the RMS, which is at most the largest; so are a median and a p95
+        assert 0 <= v["e_av_mm"] <= v["e_rms_mm"] <= v["e_max_mm"], r
+        assert 0 <= v["track_median_mm"] <= v["track_p95_mm"] <= v["track_max_mm"], r
+        assert v["track_mean_mm"] <= v["track_max_mm"] and float(r["wall_s"]) > 0, r
+        assert int(r["n_missed"]) >= 0 and int(r["n_out_of_reach"]) >= 0
     report = (out / "report.md").read_text()
     assert "## Conclusion" in report and "vs `itg-model`" in report and "vs `ik`" in report
     for k in CONTROLLERS:

@@ -265,11 +265,16 @@ def test_every_controller_leaves_out_the_same_set_points_those_the_arm_cannot_re
         outside = (r < 30.0 - REACH_TOL_MM) | (r > 90.0 + REACH_TOL_MM)
         assert outside.any() and not outside.all()
         assert np.array_equal(~trace.in_reach, outside)
-        assert s["e_av_mm"] == pytest.approx(trace.error_mm()[~outside].mean())
+        inside = trace.error_mm()[~outside]
+        assert s["e_av_mm"] == pytest.approx(inside.mean())
+        assert s["e_max_mm"] == pytest.approx(inside.max())
+        assert s["e_rms_mm"] == pytest.approx(np.sqrt(np.mean(inside**2)))
         k = trace.tracking_start
         late = trace.error_mm()[k:][~outside[k:]]
         assert outside[k:].any() and s["track_max_mm"] == pytest.approx(late.max())
         assert s["track_median_mm"] == pytest.approx(np.median(late))
+        assert s["track_mean_mm"] == pytest.approx(late.mean())
+        assert s["track_p95_mm"] == pytest.approx(np.percentile(late, 95))
         out[ctl] = s["n_out_of_reach"]
     assert out["itg"] == out["jacobian"] == outside.sum()
 
