@@ -23,6 +23,11 @@ from itg_vision.camera import perturbed
 from itg_vision.rules import resolve_rules_path
 
 
+#: Tests of a sweep's bookkeeping (resume, order, code) plot one metric: 4 plots, not 12, which
+#: are most of a short sweep's time (0.9 against 2.5 s a call)
+FEW_PLOTS = ("--plot-metrics", "e_av")
+
+
 def perturb_rig(rig, seed, each_camera=False):
     """The bench's rig perturbation: 1 degree and 5 mm."""
     return perturbed(rig, seed, angle_deg=RIG_ANGLE_DEG, shift_mm=RIG_SHIFT_MM,
@@ -75,9 +80,10 @@ def test_quick_sweep_end_to_end(tmp_path):
 
 
 def test_resume_after_interruption_and_a_torn_last_line(tmp_path):
-    # model-fed controllers only: the resume logic is what is tested, not the rendering
+    # model-fed controllers only: the resume logic is what is tested, not the rendering; one
+    # plot metric (4 plots, not 12: the plots are 3/4 of a short sweep's time)
     args = ["--quick", "--controllers", "itg-model,ik", "--seeds", "3", "--out", str(tmp_path),
-            "--quiet"]
+            "--quiet", *FEW_PLOTS]
     specs = build_sweep(quick=True, controllers=("itg-model", "ik"), seeds=3)
     assert main(args + ["--workers", "1", "--limit", "7"]) == 0
     first = (tmp_path / "results.csv").read_text()
@@ -98,7 +104,7 @@ def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
     """Run ids cover parameters and input files, not the code: each row records the code that
     made it, and a resume says how many rows other code made (silent when none did)."""
     args = ["--quick", "--controllers", "itg-model,ik", "--out", str(tmp_path), "--quiet",
-            "--workers", "1"]
+            "--workers", "1", *FEW_PLOTS]
     assert main(args + ["--limit", "3"]) == 0
     assert main(args + ["--limit", "1"]) == 0
     assert "other code" not in capsys.readouterr().err
@@ -134,7 +140,7 @@ def test_results_csv_keeps_the_sweeps_order_whatever_order_the_runs_finish_in(tm
                                                                             monkeypatch):
     """Parallel runs finish in any order; the same sweep must give the same file (and the
     targets built from its rows the same lines)."""
-    args = ["--quick", "--controllers", "itg-model,ik", "--quiet", "--workers", "1"]
+    args = ["--quick", "--controllers", "itg-model,ik", "--quiet", "--workers", "1", *FEW_PLOTS]
     specs = build_sweep(quick=True, controllers=("itg-model", "ik"))
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
 
@@ -390,9 +396,11 @@ def test_unknown_names_exit_2_with_one_line(tmp_path, capsys, opt, value, what):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow  # dask waits out its 5 s connect timeout (the timeout itself: the next test)
 def test_unreachable_scheduler_exits_2_and_loses_no_row(tmp_path, capsys):
     pytest.importorskip("distributed")
-    args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path), "--quiet"]
+    args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path), "--quiet",
+            *FEW_PLOTS]
     assert main(args + ["--workers", "1"]) == 0
     before = (tmp_path / "results.csv").read_bytes()
     capsys.readouterr()
@@ -717,6 +725,7 @@ def test_a_users_trajectory_file_is_what_the_runs_track(tmp_path, monkeypatch):
     arm = ArmSpec.from_args("two-link")
     start = forward_kinematics(arm, arm.start_q_deg)["gripper"][:2]
     dist = np.linalg.norm(lap + [5.0, -7.0] - start, axis=1)
+    # six digits (%.6g), as above
     assert float(rows["still-model", "mine"]["e_av_mm"]) == pytest.approx(dist.mean(), rel=1e-5)
     assert float(rows["still-model", "mine"]["e_max_mm"]) == pytest.approx(dist.max(), rel=1e-5)
     assert rows["still-model", "mine"]["trajectory"] == str(mine.resolve())
