@@ -207,8 +207,14 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
         _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
     except BaseException as exc:
         shutdown(executor, cancel=True, client=client)
-        if isinstance(exc, KeyboardInterrupt):
-            print(f"\n{stored()} of {len(specs)} runs are in {out / 'results.csv'}; the same "
+        if isinstance(exc, KeyboardInterrupt):  # counted on disk, what a resume will find:
+            # Ctrl-C may land between a row's fsync and its entry in the store's memory
+            try:
+                on_disk = Results(store.path).rows
+            except UserError:  # unreadable now: what this process stored
+                on_disk = store.rows
+            done = sum(1 for s in specs if s.run_id in on_disk)
+            print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same "
                   "command runs the rest", file=sys.stderr)
         raise
     shutdown(executor, client=client)
