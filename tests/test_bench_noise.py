@@ -671,7 +671,7 @@ def test_a_users_rule_base_is_what_its_controllers_run(tmp_path):
     assert main(["--quick", "--conditions", "clean,noise-1px", "--seeds", "1", "--rules",
                  str(tmp_path / "copy.rules"), "--rules", str(tmp_path / "still.rules"),
                  "--controllers", "itg-vision,copy-vision,still-model", "--out", str(out),
-                 "--workers", "1", "--quiet"]) == 0
+                 "--workers", "1", "--quiet", "--plot-metrics", "e_av"]) == 0
     rows = {(r["controller"], r["condition"]): r for r in _rows(out)}
     metrics = ("e_av_mm", "e_max_mm", "track_median_mm", "track_max_mm", "n_missed")
     for cond in ("clean", "noise-1px"):
@@ -719,7 +719,7 @@ def test_a_users_trajectory_file_is_what_the_runs_track(tmp_path, monkeypatch):
         (Path(resolve_rules_path("table2")).parents[1] / "trajectories" / "peanut.csv").read_text())
     assert main(["--conditions", "clean", "--seeds", "1", "--controllers", "still-model,itg-vision",
                  "--rules", "still.rules", "--trajectories", "mine.csv,pea.csv,peanut",
-                 "--workers", "1", "--quiet"]) == 0
+                 "--workers", "1", "--quiet", "--plot-metrics", "e_av"]) == 0
     out = tmp_path / "runs" / "bench-noise-still-mine-pea"  # its own folder
     rows = {(r["controller"], Path(r["trajectory"]).stem): r for r in _rows(out)}
     arm = ArmSpec.from_args("two-link")
