@@ -115,7 +115,7 @@ class ArmSpec:
     @property
     def marker_names(self) -> tuple[str, ...]:
         """The LEDs the arm carries: the gripper, and the elbow when there is one."""
-        return ("gripper",) if self.n_joints == 1 else ("elbow", "gripper")
+        return arm_markers(self.n_joints)
 
     @property
     def start_q_deg(self) -> np.ndarray:
@@ -165,6 +165,12 @@ class ArmSpec:
                 return False
             r = math.hypot(math.sqrt(max(rho * rho - h * h, 0.0)), p[2] - self.links_mm[0])
         return lo - tol_mm <= r <= hi + tol_mm
+
+
+def arm_markers(n_joints: int) -> tuple[str, ...]:
+    """The LEDs an arm of ``n_joints`` carries, elbow first: the gripper, and the elbow when
+    there is one."""
+    return ("gripper",) if n_joints == 1 else ("elbow", "gripper")
 
 
 # ---------------------------------------------------------------------------- arm files
@@ -274,7 +280,7 @@ def _calibration(F: Fields, calib, n: int, planar: bool) -> dict:
     sweeps = calib["axis_sweeps"]
     if not isinstance(sweeps, list) or not sweeps:
         F.fail("calibration.axis_sweeps", f"must be a list of joint sweeps, got {show(sweeps)}")
-    markers = ("gripper",) if n == 1 else ("elbow", "gripper")
+    markers = arm_markers(n)
     out = []
     for i, sw in enumerate(sweeps):
         where = f"calibration.axis_sweeps[{i}]"

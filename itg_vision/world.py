@@ -21,6 +21,7 @@ with quiet_c_streams("stdout", "stderr"):
 
 
 from .arm import ArmSpec
+from .contracts import MARKERS
 from .urdf import arm_urdf
 
 _MM = 1e-3
@@ -84,8 +85,7 @@ class World:
     # ------------------------------------------------------------------ markers
     def true_markers(self) -> dict[str, np.ndarray]:
         """LED centres in mm, world frame; NaN for markers this arm does not carry."""
-        return {"gripper": np.full(3, np.nan), "elbow": np.full(3, np.nan),
-                **self.led_centres_mm()}
+        return {**{name: np.full(3, np.nan) for name in MARKERS}, **self.led_centres_mm()}
 
     def led_centres_mm(self) -> dict[str, np.ndarray]:
         """Where the LEDs are, for the renderer to place its windows (as a renderer knows its
