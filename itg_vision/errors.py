@@ -26,6 +26,13 @@ class ConfigError(UserError):
         return UserError(f"{options.get(self.field, self.field)}: {self.message}")
 
 
+class NothingInReach(ConfigError):
+    """No set point of the trajectory is in reach of the simulated arm. A user error for
+    ``run``; for a benchmark sweep an outcome of its condition (links made longer or shorter
+    can leave a path out of reach: the one-link arm reaches only its circle), recorded as a run
+    that did not start."""
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are one line: a bad option raises `UserError` (naming the option),
     which :func:`run_main` prints as ``error: ...`` with status 2, instead of printing the usage

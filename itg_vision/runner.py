@@ -11,7 +11,7 @@ from pathlib import Path
 from . import trajectory as traj
 from .arm import ARMS_DIR, MAX_ITERATIONS, ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
-from .errors import ConfigError, UserError
+from .errors import ConfigError, NothingInReach, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
@@ -201,7 +201,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                                         f"(x_mm,y_mm,z_mm), but {trajectory.name} is planar")
     if not any(true_arm.reachable(p) for p in trajectory.points_mm):
         lo, hi = true_arm.reach_mm()
-        raise ConfigError("trajectory", f"none of the {len(trajectory.points_mm) // trajectory.laps}"
+        raise NothingInReach("trajectory", f"none of the {len(trajectory.points_mm) // trajectory.laps}"
                           f" set points of {trajectory.name} is in reach of arm {true_arm.name} "
                           f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")
     info: dict = {}

@@ -750,6 +750,31 @@ def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
     assert not {s.run_id for s in specs} & {s.run_id for s in other}
 
 
+def test_a_model_error_that_puts_every_set_point_out_of_reach_is_a_row_that_did_not_start(
+        tmp_path, capsys):
+    """The one-link arm reaches only its circle: with links 5 % long (105 mm) no set point of a
+    path on the nominal 100 mm circle is in reach, whatever the controller or seed. That is an
+    outcome of the condition (as a rig whose rays miss is): a row saying why, exit 0, the
+    cell saying none started; not a failure retried (and its traceback printed) at every
+    resume."""
+    t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    circle = tmp_path / "circle.csv"
+    circle.write_text("x_mm,y_mm\n" + "".join(
+        f"{float(100 * np.cos(a))!r},{float(100 * np.sin(a))!r}\n" for a in t))
+    out = tmp_path / "o"
+    assert main(["--quick", "--arm", "one-link", "--trajectories", str(circle), "--controllers",
+                 "itg-model,ik", "--conditions", "clean,links+5%", "--seeds", "1", "--out",
+                 str(out), "--workers", "1", "--quiet"]) == 0
+    assert "Traceback" not in capsys.readouterr().err and not (out / "failures.log").exists()
+    rows = {(r["controller"], r["condition"]): r for r in _rows(out)}
+    for c in ("itg-model", "ik"):
+        assert rows[c, "clean"]["no_start"] == "" and math.isfinite(float(rows[c, "clean"]["e_av_mm"]))
+        assert "is in reach of arm one-link (105 to 105 mm" in rows[c, "links+5%"]["no_start"]
+        assert rows[c, "links+5%"]["e_av_mm"] == ""
+    assert float(rows["ik", "clean"]["track_max_mm"]) < 1e-3  # the clean runs do track
+    assert "none of 1 started" in (out / "report.md").read_text()
+
+
 @pytest.mark.parametrize("option, text, given, what", [
     ("--rules", "RULE 1: IF xg > THEN q1 +S\n", "bad.rules", "--rules bad.rules: bad.rules:1:"),
     ("--rules", "RULE 1: IF 1 > 0 THEN q1 HOLD\n", "one.rules",

@@ -14,7 +14,7 @@ import os
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
 
-from ..errors import UserError
+from ..errors import NothingInReach, UserError
 from .store import make_row
 from .sweep import RIG_ANGLE_DEG, RIG_SHIFT_MM, RunSpec, calibrated_rig_path, run_config
 
@@ -22,9 +22,10 @@ from .sweep import RIG_ANGLE_DEG, RIG_SHIFT_MM, RunSpec, calibrated_rig_path, ru
 def run_one(spec: RunSpec) -> dict:
     """Execute one spec (in a worker); return its results row, or ``{'run_id', 'error'}``.
 
-    A run whose start-up measurement fails (the LEDs measured in too few looks: an outcome of
-    its condition, the same at every retry) is a row of its own, ``no_start`` saying why; any
-    other exception is an error, retried by the next resume.
+    A run whose start-up measurement fails (the LEDs measured in too few looks), or whose
+    simulated arm reaches no set point (links made longer: the one-link arm reaches only its
+    circle), is a row of its own, ``no_start`` saying why (an outcome of its condition, the
+    same at every retry); any other exception is an error, retried by the next resume.
 
     Builds its own World (PyBullet clients are per process) and, for ``rig-perturbed``, its own
     perturbed rig in memory: nothing is shared with the caller but the spec.
@@ -44,7 +45,7 @@ def run_one(spec: RunSpec) -> dict:
                             true_rig=true_path)
         prep = prepare(run_config(spec, rig_path), estimate_rig=rig)
         _, s = execute(prep)
-    except StartUpFailed as exc:
+    except (StartUpFailed, NothingInReach) as exc:
         why = str(exc).strip().splitlines() or [type(exc).__name__]
         return make_row(spec, None, no_start=why[0])
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
