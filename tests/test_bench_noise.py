@@ -750,6 +750,26 @@ def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
     assert not {s.run_id for s in specs} & {s.run_id for s in other}
 
 
+def test_a_report_of_files_with_spaces_links_its_plots_and_quotes_its_command(tmp_path):
+    """A path of one's own named with a space: report.md's plot links are URLs (a space ends
+    a Markdown link's destination, so the image did not show) and its command line reruns the
+    sweep as it ran (it read as two words)."""
+    import shlex
+
+    path = tmp_path / "my dir" / "my path.csv"
+    path.parent.mkdir()
+    path.write_text("x_mm,y_mm\n120,40\n100,80\n60,60\n")
+    out = tmp_path / "o"
+    args = ["--quick", "--trajectories", str(path), "--controllers", "ik", "--conditions",
+            "clean", "--seeds", "1", "--out", str(out), "--workers", "1"]
+    assert main([*args, "--quiet"]) == 0
+    report = (out / "report.md").read_text()
+    assert (out / "e_av_by_condition-my path.png").exists()
+    assert "![e_av_by_condition-my path](e_av_by_condition-my%20path.png)" in report
+    command = next(line for line in report.splitlines() if line.startswith("Produced by `"))
+    assert shlex.split(command[len("Produced by `"):-len("`.")])[4:] == args
+
+
 def test_a_model_error_that_puts_every_set_point_out_of_reach_is_a_row_that_did_not_start(
         tmp_path, capsys):
     """The one-link arm reaches only its circle: with links 5 % long (105 mm) no set point of a

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -153,8 +154,8 @@ def main(argv: list[str] | None = None) -> int:
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
                    "points": args.points, "rules": args.rules or None}
-        command = "python -m itg_vision.bench noise " + " ".join(
-            a for a in argv if a not in ("--quiet",))
+        command = "python -m itg_vision.bench noise " + shlex.join(  # quoted: a path with a
+            a for a in argv if a not in ("--quiet",))  # space reruns as it ran
         status, _ = run_sweep(specs, out, options, command.strip(), workers=args.workers,
                               scheduler=args.scheduler, limit=args.limit, quiet=args.quiet,
                               plot_metrics=plot_metrics)

@@ -7,6 +7,7 @@ import dataclasses
 import math
 from collections import Counter
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 
@@ -317,7 +318,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
               "", lim, ""] + _tail_table(summary, t, conds, ctrls) + [""]
     plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics, specs)
     if plots:
-        L += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in plots] + [""]
+        L += ["## Plots", ""] + [f"![{p.stem}]({quote(p.name)})" for p in plots] + [""]
     elif not rows:
         L += ["## Plots", "", "None: no run of this sweep has finished.", ""]
     outputs.write_text(out / "report.md", "\n".join(L))
