@@ -750,6 +750,36 @@ def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
     assert not {s.run_id for s in specs} & {s.run_id for s in other}
 
 
+def test_the_divergence_line_is_drawn_on_the_tracking_median_plots_only():
+    """A run diverged when its tracking median exceeds DIVERGED_MM: the line saying so belongs
+    on the tracking-median axis. On E_av or the max it read as a threshold those metrics do not
+    have (a max of 44 mm above it, in a run that tracked)."""
+    from types import SimpleNamespace
+
+    from itg_vision.bench.report import _plots, summarize
+    from itg_vision.loop import DIVERGED_MM
+
+    def row(k, cond, seed, e, diverged):
+        return {"trajectory": "ellipse-t1", "condition": cond, "controller": k, "seed": str(seed),
+                "diverged": str(int(diverged)), "no_start": "",
+                **{c: str(e) for c in ("e_av_mm", "e_max_mm", "track_median_mm",
+                                       "track_mean_mm", "track_p95_mm", "track_max_mm")}}
+
+    conds, ctrls = ["clean", "noise-1px"], ["itg-vision", "ik"]
+    rows = [row(k, c, s, 2 * DIVERGED_MM if (k, c) == ("itg-vision", "noise-1px") else 1.0,
+                (k, c) == ("itg-vision", "noise-1px")) for k in ctrls for c in conds for s in (0, 1)]
+    specs = build_sweep(quick=True, conditions=tuple(conds), controllers=tuple(ctrls))
+    drawn = {}
+    fake = SimpleNamespace(
+        lines_figure=lambda series, xl, yl, title, path, **kw: drawn.__setitem__(path.name, kw),
+        grouped_dots_figure=lambda *a, **kw: None)
+    _plots(Path("o"), summarize(rows), ["ellipse-t1"], conds, ctrls, fake,
+           ("e_av", "track_median", "track_max"), specs)
+    assert [h[0] for h in drawn["track_median_vs_sigma-ellipse-t1.png"]["hlines"]] == [DIVERGED_MM]
+    assert not drawn["e_av_vs_sigma-ellipse-t1.png"]["hlines"]
+    assert not drawn["track_max_vs_sigma-ellipse-t1.png"]["hlines"]
+
+
 def test_a_report_of_files_with_spaces_links_its_plots_and_quotes_its_command(tmp_path):
     """A path of one's own named with a space: report.md's plot links are URLs (a space ends
     a Markdown link's destination, so the image did not show) and its command line reruns the

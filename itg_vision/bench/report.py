@@ -409,7 +409,7 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
                                   + (f"\ndiverged runs (tracking median > {DIVERGED_MM:g} mm) in: "
                                      + ", ".join(gone) if gone else ""), path, logy=True,
                                   hlines=[(DIVERGED_MM, f"diverged above ({DIVERGED_MM:g} mm)",
-                                           "C3")] if gone else ())
+                                           "C3")] if gone and metric == "track_median" else ())
                 made.append(path)
         for metric in metrics:
             cells = {k: [cell(t, c, k, metric) for c in conds] for k in ctrls}
