@@ -750,6 +750,22 @@ def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
     assert not {s.run_id for s in specs} & {s.run_id for s in other}
 
 
+def test_a_rule_base_for_an_arm_the_sweep_lacks_is_refused_naming_its_arm(tmp_path, monkeypatch,
+                                                                          capsys):
+    """The quick sweep is two-link only: the three-link composition given to it was refused
+    with the file's own error at its line ('L3' ... only 2 link lengths), which reads as a
+    fault in the file. It fits the three-link arm: the one line says so, and how to add it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine3.rules").write_text(resolve_rules_path("three-link").read_text())
+    assert main(["--quick", "--rules", "mine3.rules", "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, "--rules mine3.rules: fits the three-link arm, not the sweep's "
+                            "(two-link): give --trajectories of its arm")
+    assert not (tmp_path / "o").exists()
+    (tmp_path / "bad.rules").write_text("RULE 1: IF xg > THEN q1 +S\n")  # fits no arm: its error
+    assert main(["--quick", "--rules", "bad.rules", "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, "--rules bad.rules: bad.rules:1:")
+
+
 def test_the_divergence_line_is_drawn_on_the_tracking_median_plots_only():
     """A run diverged when its tracking median exceeds DIVERGED_MM: the line saying so belongs
     on the tracking-median axis. On E_av or the max it read as a threshold those metrics do not
@@ -828,7 +844,8 @@ def test_a_model_error_that_puts_every_set_point_out_of_reach_is_a_row_that_did_
 @pytest.mark.parametrize("option, text, given, what", [
     ("--rules", "RULE 1: IF xg > THEN q1 +S\n", "bad.rules", "--rules bad.rules: bad.rules:1:"),
     ("--rules", "RULE 1: IF 1 > 0 THEN q1 HOLD\n", "one.rules",
-     "--rules one.rules: fits none of the sweep's arms (two-link, three-link"),
+     "--rules one.rules: fits the one-link arm, not the sweep's (two-link, three-link): give "
+     "--trajectories of its arm, or files of your own with --arm one-link"),
     ("--rules", None, "missing.rules", "--rules missing.rules: missing.rules: rule file not found"),
     ("--rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n", "itg.rules",
      "--rules itg.rules: its controllers would be called itg-vision and itg-model"),

@@ -35,7 +35,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..arm import ArmSpec
+from ..arm import ArmSpec, arm_names
 from ..errors import UserError
 from ..inputs import file_sha256
 from ..rules import RULES_DIR, resolve_rules_path
@@ -379,33 +379,39 @@ def rules_controllers(given: str) -> tuple[str, str]:
     return f"{stem}-vision", f"{stem}-model"
 
 
+def _misfit(path: Path, arm: str) -> str | None:
+    """Why the rule file at ``path`` does not load for ``arm`` (None: it does), under the arm's
+    benchmark servo limit as S."""
+    from ..rules import load_rules
+
+    spec = ArmSpec.from_args(arm)
+    try:
+        load_rules(str(path), spec.n_joints, spec.links_mm, S=float(spec.benchmark["max_step_deg"]))
+    except UserError as exc:
+        return str(exc)
+    return None
+
+
 def user_rules(given_rules, arms) -> tuple[UserRules, ...]:
     """The rule bases ``given_rules`` (``--rules``: shipped names or files, as ``run --rules``
     reads them) as :class:`UserRules`, each tried on the sweep's ``arms``; a
     `UserError` naming the file when it fits none of them (the file's own error: unreadable,
     a syntax error, a rule base for another arm), or when its controllers' names are taken
     (a shipped controller's, or another file's with the same stem)."""
-    from ..rules import load_rules
-
     out, taken = [], set(ALL_CONTROLLERS)
     for given in given_rules:
         try:
             path = resolve_rules_path(given)
         except UserError as exc:
             raise UserError(f"--rules {given}: {exc}") from None
-        fits, why = [], {}
-        for arm in arms:
-            spec = ArmSpec.from_args(arm)
-            try:
-                load_rules(str(path), spec.n_joints, spec.links_mm,
-                           S=float(spec.benchmark["max_step_deg"]))
-            except UserError as exc:
-                why[arm] = str(exc)
-            else:
-                fits.append(arm)
+        why = {arm: _misfit(path, arm) for arm in arms}
+        fits = [arm for arm in arms if why[arm] is None]
         if not fits:
+            its = [a for a in arm_names() if a not in arms and _misfit(path, a) is None]
             reasons = set(why.values())  # one: the file's own error, whatever the arm
             raise UserError(f"--rules {given}: " + (
+                f"fits the {' and '.join(its)} arm, not the sweep's ({', '.join(arms)}): give "
+                f"--trajectories of its arm, or files of your own with --arm {its[0]}" if its else
                 next(iter(reasons)) if len(reasons) == 1 else
                 f"fits none of the sweep's arms ({', '.join(arms)}; choose trajectories of its "
                 f"arm with --trajectories); on the {arms[0]} arm: {why[arms[0]]}"))
