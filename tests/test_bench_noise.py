@@ -750,6 +750,21 @@ def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
     assert not {s.run_id for s in specs} & {s.run_id for s in other}
 
 
+def test_points_for_a_sweep_of_files_only_is_refused_not_ignored(tmp_path, monkeypatch, capsys):
+    """--points resamples the named trajectories; a file keeps its own set points. Given with
+    files only it was silently ignored (80 set points ran where 20 were asked, as `run
+    --points` refuses); with a named trajectory beside them it still applies to that one."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.csv").write_text("x_mm,y_mm\n120,40\n100,80\n60,60\n")
+    assert main(["--quick", "--trajectories", "mine.csv,peanut", "--points", "20", "--controllers",
+                 "ik", "--conditions", "clean", "--seeds", "1", "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, "--points: applies to the named trajectories only")
+    assert not (tmp_path / "o").exists()
+    specs = build_sweep(quick=True, trajectories=("mine.csv", "ellipse-t1"), points=20)
+    assert {s.points for s in specs if s.trajectory == "ellipse-t1"} == {20}
+    assert {s.points for s in specs if s.trajectory != "ellipse-t1"} == {None}
+
+
 def test_a_rule_base_for_an_arm_the_sweep_lacks_is_refused_naming_its_arm(tmp_path, monkeypatch,
                                                                           capsys):
     """The quick sweep is two-link only: the three-link composition given to it was refused

@@ -106,8 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the arm that tracks the trajectory files given to --trajectories "
                          "(default %(default)s; the benchmark's own trajectories keep theirs)")
     ap.add_argument("--points", type=points_arg, metavar="N",
-                    help="set points per trajectory (default: the trajectory's; --quick "
-                         f"{QUICK['points']})")
+                    help="set points per lap of the named trajectories ellipse-t1, ellipse-t2, "
+                         f"abcd and line-ab-reach (default: theirs; --quick {QUICK['points']}); "
+                         "files (yours, peanut, helix, ...) keep their own")
     ap.add_argument("--limit", type=int, metavar="N",
                     help="run at most N of the remaining runs this time (the rest on a rerun)")
     ap.add_argument("--list", action="store_true",
@@ -137,6 +138,11 @@ def main(argv: list[str] | None = None) -> int:
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
                             sweep=args.sweep, rules=tuple(args.rules), arm=args.arm)
+        if args.points is not None and all(s.points is None for s in specs):
+            paths = dict.fromkeys(trajectory_label(s.trajectory) for s in specs)
+            raise UserError("--points: applies to the named trajectories only (ellipse-t1, "
+                            f"ellipse-t2, abcd, line-ab-reach); {', '.join(paths)} keep their "
+                            "files' set points")
         if args.list:
             cost = sum(s.cost_s() for s in specs)
             print(f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
