@@ -3,15 +3,18 @@ computations (finite-difference Jacobians of the nominal model, the forward kine
 properties the issue asks for (first step never farther, ties settled the same way whatever the
 noise, no link length in the motion rules)."""
 
+import dataclasses
 from dataclasses import fields, is_dataclass
 
 import numpy as np
 import pytest
+from conftest import PYBULLET_RTOL
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.errors import UserError
-from itg_vision.feedback import Markers
+from itg_vision.feedback import Markers, TruthFeedback
 from itg_vision.rules import Name, RuleBase, load_rules
+from itg_vision.runner import RunConfig, execute, prepare
 
 _SPECS = {n: ArmSpec.from_args(n) for n in ("one-link", "two-link", "three-link")}
 #: arm -> its ITG+ rule base (the arm file's itg_plus_rules)
@@ -114,10 +117,11 @@ def _names(node) -> list[str]:
 
 @pytest.mark.parametrize("name", list(ARMS))
 def test_motion_rules_use_no_link_length(name):
-    """L1..Ln (and L) appear only in RULE 0, the reach test, except the three-link shoulder
-    height L1: no definition, no condition and no step of the motion rules reads one. The
-    walker is checked on the same trees: it finds the lengths in RULE 0, a name in every
-    definition (none is a constant) and the markers in the rules."""
+    """L1..Ln appear only in RULE 0, the reach test, except the three-link shoulder height L1:
+    no definition, no condition and no step of the motion rules reads one; the one-link file
+    reads none at all (its RULE 0 flags only the base). The walker is checked on the same trees:
+    it finds the two- and three-link lengths in RULE 0, a name in every definition (none is a
+    constant) and the markers in the rules."""
     from itg_vision.rules import RULES_DIR, resolve_rules_path
 
     assert {resolve_rules_path(r) for r in ARMS.values()} == set(RULES_DIR.glob("itg-plus-*.rules"))
@@ -126,7 +130,7 @@ def test_motion_rules_use_no_link_length(name):
     lengths = {"L"} | {f"L{i}" for i in range(1, arm.n_joints + 1)}
     reach = [r for r in rb.rules if r.out_of_reach]
     assert [r.number for r in reach] == [0]
-    assert set(_names(reach[0])) & lengths == ({"L"} if name == "one-link" else lengths - {"L"})
+    assert set(_names(reach[0])) & lengths == (set() if name == "one-link" else lengths - {"L"})
     assert rb.definitions
     motion = [(f"LET {d.name}", d) for d in rb.definitions]
     motion += [(f"RULE {r.number}", r) for r in rb.rules if not r.out_of_reach]
@@ -139,9 +143,8 @@ def test_motion_rules_use_no_link_length(name):
 
 #: Other link lengths to tell the rules (factors of the arm's): each length changed by its own
 #: factor, and a set whose reach (RULE 0) holds all of the arm's, so that near-base and full-reach
-#: set points are compared too. One-link: RULE 0 passes a ring |rd2 - L^2| <= 2 L w, 1 mm wide at
-#: w = 0.5: L x 1.003 still passes the arm's circle (|100.3^2 - 100^2| = 60 <= 2 * 100.3 * 0.5).
-OTHER_LINKS = {"one-link": [(1.003,)], "two-link": [(0.8, 1.3), (1.3, 1.3)],
+#: set points are compared too. One-link: its rules read no length, so any factor will do.
+OTHER_LINKS = {"one-link": [(1.3,)], "two-link": [(0.8, 1.3), (1.3, 1.3)],
                "three-link": [(1.0, 1.3, 0.7), (1.0, 1.3, 1.3)]}
 #: Rules the sample below must have fired: all the one-link steps, the singular rules of the
 #: others (two-link RULES 8-12, three-link 5-9: the elbow within 1 deg of straight or folded).
@@ -194,6 +197,46 @@ def test_motion_steps_do_not_change_with_the_link_lengths_the_rules_are_told(nam
                 compared[k] += 1
     assert SAMPLED_RULES[name] <= fired, fired
     assert min(compared) >= n // 2, compared
+
+
+class ScaledEye(TruthFeedback):
+    """The simulator's LEDs, seen by an eye whose scale about the base is off by ``scale`` (as a
+    stereo baseline calibrated that much too short or long scales the world it triangulates)."""
+
+    def __init__(self, scale: float):
+        super().__init__()
+        self.scale = scale
+
+    def observe(self, world) -> Markers:
+        m = super().observe(world)
+        return Markers(m.gripper_mm * self.scale, m.elbow_mm * self.scale)
+
+
+@pytest.mark.parametrize("scale", [0.95, 1.0, 1.05])
+def test_one_link_tracks_through_an_eye_whose_scale_is_off(scale):
+    """A scale error about the base moves no bearing, and the one-link rules step by bearings:
+    the arm tracks the arc (set points 1.5 deg apart on the 100 mm circle) with the eye's L 5 %
+    off, where every set point lies 5 mm off the circle the eye believes in. Table 1's ring
+    test (|rd2 - L^2| <= 2 L w, 1 mm wide), which this file had, flagged all 180 and held: a
+    tracking median of 191 mm. What is left is the step formula's own error: the angle to go
+    is the spacing plus the residual r carried from the set point before, and one step of
+    4 a b sin t / (a^2 + b^2 + 2 a b cos t + w^2) rad (a = 100 x scale, the gripper's measured
+    radius; b = 100, the set point's) leaves r = t - step, iterated to its fixed point; the
+    gripper then sits the chord 2 b sin(r / 2) from the set point, to the simulator's float32:
+    an ulp of each coordinate and of the joint angle at 100 mm, a few times over."""
+    prep = prepare(RunConfig(arm="one-link", rules=ARMS["one-link"], feedback="truth", seed=0))
+    prep = dataclasses.replace(prep, feedback_factory=lambda: ScaledEye(scale))
+    trace, s = execute(prep)
+    a, b, w, spacing = 100.0 * scale, 100.0, 0.5, np.radians(1.5)
+    r = 0.0
+    for _ in range(200):
+        t = spacing + r
+        r = t - 4 * a * b * np.sin(t) / (a * a + b * b + 2 * a * b * np.cos(t) + w * w)
+    expected = abs(2 * b * np.sin(r / 2))
+    tracking = trace.error_mm()[s["tracking_from"]:]
+    assert s["geometry"]["links_mm"][0] == pytest.approx(a, rel=PYBULLET_RTOL * 4)
+    assert s["n_flagged"] == 0 and s["n_setpoints"] == 180
+    np.testing.assert_allclose(tracking, expected, rtol=0, atol=4 * PYBULLET_RTOL * b)
 
 
 # ----------------------------------------------------------------------------- hold
