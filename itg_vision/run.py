@@ -351,7 +351,7 @@ def summary_table(s: dict, out: Path) -> str:
                 **s["preview"]))] if s.get("preview") else []),
             *([("aims flagged out of reach, asked again with the set point",
                 f(s["n_aim_out_of_reach"]))] if s.get("n_aim_out_of_reach") else []),
-            ("lengths the controller used", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
+            ("lengths given to the controller", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),
