@@ -468,3 +468,24 @@ def test_targets_header_lists_each_paths_limits_from_its_runs():
     for _, _, _, specs in sweeps:  # each figure is the specs' own
         for s in specs:
             assert f"{s.trajectory} ({s.arm})" in line
+
+
+def test_bench_itg_plus_records_its_command_quoted(tmp_path, monkeypatch):
+    """The command line heading each sweep's report.md and targets.md reruns the command as it
+    ran: an --out with a space was joined unquoted and read back as two words."""
+    import shlex
+
+    from itg_vision.bench import noise
+    from itg_vision.errors import UserError
+
+    seen = []
+
+    def stop(specs, out, options, command, **kw):  # the command the sweeps are given
+        seen.append(command)
+        raise UserError("stopped here")
+
+    monkeypatch.setattr(noise, "run_sweep", stop)
+    args = ["--out", str(tmp_path / "my out"), "--trajectories", "ellipse-t1", "--seeds", "1"]
+    assert itg_plus.main([*args, "--quiet"]) == 2
+    assert shlex.split(seen[0])[:4] == ["python", "-m", "itg_vision.bench", "itg-plus"]
+    assert shlex.split(seen[0])[4:] == args

@@ -548,13 +548,13 @@ def main(argv: list[str] | None = None) -> int:
                              Results(out / sub / "results.csv"))
         if not (out / outputs.MANIFEST).exists():
             outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
-        command = "python -m itg_vision.bench itg-plus " + " ".join(a for a in argv if a != "--quiet")
+        command = noise.command_line("itg-plus", argv)
         status = 0
         rows = {}
         for sweep, sub, seeds, specs in sweeps:
             options = {"sweep": sweep, "seeds": seeds, "points": args.points,
                        "trajectories": args.trajectories if sweep == "itg-plus" else None}
-            done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command.strip(),
+            done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command,
                                                 workers=args.workers, quiet=args.quiet)
             status = max(status, done)
         arm = ArmSpec.from_args("two-link")
@@ -577,7 +577,7 @@ def main(argv: list[str] | None = None) -> int:
 
         costs = decision_costs()
         targets.append(speed_target(costs))
-        text = ["# ITG+ against issue 13's targets", "", f"Produced by `{command.strip()}`.", "",
+        text = ["# ITG+ against issue 13's targets", "", f"Produced by `{command}`.", "",
                 "Vision feedback; every controller of a path under the same limits, from the "
                 "arm files (data/arms): " + limits_line(sweeps) + f"; a run diverged when its "
                 f"tracking median exceeds {DIVERGED_MM:g} mm. Two-link: tracking/report.md; "

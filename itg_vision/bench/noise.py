@@ -56,6 +56,12 @@ def check_out(out: Path, command: str = COMMAND) -> Path:
     return path
 
 
+def command_line(name: str, argv: list[str]) -> str:
+    """What reruns ``python -m itg_vision.bench NAME`` with ``argv`` (less ``--quiet``), for
+    the reports to print: quoted, so that a path with a space reruns as it ran."""
+    return f"python -m itg_vision.bench {name} {shlex.join(a for a in argv if a != '--quiet')}".strip()
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(
         prog="python -m itg_vision.bench noise",
@@ -160,11 +166,9 @@ def main(argv: list[str] | None = None) -> int:
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
                    "points": args.points, "rules": args.rules or None}
-        command = "python -m itg_vision.bench noise " + shlex.join(  # quoted: a path with a
-            a for a in argv if a not in ("--quiet",))  # space reruns as it ran
-        status, _ = run_sweep(specs, out, options, command.strip(), workers=args.workers,
-                              scheduler=args.scheduler, limit=args.limit, quiet=args.quiet,
-                              plot_metrics=plot_metrics)
+        status, _ = run_sweep(specs, out, options, command_line("noise", argv),
+                              workers=args.workers, scheduler=args.scheduler, limit=args.limit,
+                              quiet=args.quiet, plot_metrics=plot_metrics)
         return status
 
     return run_main(body)
