@@ -699,6 +699,32 @@ def test_the_default_out_of_a_sweep_with_rules_is_its_own(tmp_path, monkeypatch)
     assert not (tmp_path / "runs" / "bench-noise-quick").exists()
 
 
+@pytest.mark.parametrize("second", ["mine.rules", "./mine.rules"])
+def test_a_rule_file_given_twice_is_refused_as_given_twice(tmp_path, monkeypatch, capsys, second):
+    """The same file twice (by the same name or another path to it) was told to 'rename the
+    file', which would not help; two files with the same stem still are."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "mine.rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n")
+    assert main(["--quick", "--rules", "mine.rules", "--rules", second, "--out", "o",
+                 "--quiet"]) == 2
+    err = _one_line_error(capsys, f"--rules {second}: given twice")
+    assert "rename" not in err and ("the same file" in err) == (second != "mine.rules")
+    assert not (tmp_path / "o").exists()
+
+
+def test_two_rule_files_with_one_stem_are_told_to_rename_one(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        _write_rules(tmp_path / d / "mine.rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n")
+    assert main(["--quick", "--rules", "a/mine.rules", "--rules", "b/mine.rules", "--out", "o",
+                 "--quiet"]) == 2
+    err = _one_line_error(capsys, "--rules b/mine.rules: its controllers would be called "
+                                  "mine-vision and mine-model, but mine-model is taken")
+    assert err.endswith("rename the file")
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
     assert main(["--quick", "--controllers", "mine-vision", "--out", str(tmp_path / "o")]) == 2
     _one_line_error(capsys, "unknown controller 'mine-vision'")

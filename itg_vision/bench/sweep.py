@@ -396,14 +396,20 @@ def user_rules(given_rules, arms) -> tuple[UserRules, ...]:
     """The rule bases ``given_rules`` (``--rules``: shipped names or files, as ``run --rules``
     reads them) as :class:`UserRules`, each tried on the sweep's ``arms``; a
     `UserError` naming the file when it fits none of them (the file's own error: unreadable,
-    a syntax error, a rule base for another arm), or when its controllers' names are taken
-    (a shipped controller's, or another file's with the same stem)."""
-    out, taken = [], set(ALL_CONTROLLERS)
+    a syntax error, a rule base for another arm), when it was given before (the same file), or
+    when its controllers' names are taken (a shipped controller's, or another file's with the
+    same stem)."""
+    out, taken, seen = [], set(ALL_CONTROLLERS), {}
     for given in given_rules:
         try:
             path = resolve_rules_path(given)
         except UserError as exc:
             raise UserError(f"--rules {given}: {exc}") from None
+        if path.resolve() in seen:
+            first = seen[path.resolve()]
+            also = "" if first == given else f" (as --rules {first} too: the same file)"
+            raise UserError(f"--rules {given}: given twice{also}; give each rule base once")
+        seen[path.resolve()] = given
         why = {arm: _misfit(path, arm) for arm in arms}
         fits = [arm for arm in arms if why[arm] is None]
         if not fits:
