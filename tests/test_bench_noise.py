@@ -725,6 +725,33 @@ def test_two_rule_files_with_one_stem_are_told_to_rename_one(tmp_path, monkeypat
     assert not (tmp_path / "o").exists()
 
 
+def test_list_names_your_files_and_refuses_bad_ones_before_printing(tmp_path, monkeypatch,
+                                                                     capsys):
+    """--list lists your rule base's controllers and your trajectory files beside the shipped
+    ones, and the sweep's size with them; a file the sweep would refuse is refused by --list
+    too (it printed the lists, then the error), printing nothing on stdout."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "mine.rules", Path(resolve_rules_path("table2")).read_text())
+    (tmp_path / "my path.csv").write_text("x_mm,y_mm\n120,40\n100,80\n60,60\n")
+    given = ["--quick", "--rules", "mine.rules", "--trajectories", "my path.csv,ellipse-t1"]
+    assert main([*given, "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert f"  yours (--rules): mine-vision, mine-model: {tmp_path / 'mine.rules'}, on the " \
+           "two-link arm" in lines
+    assert f"  yours (--trajectories): my path: {tmp_path / 'my path.csv'}, on the two-link " \
+           "arm" in lines
+    n = len(build_sweep(quick=True, rules=("mine.rules",),
+                        trajectories=("my path.csv", "ellipse-t1")))
+    assert lines[-1].startswith(f"sweep: {n} runs")
+    for bad in (["--rules", "gone.rules"], ["--rules", "mine.rules", "--rules", "mine.rules"],
+                ["--trajectories", "gone.csv"]):
+        assert main(["--quick", *bad, "--list"]) == 2
+        out = capsys.readouterr().out
+        assert out == "", bad
+    assert main(["--quick", "--rules", "mine.rules", "--rules", "./mine.rules", "--list"]) == 2
+    _one_line_error(capsys, "--rules ./mine.rules: given twice")
+
+
 def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
     assert main(["--quick", "--controllers", "mine-vision", "--out", str(tmp_path / "o")]) == 2
     _one_line_error(capsys, "unknown controller 'mine-vision'")

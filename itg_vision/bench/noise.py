@@ -26,7 +26,7 @@ from .store import (Results, check_sweep_file, code_warning, definition_hash, re
                     started)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
                     _parse_names, build_sweep, is_trajectory_file, rules_controllers,
-                    trajectory_label)
+                    trajectory_label, user_rules)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -118,7 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--limit", type=int, metavar="N",
                     help="run at most N of the remaining runs this time (the rest on a rerun)")
     ap.add_argument("--list", action="store_true",
-                    help="list the conditions and controllers, and the sweep's size; run nothing")
+                    help="list the controllers, conditions and trajectories (your --rules and "
+                         "--trajectories files too, checked as a run checks them) and the "
+                         "sweep's size; run nothing")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
@@ -137,10 +139,6 @@ def main(argv: list[str] | None = None) -> int:
                              files=is_trajectory_file)
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
-        if args.list:
-            print("controllers: " + ", ".join([*ALL_CONTROLLERS, *mine]))
-            print("conditions:  " + ", ".join(CONDITIONS))
-            print("trajectories: " + ", ".join(TRAJECTORIES))
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
                             sweep=args.sweep, rules=tuple(args.rules), arm=args.arm)
@@ -149,10 +147,8 @@ def main(argv: list[str] | None = None) -> int:
             raise UserError("--points: applies to the named trajectories only (ellipse-t1, "
                             f"ellipse-t2, abcd, line-ab-reach); {', '.join(paths)} keep their "
                             "files' set points")
-        if args.list:
-            cost = sum(s.cost_s() for s in specs)
-            print(f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
-                  f"~{cost / 60:.1f} min of work")
+        if args.list:  # after every check: a file the sweep would refuse is refused here
+            print("\n".join(listing(specs, args.rules, trajs or (), args.arm)))
             return 0
         out = outputs.check_path(args.out)  # the text: '' is the empty-path error, not '.'
         if args.out == build_parser().get_default("out"):
@@ -172,6 +168,24 @@ def main(argv: list[str] | None = None) -> int:
         return status
 
     return run_main(body)
+
+
+def listing(specs: list[RunSpec], rules, trajectories, arm: str) -> list[str]:
+    """``--list``: the controllers, conditions and trajectories (the user's rule bases' and
+    files' too, as the sweep ``specs`` runs them), and the sweep's size."""
+    arms = list(dict.fromkeys(s.arm for s in specs))
+    users = user_rules(rules, arms)
+    files = [t for t in trajectories if is_trajectory_file(t)]
+    cost = sum(s.cost_s() for s in specs)
+    return (["controllers: " + ", ".join(ALL_CONTROLLERS)]
+            + [f"  yours (--rules): {', '.join(u.controllers)}: {u.rules}, on the "
+               f"{' and '.join(u.arms)} arm" for u in users]
+            + ["conditions:  " + ", ".join(CONDITIONS),
+               "trajectories: " + ", ".join(TRAJECTORIES)]
+            + [f"  yours (--trajectories): {trajectory_label(t)}: {Path(t).resolve()}, on the "
+               f"{arm} arm" for t in files]
+            + [f"sweep: {len(specs)} runs ({sum(s.vision for s in specs)} with rendering), "
+               f"~{cost / 60:.1f} min of work"])
 
 
 def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
