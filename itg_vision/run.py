@@ -27,9 +27,9 @@ from .feedback import DEFAULT_SUPERSAMPLE
 from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
+from .rule_options import add_rule_options
 from .rules import shipped_rules
-from .runner import (CONTROLLERS, FEEDBACKS, RULE_DEFAULTS, RunConfig, config_dict, execute,
-                     prepare)
+from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
 
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"), ("gain", "f"),
@@ -86,14 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--controller", default="itg", choices=CONTROLLERS,
                     help="itg (the rules), or a baseline: ik (closed-form inverse kinematics, "
                          "open loop) or jacobian (vision-fed damped least squares)")
-    ap.add_argument("--gain", type=float, metavar="F",
-                    help="f of the variable step f*|error|, in deg per mm, for rules that use f "
-                         f"(default {RULE_DEFAULTS['gain_deg_per_mm']})")
-    ap.add_argument("--step", type=float, metavar="S",
-                    help="fixed step S in deg, for rules that use S "
-                         f"(default {RULE_DEFAULTS['step_deg']})")
-    ap.add_argument("--tolerance", type=float, metavar="W",
-                    help=f"tolerance w in mm, for rules that use w (default {RULE_DEFAULTS['tolerance_mm']})")
+    add_rule_options(ap)
     ap.add_argument("--iterations", type=int, default=1,
                     help="rule iterations per set point (default 1: the paper's one step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",

@@ -27,6 +27,8 @@ CONTROLLERS = ("itg", "ik", "jacobian")
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
 RULE_DEFAULTS = {PARAM_FIELDS[k]: v for k, v in PARAM_DEFAULTS.items()}
 RULE_NAMES = {field_: name for name, field_ in PARAM_FIELDS.items()}
+#: What a run whose rule base binds S to the servo limit does instead of giving another S.
+SERVO_HINT = "set the servo limit instead (max_step_deg; run's --max-step)"
 
 
 @dataclass(frozen=True)
@@ -205,29 +207,11 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                           f" set points of {trajectory.name} is in reach of arm {true_arm.name} "
                           f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")
     info: dict = {}
-    given = {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
+    given = given_rule_params(cfg)
     if not with_controller:
         controller = None
     elif cfg.controller == "itg":
-        params = {**RULE_DEFAULTS, **given}
-        controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
-                                **{RULE_NAMES[k]: v for k, v in params.items()})
-        if controller.servo_step:  # the rules' S is the loop's servo limit (#! in the file)
-            cfg, servo_note = servo_limit_for_rules(cfg, model, controller.source)
-            controller = dataclasses.replace(controller, S=cfg.max_step_deg)
-            info["servo_limit"] = servo_note
-        used = controller.params()  # the parameters its rules read, by field name
-        for k in given:
-            if k not in used:
-                raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
-        info["rules"] = str(controller.source)
-        info["controller_params"] = used
-        # where each came from: a rule base that lost its '#! S is the servo limit' line runs
-        # with S = run's default and says so, not silently
-        info["controller_params_from"] = {
-            k: "given" if k in given else
-            "the servo limit" if controller.servo_step and k == "step_deg" else "default"
-            for k in used}
+        controller, cfg, info = rule_controller(cfg, model)
     else:
         from .controllers import make_controller
 
@@ -271,6 +255,42 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
     return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, planned)
 
 
+def given_rule_params(cfg: RunConfig) -> dict[str, float]:
+    """The rule parameters ``cfg`` gives (f, S, w by field name; those not given are None)."""
+    return {k: getattr(cfg, k) for k in RULE_DEFAULTS if getattr(cfg, k) is not None}
+
+
+def rule_controller(cfg: RunConfig, model: ArmSpec, servo_hint: str = SERVO_HINT
+                    ) -> tuple[object, RunConfig, dict]:
+    """The rule base of an ``itg`` run with its parameters (those ``cfg`` gives, the others
+    ``RULE_DEFAULTS``), the configuration it runs under (a rule base whose S is the servo limit
+    sets it: :func:`servo_limit_for_rules`, whose refusal ends with ``servo_hint``) and what the
+    summary records of it (``info``: the file, the parameters its rules use, where each came
+    from). A given parameter the rules never use raises `ConfigError` naming it."""
+    given = given_rule_params(cfg)
+    params = {**RULE_DEFAULTS, **given}
+    controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
+                            **{RULE_NAMES[k]: v for k, v in params.items()})
+    info = {}
+    if controller.servo_step:  # the rules' S is the loop's servo limit (#! in the file)
+        cfg, servo_note = servo_limit_for_rules(cfg, model, controller.source, servo_hint)
+        controller = dataclasses.replace(controller, S=cfg.max_step_deg)
+        info["servo_limit"] = servo_note
+    used = controller.params()  # the parameters its rules read, by field name
+    for k in given:
+        if k not in used:
+            raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
+    info["rules"] = str(controller.source)
+    info["controller_params"] = used
+    # where each came from: a rule base that lost its '#! S is the servo limit' line runs
+    # with S = run's default and says so, not silently
+    info["controller_params_from"] = {
+        k: "given" if k in given else
+        "the servo limit" if controller.servo_step and k == "step_deg" else "default"
+        for k in used}
+    return controller, cfg, info
+
+
 def _preview(cfg: RunConfig, model: ArmSpec, trajectory) -> Preview:
     """The preview's plan (:mod:`itg_vision.preview`), the line through the base turning at
     most q1's servo limit per iteration."""
@@ -310,11 +330,12 @@ def shown_path(path: str) -> str:
         return str(full)
 
 
-def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[RunConfig, str]:
+def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str,
+                          hint: str = SERVO_HINT) -> tuple[RunConfig, str]:
     """The configuration of a rule base whose S is the servo limit, and where the limit came
     from: the run's ``max_step_deg``, else the arm file's benchmark limit (which the loop then
     applies too; the arm file checked it, :func:`itg_vision.arm.load_arm`). ``step_deg`` may
-    only repeat it (`ConfigError` otherwise)."""
+    only repeat it (`ConfigError` otherwise, ending with ``hint``: what to do instead)."""
     servo, note = cfg.max_step_deg, "the run's max_step_deg"
     if servo is None:
         servo = model.benchmark["max_step_deg"]
@@ -322,8 +343,7 @@ def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str) -> tuple[
         cfg = dataclasses.replace(cfg, max_step_deg=servo)
     if cfg.step_deg is not None and cfg.step_deg != servo:
         raise ConfigError("step_deg", f"{source}: S is the servo limit ({servo:g} deg per "
-                                      "iteration): set the servo limit instead (max_step_deg; "
-                                      "run's --max-step)")
+                                      f"iteration): {hint}")
     return cfg, f"S = servo limit = {servo:g} deg/iteration, from {note}"
 
 

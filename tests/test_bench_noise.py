@@ -752,6 +752,99 @@ def test_list_names_your_files_and_refuses_bad_ones_before_printing(tmp_path, mo
     _one_line_error(capsys, "--rules ./mine.rules: given twice")
 
 
+def test_rule_parameters_reach_your_rule_base_as_run_gives_them(tmp_path, capsys):
+    """--gain 0.3 with a copy of Table 2: its runs give the numbers `run --rules COPY --gain
+    0.3` gives under the benchmark's limits for that cell, record f = 0.3 in controller_params
+    and the report's Setup line, and differ from f = 0.5, which the shipped itg controllers
+    keep. The sweep is another sweep: a rerun with another f into its --out is refused."""
+    import json
+
+    from itg_vision import run
+
+    copy = _write_rules(tmp_path / "copy.rules", Path(resolve_rules_path("table2")).read_text())
+    out = tmp_path / "o"
+    given = ["--quick", "--conditions", "clean,noise-1px", "--seeds", "1", "--rules", str(copy),
+             "--controllers", "itg-vision,itg-model,copy-vision,copy-model", "--out", str(out),
+             "--workers", "1", "--quiet", "--plot-metrics", "e_av"]
+    assert main([*given, "--gain", "0.3"]) == 0
+    rows = {(r["controller"], r["condition"]): r for r in _rows(out)}
+    metrics = ("e_av_mm", "e_max_mm", "track_median_mm", "track_max_mm", "n_missed")
+    for cond in ("clean", "noise-1px"):
+        for fed in ("vision", "model"):
+            mine, shipped = rows[f"copy-{fed}", cond], rows[f"itg-{fed}", cond]
+            assert mine["controller_params"] == "gain_deg_per_mm=0.3"  # Table 2 reads f only
+            assert shipped["controller_params"] == "gain_deg_per_mm=0.5"
+            assert mine["e_av_mm"] != shipped["e_av_mm"], (fed, cond)  # f changes the steps
+    spec = next(s for s in build_sweep(quick=True, conditions=("noise-1px",), seeds=1,
+                                       rules=(str(copy),), controllers=("copy-vision",),
+                                       rule_params={"gain_deg_per_mm": 0.3}))
+    assert spec.gain_deg_per_mm == 0.3 and spec.run_id == rows["copy-vision", "noise-1px"]["run_id"]
+    alone = tmp_path / "run"
+    assert run.main(["--rules", str(copy), "--gain", "0.3", "--trajectory", spec.trajectory,
+                     "--points", str(spec.points), "--laps", str(spec.laps), "--max-step",
+                     f"{spec.max_step_deg:g}", "--iterations", str(spec.iterations),
+                     "--noise-px", f"{spec.noise_px:g}", "--seed", str(spec.seed), "--out",
+                     str(alone), "--quiet"]) == 0
+    summary = json.loads((alone / "summary.json").read_text())
+    assert summary["controller_params"] == {"gain_deg_per_mm": 0.3}
+    # the row keeps six digits (%.6g)
+    assert [rows["copy-vision", "noise-1px"][m] for m in metrics] == \
+           [f"{summary[m]:.6g}" for m in metrics]
+    report = (out / "report.md").read_text()
+    assert f"rules {copy.resolve()}, gain_deg_per_mm=0.3)" in report
+    assert json.loads((out / "sweep.json").read_text())["options"]["gain"] == 0.3
+    before = (out / "results.csv").read_text()
+    capsys.readouterr()
+    assert main([*given, "--gain", "0.4"]) == 2
+    _one_line_error(capsys, f"--out {out} holds results of a different sweep definition")
+    assert (out / "results.csv").read_text() == before
+
+
+@pytest.mark.parametrize("rules, given, what", [
+    (None, ["--gain", "0.3"], "--gain: applies to your rule bases (--rules), and none is given"),
+    ("copy", ["--gain", "-1"], "--gain: must be in (0, 1e6] deg/mm, got -1.0"),
+    ("copy", ["--tolerance", "nan"], "--tolerance: must be in [0, 1e4] mm, got nan"),
+    ("copy", ["--step", "3"], "--rules copy.rules: --step: copy.rules never uses S"),
+    ("copy", ["--tolerance", "0.2"], "--rules copy.rules: --tolerance: copy.rules never uses w"),
+    ("plus", ["--step", "3"], "--rules plus.rules: --step: plus.rules: S is the servo limit (20 "
+                              "deg per iteration): the benchmark runs every controller"),
+])
+def test_rule_parameters_are_refused_as_run_refuses_them(tmp_path, monkeypatch, capsys, rules,
+                                                         given, what):
+    """Out of range, never used by the rules, or another S than the servo limit of a file
+    that binds S to it (`#! S is the servo limit`): one line, exit 2, nothing written; and
+    without --rules (the shipped controllers keep their parameters)."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "copy.rules", Path(resolve_rules_path("table2")).read_text())
+    _write_rules(tmp_path / "plus.rules",
+                 Path(resolve_rules_path("itg-plus-two-link")).read_text())
+    mine = ["--rules", f"{rules}.rules"] if rules else []
+    assert main(["--quick", *mine, *given, "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, what)
+    assert not (tmp_path / "o").exists()
+    assert main(["--quick", *mine, *given, "--list"]) == 2  # --list checks them too
+    _one_line_error(capsys, what)
+
+
+def test_rule_parameters_name_the_default_out_and_a_servo_step_may_repeat_the_limit(
+        tmp_path, monkeypatch):
+    """Without --out, other values of f, S, w go to other folders (run's labels: f0.3), so
+    each sweep keeps its results; an S equal to the servo limit of a file binding S to it is
+    what it runs anyway (run accepts it too)."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "mine.rules", Path(resolve_rules_path("table2")).read_text())
+    for f in ("0.3", "0.4"):
+        assert main(["--quick", "--conditions", "clean", "--seeds", "1", "--controllers",
+                     "mine-model", "--rules", "mine.rules", "--gain", f, "--workers", "1",
+                     "--quiet", *FEW_PLOTS]) == 0
+        rows = _rows(tmp_path / "runs" / f"bench-noise-quick-mine-f{f}")
+        assert [r["controller_params"] for r in rows] == [f"gain_deg_per_mm={f}"]
+    _write_rules(tmp_path / "plus.rules", Path(resolve_rules_path("itg-plus-two-link")).read_text())
+    specs = build_sweep(quick=True, rules=("plus.rules",), controllers=("plus-model",),
+                        rule_params={"step_deg": 20.0})
+    assert {(s.step_deg, s.max_step_deg) for s in specs} == {(20.0, 20.0)}
+
+
 def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
     assert main(["--quick", "--controllers", "mine-vision", "--out", str(tmp_path / "o")]) == 2
     _one_line_error(capsys, "unknown controller 'mine-vision'")

@@ -20,10 +20,11 @@ from pathlib import Path
 from .. import outputs
 from ..arm import arm_names
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
+from ..rule_options import add_rule_options, labels, rule_params
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
-from .store import (Results, check_sweep_file, code_warning, definition_hash, record_sweep_file,
-                    started)
+from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,
+                    record_sweep_file, started)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
                     _parse_names, build_sweep, is_trajectory_file, rules_controllers,
                     trajectory_label, user_rules)
@@ -104,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "controllers, STEM-vision and STEM-model, on the sweep's trajectories "
                          "of the arms it fits, beside the sweep's controllers (or those "
                          "--controllers names); repeat for more")
+    add_rule_options(ap, " in your --rules files, not the shipped controllers'")
     ap.add_argument("--trajectories", metavar="A,B,...",
                     help="only these trajectories: " + ", ".join(TRAJECTORIES)
                          + "; or your own CSV files (a name ending in .csv or holding a folder "
@@ -139,29 +141,32 @@ def main(argv: list[str] | None = None) -> int:
                              files=is_trajectory_file)
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
+        params = rule_params(args)  # checked as run checks them
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
-                            sweep=args.sweep, rules=tuple(args.rules), arm=args.arm)
+                            sweep=args.sweep, rules=tuple(args.rules), arm=args.arm,
+                            rule_params=params)
         if args.points is not None and all(s.points is None for s in specs):
             paths = dict.fromkeys(trajectory_label(s.trajectory) for s in specs)
             raise UserError("--points: applies to the named trajectories only (ellipse-t1, "
                             f"ellipse-t2, abcd, line-ab-reach); {', '.join(paths)} keep their "
                             "files' set points")
         if args.list:  # after every check: a file the sweep would refuse is refused here
-            print("\n".join(listing(specs, args.rules, trajs or (), args.arm)))
+            print("\n".join(listing(specs, args.rules, trajs or (), args.arm, params)))
             return 0
         out = outputs.check_path(args.out)  # the text: '' is the empty-path error, not '.'
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
             yours = [Path(r).stem for r in args.rules] + [
-                trajectory_label(t) for t in trajs or () if is_trajectory_file(t)]
+                trajectory_label(t) for t in trajs or () if is_trajectory_file(t)] + labels(params)
             if yours:  # a folder of its own: the sweep without your files keeps its results
                 out = out.with_name(f"{out.name}-" + "-".join(yours))
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
                    "conditions": args.conditions,
                    "controllers": args.controllers, "trajectories": args.trajectories,
-                   "points": args.points, "rules": args.rules or None}
+                   "points": args.points, "rules": args.rules or None, "gain": args.gain,
+                   "step": args.step, "tolerance": args.tolerance}
         status, _ = run_sweep(specs, out, options, command_line("noise", argv),
                               workers=args.workers, scheduler=args.scheduler, limit=args.limit,
                               quiet=args.quiet, plot_metrics=plot_metrics)
@@ -170,16 +175,19 @@ def main(argv: list[str] | None = None) -> int:
     return run_main(body)
 
 
-def listing(specs: list[RunSpec], rules, trajectories, arm: str) -> list[str]:
-    """``--list``: the controllers, conditions and trajectories (the user's rule bases' and
-    files' too, as the sweep ``specs`` runs them), and the sweep's size."""
+def listing(specs: list[RunSpec], rules, trajectories, arm: str, params: dict[str, float]
+            ) -> list[str]:
+    """``--list``: the controllers, conditions and trajectories (the user's rule bases', with
+    the rule parameters ``params``, and files' too, as the sweep ``specs`` runs them), and the
+    sweep's size."""
     arms = list(dict.fromkeys(s.arm for s in specs))
-    users = user_rules(rules, arms)
+    users = user_rules(rules, arms, params)
     files = [t for t in trajectories if is_trajectory_file(t)]
     cost = sum(s.cost_s() for s in specs)
     return (["controllers: " + ", ".join(ALL_CONTROLLERS)]
             + [f"  yours (--rules): {', '.join(u.controllers)}: {u.rules}, on the "
-               f"{' and '.join(u.arms)} arm" for u in users]
+               f"{' and '.join(u.arms)} arm" + (f", {params_cell(dict(u.params))}" if u.params
+                                                else "") for u in users]
             + ["conditions:  " + ", ".join(CONDITIONS),
                "trajectories: " + ", ".join(TRAJECTORIES)]
             + [f"  yours (--trajectories): {trajectory_label(t)}: {Path(t).resolve()}, on the "

@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import outputs
 from ..loop import DIVERGED_MM
-from .store import started
+from .store import params_cell, started
 from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, controller_title,
                     is_trajectory_file, trajectory_label)
 
@@ -269,7 +269,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     for s in specs:
         first.setdefault(s.controller, s)
     L += [f"- `{k}`: {controller_title(s)} (RunConfig controller={s.rc_controller}, "
-          f"feedback={s.feedback}" + (f", rules {s.rules}" if s.rules else "") + ")"
+          f"feedback={s.feedback}" + (f", rules {s.rules}" if s.rules else "")
+          + (f", {params_cell(s.rule_params)}" if s.rule_params else "") + ")"
           + _arms_note(specs, s) for k, s in first.items()]
     L += ["", "Trajectories: " + ", ".join(
         f"`{t}` ({spec_limits(specs, t)['arm']}, {'/'.join(map(str, pts[t])) or '?'} set points "

@@ -36,9 +36,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..arm import ArmSpec, arm_names
-from ..errors import UserError
+from ..errors import ConfigError, UserError
 from ..inputs import file_sha256
-from ..rules import RULES_DIR, resolve_rules_path
+from ..rules import PARAM_FIELDS, RULES_DIR, resolve_rules_path
 
 #: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
 #: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
@@ -253,11 +253,26 @@ class RunSpec:
     laps: int
     correction: float  # the loop's correction (1: aim at the set point; CORRECTIONS)
     preview: bool  # the loop aims by a plan of the path (WITH_PREVIEW)
+    # the rule parameters given (bench noise --gain, --step, --tolerance: a user's rule bases
+    # only); None: the rule base's own (run's defaults, S the servo limit if the file says so)
+    gain_deg_per_mm: float | None = None
+    step_deg: float | None = None
+    tolerance_mm: float | None = None
 
     @property
     def run_id(self) -> str:
-        text = json.dumps([SCHEMA, dataclasses.asdict(self)], sort_keys=True)
+        # a rule parameter not given is left out: the ids of runs without any are those they
+        # had before the parameters were added (a sweep resumes)
+        fields = {k: v for k, v in dataclasses.asdict(self).items()
+                  if not (k in PARAM_FIELDS.values() and v is None)}
+        text = json.dumps([SCHEMA, fields], sort_keys=True)
         return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+    @property
+    def rule_params(self) -> dict[str, float]:
+        """The rule parameters given to this run (RunConfig fields), none for the shipped
+        controllers."""
+        return {k: getattr(self, k) for k in PARAM_FIELDS.values() if getattr(self, k) is not None}
 
     @property
     def vision(self) -> bool:
@@ -359,12 +374,14 @@ class UserRules:
     """A user's rule base in the sweep (``bench noise --rules``): two controllers,
     ``STEM-vision`` and ``STEM-model`` (:func:`rules_controllers`), run on the trajectories of
     the arms it fits (it moves or holds every joint of those and names no other), beside the
-    shipped controllers. Its parameters are ``run``'s defaults; S is the servo limit if the
-    file says so (``#! S is the servo limit``), as for the shipped ITG+ rules."""
+    shipped controllers. Its parameters are those given (``params``, as ``run --gain``,
+    ``--step``, ``--tolerance`` give them), the others ``run``'s defaults; S is the servo limit
+    if the file says so (``#! S is the servo limit``), as for the shipped ITG+ rules."""
 
     rules: str  # a shipped rule base's name, or the file's absolute path (the same runs
     #             wherever the command is started)
     arms: tuple[str, ...]  # the arms it fits
+    params: tuple[tuple[str, float], ...] = ()  # (RunConfig field, value) of those given
 
     @property
     def controllers(self) -> dict[str, tuple[str, str, float, str | None]]:
@@ -392,13 +409,35 @@ def _misfit(path: Path, arm: str) -> str | None:
     return None
 
 
-def user_rules(given_rules, arms) -> tuple[UserRules, ...]:
+def _check_params(given: str, path: Path, arm: str, params: dict[str, float]) -> None:
+    """Refuse the rule parameters ``params`` for the rule file at ``path`` on ``arm`` as ``run``
+    refuses them (one the rules never use; an S other than the servo limit the file binds S
+    to, here the arm's benchmark limit): a `UserError` naming ``--rules given`` and the
+    option."""
+    from ..run import OPTIONS
+    from ..runner import RunConfig, rule_controller
+
+    spec = ArmSpec.from_args(arm)
+    servo = float(spec.benchmark["max_step_deg"])
+    cfg = RunConfig(arm=arm, rules=str(path), max_step_deg=servo, **params)
+    hint = (f"the benchmark runs every controller of the {arm} arm under its arm file's servo "
+            "limit: give no --step")
+    try:
+        rule_controller(cfg, spec, servo_hint=hint)
+    except ConfigError as exc:
+        raise UserError(f"--rules {given}: {exc.as_option(OPTIONS)}") from None
+
+
+def user_rules(given_rules, arms, params: dict[str, float] | None = None
+               ) -> tuple[UserRules, ...]:
     """The rule bases ``given_rules`` (``--rules``: shipped names or files, as ``run --rules``
-    reads them) as :class:`UserRules`, each tried on the sweep's ``arms``; a
+    reads them) as :class:`UserRules`, each tried on the sweep's ``arms`` with the rule
+    parameters ``params`` (RunConfig fields: ``bench noise --gain``, ...); a
     `UserError` naming the file when it fits none of them (the file's own error: unreadable,
-    a syntax error, a rule base for another arm), when it was given before (the same file), or
+    a syntax error, a rule base for another arm), when it was given before (the same file),
     when its controllers' names are taken (a shipped controller's, or another file's with the
-    same stem)."""
+    same stem), or when ``run`` would refuse ``params`` for it (:func:`_check_params`)."""
+    params = dict(params or {})
     out, taken, seen = [], set(ALL_CONTROLLERS), {}
     for given in given_rules:
         try:
@@ -421,8 +460,11 @@ def user_rules(given_rules, arms) -> tuple[UserRules, ...]:
                 next(iter(reasons)) if len(reasons) == 1 else
                 f"fits none of the sweep's arms ({', '.join(arms)}; choose trajectories of its "
                 f"arm with --trajectories); on the {arms[0]} arm: {why[arms[0]]}"))
+        for arm in fits if params else ():
+            _check_params(given, path, arm, params)
         shipped = path.parent.resolve() == RULES_DIR.resolve() and path.stem == given
-        u = UserRules(given if shipped else str(path.resolve()), tuple(fits))
+        u = UserRules(given if shipped else str(path.resolve()), tuple(fits),
+                      tuple(params.items()))
         clash = sorted(taken & set(u.controllers))
         if clash:
             raise UserError(f"--rules {given}: its controllers would be called "
@@ -444,7 +486,8 @@ def controller_title(spec: RunSpec) -> str:
 
 def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
                 controllers=None, trajectories=None, points: int | None = None,
-                sweep: str = "robustness", rules=(), arm: str = "two-link") -> list[RunSpec]:
+                sweep: str = "robustness", rules=(), arm: str = "two-link",
+                rule_params: dict[str, float] | None = None) -> list[RunSpec]:
     """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller).
 
     Every controller of a trajectory runs under the same limits (``LIMITS`` of its arm);
@@ -452,7 +495,16 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     given: :func:`user_rules`), their controllers run beside the sweep's (or as ``controllers``
     says, which may name them), on the trajectories of the arms each fits. ``trajectories``
     may name a user's CSV files (:func:`is_trajectory_file`), tracked by the arm ``arm``.
+    ``rule_params``: the rule parameters of those rule bases (RunConfig fields, checked values:
+    :func:`itg_vision.rule_options.rule_params`); the shipped controllers keep theirs, so
+    they need ``rules``.
     """
+    if rule_params and not rules:
+        from ..run import OPTIONS
+
+        given = ", ".join(OPTIONS[k] for k in rule_params)
+        raise UserError(f"{given}: applies to your rule bases (--rules), and none is given "
+                        "(the shipped controllers keep their own parameters)")
     base = SWEEPS[sweep]
     conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
     trajs = list(trajectories or (QUICK["trajectories"] if quick else base["trajectories"]))
@@ -463,7 +515,8 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
             trajs[i] = user_trajectory(t, arm, taken)
             arm_of[trajs[i]] = arm
             taken.add(Path(t).stem)
-    mine = {name: (u, entry) for u in user_rules(rules, list(dict.fromkeys(arm_of.values())))
+    mine = {name: (u, entry)
+            for u in user_rules(rules, list(dict.fromkeys(arm_of.values())), rule_params)
             for name, entry in u.controllers.items()}
     ctrls = controllers or (*base["controllers"], *mine)
     n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
@@ -495,11 +548,12 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                 sha = rig_sha[arm]
             for seed in range(n_seeds):
                 for ctrl in ctrls:
+                    params = {}
                     if ctrl in mine:
                         user, (rc, fb, noise_mm, _) = mine[ctrl]
                         if arm not in user.arms:
                             continue  # a rule base for another arm
-                        rule_base = user.rules
+                        rule_base, params = user.rules, dict(user.params)
                     else:
                         rc, fb, noise_mm, rules_key = ALL_CONTROLLERS[ctrl]
                         rule_base = spec_arm.defaults[rules_key] if rules_key else ""
@@ -514,7 +568,8 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         link_error_pct=round(100 * cond.link_error, 9),
                         offset_deg=cond.offset_deg, iterations=int(limits["iterations"]),
                         max_step_deg=float(limits["max_step_deg"]), laps=laps,
-                        correction=CORRECTIONS.get(ctrl, 1.0), preview=ctrl in WITH_PREVIEW))
+                        correction=CORRECTIONS.get(ctrl, 1.0), preview=ctrl in WITH_PREVIEW,
+                        **params))
     return specs
 
 
@@ -568,5 +623,5 @@ def run_config(spec: RunSpec, rig_path: str | None = None):
                      noise_mm=spec.noise_mm if spec.feedback == "truth" else 0.0,
                      dropout=spec.dropout if vision else 0.0, seed=spec.seed,
                      true_links_mm=true_links, joint_offset_deg=offset,
-                     correction=spec.correction, preview=spec.preview)
+                     correction=spec.correction, preview=spec.preview, **spec.rule_params)
 

@@ -1,0 +1,50 @@
+"""The command-line options of a rule base's parameters f, S and w (``--gain``, ``--step``,
+``--tolerance``): what ``run`` and ``bench noise`` share. Light to import (a command's
+``--help`` and ``--list`` need no simulator): the runner is imported only to check values
+given."""
+
+from __future__ import annotations
+
+import argparse
+
+from .rules import PARAM_DEFAULTS, PARAM_FIELDS
+
+#: argparse dest -> the rules' name of the parameter (its RunConfig field: ``PARAM_FIELDS``).
+RULE_OPTIONS = {"gain": "f", "step": "S", "tolerance": "w"}
+
+
+def add_rule_options(ap: argparse.ArgumentParser, whose: str = "") -> None:
+    """``--gain F``, ``--step S``, ``--tolerance W``: a rule base's f, S and w, ``whose``
+    saying which rule bases take them; :func:`rule_params` reads and checks them."""
+    ap.add_argument("--gain", type=float, metavar="F",
+                    help="f of the variable step f*|error|, in deg per mm, for rules that use "
+                         f"f{whose} (default {PARAM_DEFAULTS['f']})")
+    ap.add_argument("--step", type=float, metavar="S",
+                    help=f"fixed step S in deg, for rules that use S{whose} "
+                         f"(default {PARAM_DEFAULTS['S']})")
+    ap.add_argument("--tolerance", type=float, metavar="W",
+                    help=f"tolerance w in mm, for rules that use w{whose} "
+                         f"(default {PARAM_DEFAULTS['w']})")
+
+
+def rule_params(args: argparse.Namespace) -> dict[str, float]:
+    """The rule parameters given (:func:`add_rule_options`), by RunConfig field, checked as a
+    run checks them (a `UserError` naming the option: ``--gain: must be in (0, 1e6] deg/mm``)."""
+    given = {PARAM_FIELDS[name]: getattr(args, dest) for dest, name in RULE_OPTIONS.items()
+             if getattr(args, dest) is not None}
+    if given:
+        from .errors import ConfigError
+        from .run import OPTIONS
+        from .runner import RunConfig
+
+        try:
+            RunConfig(**given).validate()
+        except ConfigError as exc:
+            raise exc.as_option(OPTIONS) from None
+    return given
+
+
+def labels(params: dict[str, float]) -> list[str]:
+    """How ``run`` names given rule parameters in its default folder: ``f0.3``, ``S3``."""
+    names = {field_: name for name, field_ in PARAM_FIELDS.items()}
+    return [f"{names[k]}{v:g}" for k, v in params.items()]
