@@ -86,12 +86,14 @@ def resolve_rig(name_or_path: str) -> Path:
 
 
 def default_rig_path(arm, calibrated: bool = False) -> Path:
-    """The shipped rig of an arm (an `ArmSpec` or its name): ``cameras/<rig>.yaml`` as its arm
-    file's ``defaults.rig`` names it, or its calibration ``cameras/<rig>.calib.yaml``."""
+    """The rig of an arm (an `ArmSpec`, its name or its file) as its arm file's
+    ``defaults.rig`` gives it (:func:`resolve_rig`: ``cameras/<rig>.yaml``, or a rig file), or
+    its calibration beside it (``cameras/<rig>.calib.yaml``; ``<file>.calib.yaml``)."""
     from .arm import ArmSpec
 
     spec = arm if isinstance(arm, ArmSpec) else ArmSpec.from_args(arm)
-    return CAMERAS_DIR / f"{spec.defaults['rig']}{'.calib' if calibrated else ''}.yaml"
+    rig = resolve_rig(spec.defaults["rig"])
+    return rig.with_name(f"{rig.stem}.calib{rig.suffix}") if calibrated else rig
 
 
 # ---------------------------------------------------------------------------- pure functions

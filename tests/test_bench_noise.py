@@ -896,6 +896,84 @@ def test_trajectory_files_are_tracked_by_the_arm_named(tmp_path):
     assert not {s.run_id for s in specs} & {s.run_id for s in other}
 
 
+def _arm_file(path: Path, **changes) -> Path:
+    """A copy of the shipped two-link arm file, ``changes`` replacing lines' text."""
+    from itg_vision.arm import arm_path
+
+    text = arm_path("two-link").read_text()
+    for old, new in changes.values():
+        assert old in text
+        text = text.replace(old, new)
+    path.write_text(text)
+    return path
+
+
+def test_an_arm_file_tracks_your_trajectory_files_under_its_benchmark_limits(tmp_path):
+    """--arm FILE (as `run --arm` takes it): an unchanged copy of the two-link arm file gives
+    the two-link arm's numbers; a copy with other benchmark limits (5 deg/iteration, 2
+    iterations) runs under them, giving the numbers `run --arm FILE` gives under those limits,
+    and others than the 20 deg/iteration of the shipped arm (its start transient asks for
+    steps of more than 5 deg)."""
+    import json
+
+    from itg_vision import run
+
+    lap = load_trajectory("ellipse-t1", 40).points_mm[:, :2]
+    mine = tmp_path / "mine.csv"
+    mine.write_text("x_mm,y_mm\n" + "".join(f"{float(x)!r},{float(y)!r}\n" for x, y in lap))
+    same = _arm_file(tmp_path / "same-arm.yaml")
+    slow = _arm_file(tmp_path / "slow-arm.yaml", bench=(
+        "benchmark: {max_step_deg: 20, iterations: 1}", "benchmark: {max_step_deg: 5, iterations: 2}"))
+    rows = {}
+    for arm, ctrls in (("two-link", "itg-vision,itg-model"), (same, "itg-vision,itg-model"),
+                       (slow, "itg-model")):
+        out = tmp_path / f"o-{Path(arm).stem}"
+        assert main(["--trajectories", str(mine), "--arm", str(arm), "--controllers", ctrls,
+                     "--conditions", "clean", "--seeds", "1", "--out", str(out), "--workers",
+                     "1", "--quiet", *FEW_PLOTS]) == 0
+        rows.update({(Path(arm).stem, r["controller"]): r for r in _rows(out)})
+    metrics = ("e_av_mm", "e_max_mm", "track_median_mm", "track_max_mm", "n_missed")
+    for c in ("itg-vision", "itg-model"):
+        assert rows["same-arm", c]["arm"] == str(same.resolve())
+        assert [rows["same-arm", c][m] for m in metrics] == [rows["two-link", c][m] for m in metrics]
+    row = rows["slow-arm", "itg-model"]
+    assert (row["max_step_deg"], row["iterations"]) == ("5", "2")
+    assert row["e_av_mm"] != rows["two-link", "itg-model"]["e_av_mm"]
+    alone = tmp_path / "run"
+    assert run.main(["--arm", str(slow), "--trajectory", str(mine), "--feedback", "model",
+                     "--max-step", "5", "--iterations", "2", "--laps", row["laps"], "--out",
+                     str(alone), "--quiet"]) == 0
+    summary = json.loads((alone / "summary.json").read_text())
+    assert [row[m] for m in metrics] == [f"{summary[m]:.6g}" for m in metrics]
+
+
+def test_an_arm_files_own_rig_file_is_what_its_vision_runs_read(tmp_path):
+    """An arm file whose defaults name a rig file beside it: its vision runs hash that file
+    (an edit is new vision runs; the model-fed runs keep their ids), and its calibration is
+    looked for beside it (the shipped name's cameras/<rig>.yaml was joined to the file's
+    path)."""
+    from itg_vision.camera import CAMERAS_DIR, default_rig_path
+
+    rig = tmp_path / "myrig.yaml"
+    rig.write_text((CAMERAS_DIR / "planar.yaml").read_text())
+    arm = _arm_file(tmp_path / "my-arm.yaml", rig=("rig: planar", "rig: myrig.yaml"))
+    assert default_rig_path(str(arm)) == rig
+    assert default_rig_path(str(arm), calibrated=True) == tmp_path / "myrig.calib.yaml"
+    assert default_rig_path("two-link", calibrated=True) == CAMERAS_DIR / "planar.calib.yaml"
+    mine = tmp_path / "mine.csv"
+    mine.write_text("x_mm,y_mm\n120,40\n100,80\n60,60\n")
+
+    def ids():
+        specs = build_sweep(quick=True, trajectories=(str(mine),), arm=str(arm),
+                            controllers=("itg-vision", "itg-model"))
+        return {fed: {s.run_id for s in specs if s.feedback == fed} for fed in ("vision", "model")}
+
+    before = ids()
+    rig.write_text(rig.read_text() + "# edited\n")
+    after = ids()
+    assert before["model"] == after["model"] and not before["vision"] & after["vision"]
+
+
 def test_points_for_a_sweep_of_files_only_is_refused_not_ignored(tmp_path, monkeypatch, capsys):
     """--points resamples the named trajectories; a file keeps its own set points. Given with
     files only it was silently ignored (80 set points ran where 20 were asked, as `run
@@ -1017,6 +1095,9 @@ def test_a_model_error_that_puts_every_set_point_out_of_reach_is_a_row_that_did_
      "--trajectories far.csv: none of its 2 set points is in reach of the two-link arm"),
     ("--trajectories", "x_mm,y_mm\n100,0\n110,0\n", "abcd.csv",
      "--trajectories abcd.csv: the report and plots would call it 'abcd', a name already taken"),
+    ("--arm", None, "gone.yaml", "--arm gone.yaml: gone.yaml: cannot read arm file"),
+    ("--arm", "name: x\n", "bad.yaml", "--arm bad.yaml: bad.yaml: kind: missing"),
+    ("--arm", None, "nosuch", "--arm nosuch: unknown arm 'nosuch'"),
 ])
 def test_a_file_of_yours_the_sweep_cannot_run_exits_2_with_one_line_and_writes_nothing(
         tmp_path, monkeypatch, capsys, option, text, given, what):

@@ -110,9 +110,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="only these trajectories: " + ", ".join(TRAJECTORIES)
                          + "; or your own CSV files (a name ending in .csv or holding a folder "
                            "separator), tracked by the arm --arm names")
-    ap.add_argument("--arm", default="two-link", choices=arm_names(),
-                    help="the arm that tracks the trajectory files given to --trajectories "
-                         "(default %(default)s; the benchmark's own trajectories keep theirs)")
+    ap.add_argument("--arm", default="two-link", metavar="NAME|FILE.yaml",
+                    help="the arm that tracks the trajectory files given to --trajectories: "
+                         f"{', '.join(arm_names())} or an arm file, whose benchmark: limits "
+                         "the runs take (default %(default)s; the benchmark's own trajectories "
+                         "keep theirs)")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points per lap of the named trajectories ellipse-t1, ellipse-t2, "
                          f"abcd and line-ab-reach (default: theirs; --quick {QUICK['points']}); "

@@ -35,7 +35,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..arm import ArmSpec, arm_names
+from ..arm import ArmSpec, arm_names, names_a_file
 from ..errors import ConfigError, UserError
 from ..inputs import file_sha256
 from ..rules import PARAM_FIELDS, RULES_DIR, resolve_rules_path
@@ -333,6 +333,17 @@ def user_trajectory(given: str, arm: str, taken) -> str:
     return str(path.resolve())
 
 
+def files_arm(given: str) -> str:
+    """The arm of a sweep's trajectory files (``--arm``): a shipped arm's name, or an arm
+    file's absolute path (the same runs wherever the command is started), read and checked now
+    (a `UserError` naming ``--arm``); its ``benchmark`` limits are the runs'."""
+    try:
+        ArmSpec.from_args(given)
+    except UserError as exc:
+        raise UserError(f"--arm {given}: {exc}") from None
+    return str(Path(given).resolve()) if names_a_file(given) else given
+
+
 def trajectory_source(name: str) -> str:
     """What :class:`~itg_vision.runner.RunConfig` takes: the name, or the path of its file."""
     from ..trajectory import TRAJECTORIES_DIR
@@ -494,7 +505,8 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     closed trajectories run ``LAPS`` laps. ``rules``: a user's rule bases (``--rules``, as
     given: :func:`user_rules`), their controllers run beside the sweep's (or as ``controllers``
     says, which may name them), on the trajectories of the arms each fits. ``trajectories``
-    may name a user's CSV files (:func:`is_trajectory_file`), tracked by the arm ``arm``.
+    may name a user's CSV files (:func:`is_trajectory_file`), tracked by the arm ``arm`` (a
+    shipped arm or an arm file: :func:`files_arm`).
     ``rule_params``: the rule parameters of those rule bases (RunConfig fields, checked values:
     :func:`itg_vision.rule_options.rule_params`); the shipped controllers keep theirs, so
     they need ``rules``.
@@ -509,6 +521,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
     trajs = list(trajectories or (QUICK["trajectories"] if quick else base["trajectories"]))
     arm_of = {t: TRAJECTORIES[t] for t in trajs if not is_trajectory_file(t)}
+    arm = files_arm(arm)
     taken = set(TRAJECTORIES)
     for i, t in enumerate(trajs):
         if is_trajectory_file(t):
