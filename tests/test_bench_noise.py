@@ -1109,6 +1109,28 @@ def test_a_file_of_yours_the_sweep_cannot_run_exits_2_with_one_line_and_writes_n
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("args, what", [
+    (["--arm", "one-link"], "--arm one-link: applies to trajectory files given to "
+                            "--trajectories, and none is given"),
+    (["--rules", "{mine}", "--controllers", "itg-vision"],
+     "--controllers: names none of your rule bases' controllers (mine-vision, mine-model), "
+     "so --rules would run nowhere"),
+    (["--rules", "{mine}", "--gain", "0.3", "--controllers", "ik,jacobian-vision"],
+     "--controllers: names none of your rule bases' controllers"),
+])
+def test_an_option_that_would_apply_to_no_run_is_refused(tmp_path, monkeypatch, capsys, args,
+                                                         what):
+    """--arm without a trajectory file, and --rules (with its parameters) whose controllers
+    --controllers leaves out, would change nothing: refused in one line, before any run."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.rules").write_text(resolve_rules_path("table2").read_text())
+    argv = [a.replace("{mine}", "mine.rules") for a in args]
+    for extra in (["--list"], ["--out", "o", "--quiet"]):
+        assert main(["--quick", *argv, *extra]) == 2
+        _one_line_error(capsys, what)
+    assert not (tmp_path / "o").exists()
+
+
 def test_ctrl_c_between_a_rows_write_and_its_record_counts_the_rows_on_disk(tmp_path, capsys,
                                                                             monkeypatch):
     """Ctrl-C landing after a row is fsynced but before the store records it in memory: the

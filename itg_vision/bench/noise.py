@@ -31,6 +31,8 @@ from .sweep import (ALL_CONTROLLERS, CONDITIONS, FULL_SEEDS, QUICK, SWEEPS, TRAJ
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
+#: The arm that tracks trajectory files when --arm is not given.
+FILES_ARM = "two-link"
 
 
 def check_out(out: Path, command: str = COMMAND) -> Path:
@@ -110,10 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="only these trajectories: " + ", ".join(TRAJECTORIES)
                          + "; or your own CSV files (a name ending in .csv or holding a folder "
                            "separator), tracked by the arm --arm names")
-    ap.add_argument("--arm", default="two-link", metavar="NAME|FILE.yaml",
+    ap.add_argument("--arm", metavar="NAME|FILE.yaml",
                     help="the arm that tracks the trajectory files given to --trajectories: "
                          f"{', '.join(arm_names())} or an arm file, whose benchmark: limits "
-                         "the runs take (default %(default)s; the benchmark's own trajectories "
+                         f"the runs take (default {FILES_ARM}; the benchmark's own trajectories "
                          "keep theirs)")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points per lap of the named trajectories ellipse-t1, ellipse-t2, "
@@ -144,17 +146,25 @@ def main(argv: list[str] | None = None) -> int:
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         params = rule_params(args)  # checked as run checks them
+        arm = FILES_ARM if args.arm is None else args.arm
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
-                            sweep=args.sweep, rules=tuple(args.rules), arm=args.arm,
-                            rule_params=params)
+                            sweep=args.sweep, rules=tuple(args.rules), arm=arm,
+                            rule_params=params)  # checks the arm file, given or not
+        if args.arm is not None and not any(map(is_trajectory_file, trajs or ())):
+            raise UserError(f"--arm {args.arm}: applies to trajectory files given to "
+                            "--trajectories, and none is given (the benchmark's own "
+                            "trajectories keep their arms)")
+        if mine and not any(s.controller in mine for s in specs):
+            raise UserError(f"--controllers: names none of your rule bases' controllers "
+                            f"({', '.join(mine)}), so --rules would run nowhere")
         if args.points is not None and all(s.points is None for s in specs):
             paths = dict.fromkeys(trajectory_label(s.trajectory) for s in specs)
             raise UserError("--points: applies to the named trajectories only (ellipse-t1, "
                             f"ellipse-t2, abcd, line-ab-reach); {', '.join(paths)} keep their "
                             "files' set points")
         if args.list:  # after every check: a file the sweep would refuse is refused here
-            print("\n".join(listing(specs, args.rules, trajs or (), args.arm, params)))
+            print("\n".join(listing(specs, args.rules, trajs or (), arm, params)))
             return 0
         out = outputs.check_path(args.out)  # the text: '' is the empty-path error, not '.'
         if args.out == build_parser().get_default("out"):
