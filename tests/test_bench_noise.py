@@ -569,7 +569,7 @@ def test_run_spec_maps_controllers_and_conditions_onto_run_config():
     assert (cfg.controller, cfg.feedback, cfg.iterations, cfg.max_step_deg) == ("ik", "model", 1, 20.0)
     cfg = run_config(specs["itg-vision", "noise-1px+links+5%"])
     assert (cfg.controller, cfg.feedback, cfg.noise_px) == ("itg", "vision", 1.0)
-    assert cfg.true_links_mm == pytest.approx((105.0, 105.0))
+    assert cfg.true_links_mm == (105.0, 105.0)  # 100 x 1.05 rounded to 9 decimals: exact
     # the column says its unit: links+5% is link_error_pct 5, and lengths 100 mm * 1.05 to the
     # nearest double (bit for bit what the former fraction column gave)
     assert specs["itg-vision", "links+5%"].link_error_pct == 5.0

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import roundoff
 from hypothesis import example, given, settings, strategies as st
 
 from itg_vision.arm import ArmSpec, forward_kinematics
@@ -67,7 +68,7 @@ def test_parses_nested_conditions_and_parenthesised_expressions():
         "RULE 1: IF ((xd - xg) * 2 > w OR NOT (yd >= 0)) AND (xg - xe) != 0 THEN q1 += 2 * (xd - xg)^2",
         2, TWO, w=1.0)
     step = rb.step(np.array([3.0, 1.0, 0]), markers([1.0, 0, 0], [0.5, 0, 0]), [0, 0])
-    assert step.fired == (1,) and step.dq_deg[0] == pytest.approx(8.0)
+    assert step.fired == (1,) and step.dq_deg[0] == 8.0  # small integers: exact
     step = rb.step(np.array([1.2, 1.0, 0]), markers([1.0, 0, 0], [0.5, 0, 0]), [0, 0])
     assert step.fired == ()
 
@@ -123,7 +124,9 @@ def test_table2_q1_correction_reduces_x_error_in_each_quadrant(q1, dx):
     g = m["gripper"]
     desired = np.array([g[0] + dx, g[1], 0.0])
     step = table2(f=0.05).step(desired, markers(g, m["elbow"]), q)
-    assert step.dq_deg[0] == pytest.approx(math.copysign(0.05 * 5, step.dq_deg[0]))
+    # f |xd - xg|: xd = xg + 5 rounds by half an ulp of it, then the product by half an ulp
+    assert step.dq_deg[0] == pytest.approx(math.copysign(0.05 * 5, step.dq_deg[0]), rel=0,
+                                           abs=roundoff(0.05 * (abs(g[0]) + 5), ulps=2))
     after = forward_kinematics(arm, q + [step.dq_deg[0], 0])["gripper"]
     assert abs(desired[0] - after[0]) < abs(desired[0] - g[0])
 
@@ -145,17 +148,18 @@ def test_table2_q2_correction_reduces_y_error(q, dy):
 
 def test_table2_hand_worked_quadrant_signs():
     rb = table2(f=0.1)
+    # f |xd - xg| of whole millimetres, 0.1 x 10 = 1.0 in float64: every step below is exact
     # gripper (100, 100), elbow (100, 0): desired to the right and above the x axis -> RULE 1
     s = rb.step(np.array([110.0, 100.0, 0]), markers([100, 100, 0], [100, 0, 0]), [0, 90])
-    assert s.fired == (1,) and s.dq_deg[0] == pytest.approx(-1.0) and s.dq_deg[1] == 0
+    assert s.fired == (1,) and s.dq_deg[0] == -1.0 and s.dq_deg[1] == 0
     # below the x axis, desired to the right -> RULE 2 (q1 up)
     s = rb.step(np.array([110.0, -100.0, 0]), markers([100, -100, 0], [100, 0, 0]), [0, -90])
-    assert s.fired == (2,) and s.dq_deg[0] == pytest.approx(1.0)
+    assert s.fired == (2,) and s.dq_deg[0] == 1.0
     # desired above, gripper right of elbow -> RULE 3 (q2 up); gripper left of elbow -> RULE 4
     s = rb.step(np.array([50.0, 60.0, 0]), markers([50, 50, 0], [0, 0, 0]), [0, 0])
-    assert 3 in s.fired and s.dq_deg[1] == pytest.approx(1.0)
+    assert 3 in s.fired and s.dq_deg[1] == 1.0
     s = rb.step(np.array([-50.0, 60.0, 0]), markers([-50, 50, 0], [0, 0, 0]), [0, 0])
-    assert 4 in s.fired and s.dq_deg[1] == pytest.approx(-1.0)
+    assert 4 in s.fired and s.dq_deg[1] == -1.0
     # equality everywhere: nothing fires (the paper excludes equality)
     s = rb.step(np.array([50.0, 50.0, 0]), markers([50, 50, 0], [0, 0, 0]), [0, 0])
     assert s.fired == () and not s.out_of_reach
