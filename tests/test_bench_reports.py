@@ -119,12 +119,15 @@ def test_speed_times_each_rule_base_at_the_states_it_reaches():
             # the states' markers are PyBullet's float32 positions (conftest.PYBULLET_RTOL)
             assert np.allclose(m.gripper_mm, fk["gripper"], rtol=PYBULLET_RTOL, atol=roundoff(200))
             assert np.allclose(m.elbow_mm, fk["elbow"], rtol=PYBULLET_RTOL, atol=roundoff(200))
-        assert np.abs(np.diff(q, axis=0)).max() <= servo + 1e-9
+        # a step of at most the servo added to angles up to |q|: round-off at |q| (729 deg)
+        assert np.abs(np.diff(q, axis=0)).max() <= servo + roundoff(np.abs(q).max())
         with World(arm) as world:
             trace = simulate(world, rules, TruthFeedback(), pts, max_step_deg=servo)
         e = trace.error_mm()
         far = c["from_set_point_mm"][name]
-        assert np.all(far[1:] <= e[:-1] + step[1:] + 1e-9), name
+        # the same simulation, the same float32 positions: round-off of three distances (~300 mm)
+        slack = roundoff(far.max() + e.max() + step.max())
+        assert np.all(far[1:] <= e[:-1] + step[1:] + slack), name
 
 
 @pytest.mark.parametrize("made_by", ["user", "bench accuracy"])
