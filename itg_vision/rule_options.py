@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from .rules import PARAM_DEFAULTS, PARAM_FIELDS
+from .rules import PARAM_DEFAULTS, PARAM_FIELDS, PARAM_OF_FIELD
 
 #: argparse dest -> the rules' name of the parameter (its RunConfig field: ``PARAM_FIELDS``).
 RULE_OPTIONS = {"gain": "f", "step": "S", "tolerance": "w"}
@@ -46,5 +46,4 @@ def rule_params(args: argparse.Namespace) -> dict[str, float]:
 
 def labels(params: dict[str, float]) -> list[str]:
     """How ``run`` names given rule parameters in its default folder: ``f0.3``, ``S3``."""
-    names = {field_: name for name, field_ in PARAM_FIELDS.items()}
-    return [f"{names[k]}{v:g}" for k, v in params.items()]
+    return [f"{PARAM_OF_FIELD[k]}{v:g}" for k, v in params.items()]

@@ -86,6 +86,8 @@ MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
 #: The rule parameters and the field names (units included) they go by outside the rules.
 PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
+#: The other way: RunConfig field -> the rules' name.
+PARAM_OF_FIELD = {field_: name for name, field_ in PARAM_FIELDS.items()}
 #: Their defaults (deg/mm, deg, mm), the same from code, from ``run`` and from ``paper``: the
 #: paper's gain read in deg/mm, a 2 deg fixed step, a 0.5 mm tolerance.
 PARAM_DEFAULTS = {"f": 0.5, "S": 2.0, "w": 0.5}

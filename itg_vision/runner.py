@@ -19,14 +19,14 @@ from .inputs import is_whole
 from .loop import Trace, distance_mm, simulate
 from .provenance import code_hash
 from .preview import Preview, plan
-from .rules import PARAM_DEFAULTS, PARAM_FIELDS, load_rules
+from .rules import PARAM_DEFAULTS, PARAM_FIELDS, PARAM_OF_FIELD, load_rules
 from .world import World
 
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
 RULE_DEFAULTS = {PARAM_FIELDS[k]: v for k, v in PARAM_DEFAULTS.items()}
-RULE_NAMES = {field_: name for name, field_ in PARAM_FIELDS.items()}
+RULE_NAMES = PARAM_OF_FIELD
 #: What a run whose rule base binds S to the servo limit does instead of giving another S.
 SERVO_HINT = "set the servo limit instead (max_step_deg; run's --max-step)"
 

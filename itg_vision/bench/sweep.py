@@ -333,6 +333,10 @@ def user_trajectory(given: str, arm: str, taken) -> str:
     return str(path.resolve())
 
 
+#: The arm that tracks a sweep's trajectory files when ``--arm`` does not name one.
+FILES_ARM = "two-link"
+
+
 def files_arm(given: str) -> str:
     """The arm of a sweep's trajectory files (``--arm``): a shipped arm's name, or an arm
     file's absolute path (the same runs wherever the command is started), read and checked now
@@ -497,7 +501,7 @@ def controller_title(spec: RunSpec) -> str:
 
 def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=None,
                 controllers=None, trajectories=None, points: int | None = None,
-                sweep: str = "robustness", rules=(), arm: str = "two-link",
+                sweep: str = "robustness", rules=(), arm: str = FILES_ARM,
                 rule_params: dict[str, float] | None = None) -> list[RunSpec]:
     """The run specs of a sweep, in a stable order (trajectory, condition, seed, controller).
 
