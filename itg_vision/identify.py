@@ -19,9 +19,9 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
 
   A wrong world frame (a rig moved after calibration) displaces the whole arm in the eye's
   frame: the benchmark's rig-perturbed (1 deg about the cameras' midpoint and 5 mm) by up to
-  ~15 mm at the shoulder, more than the 12 mm stand-off. An axis assumed at x = y = 0 then
-  puts the LEDs on the wrong side of it: the eye sees the arm mirrored and every pitch step has
-  the wrong sign. Measured, the axis moves with the arm.
+  17 mm at the shoulder (seeds 0-4), more than the 12 mm stand-off. An axis assumed at
+  x = y = 0 then puts the LEDs on the wrong side of it: the eye sees the arm mirrored and every
+  pitch step has the wrong sign. Measured, the axis moves with the arm.
 
 The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 """
