@@ -159,13 +159,13 @@ class JacobianTracker:
     ``dq = J^T (J J^T + lambda^2 I)^-1 (x_d - x_g)``, with J in mm/rad. Each column is a joint's
     axis crossed with the lever from that joint to the gripper LED: planar arms turn about z
     through the base (q1: lever g) and through the elbow LED (q2: lever g - e); the three-link
-    arm turns its base about the base axis (q1: lever g from the axis at g's height) and its
-    pitch joints about the measured pitch axis (:func:`pitch_axis`, from the LEDs measured from
+    arm turns its base about the vertical base axis (q1: lever g less the axis point) and its
+    pitch joints about the measured pitch axis (:func:`pitch_axis`, from the LEDs relative to
     the base axis) through the shoulder (q2: g - shoulder) and the elbow LED (q3: g - e; the
     LED's stand-off lies along the axis and drops out of the cross product).
     The only geometry it uses is what :func:`itg_vision.identify.measure_geometry` measures at
-    start-up (the base axis through the shoulder point, its tilt, and the LED stand-off): no
-    model.
+    start-up (the shoulder point, whose x, y place the vertical base axis, and the LED
+    stand-off): no model.
 
     Parameters
     ----------
@@ -189,7 +189,6 @@ class JacobianTracker:
         self.planar = planar
         self.n = n_joints
         self.shoulder = np.asarray(geometry.shoulder_mm, float)
-        self.tilt = np.array([*geometry.base_tilt, 0.0])
         self.standoff = float(geometry.standoff_mm)
         self.damping = damping_mm
         self.max_step = max_step_deg
@@ -207,16 +206,11 @@ class JacobianTracker:
 
             cols = [turn(g[:2])] + ([turn(g[:2] - e[:2])] if self.n == 2 else [])
             return np.column_stack(cols)
-        g_ax, e_ax = self.from_axis(g), self.from_axis(e)
+        base = np.array([self.shoulder[0], self.shoulder[1], 0.0])  # on the base axis
         z = np.array([0.0, 0.0, 1.0])
-        a = pitch_axis(g_ax, e_ax, self.standoff)
-        return np.column_stack([np.cross(z, g_ax), np.cross(a, g - self.shoulder),
+        a = pitch_axis(g - base, e - base, self.standoff)
+        return np.column_stack([np.cross(z, g - base), np.cross(a, g - self.shoulder),
                                 np.cross(a, g - e)])
-
-    def from_axis(self, p) -> np.ndarray:
-        """``p`` with its x, y measured from the base axis at its height (z kept), (3,)."""
-        axis_xy = self.shoulder + self.tilt * (p[2] - self.shoulder[2])
-        return p - np.array([axis_xy[0], axis_xy[1], 0.0])
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         g, e = np.asarray(markers.gripper_mm, float), np.asarray(markers.elbow_mm, float)

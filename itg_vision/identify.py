@@ -8,9 +8,9 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
   axis through x = y = 0), L2 = |gripper_xy - elbow_xy|; one observation, no motion.
 - three-link arm: the base axis is measured, not assumed: the base joint (q1) is turned alone
   through a few angles about the start pose, and the elbow and gripper LEDs' circles
-  (:func:`base_axis`) have their centres on it, whatever the pose; the controllers measure
-  each position's x, y from where the axis is at that position's height (a wrong frame tilts
-  it). Then the shoulder joint (q2)
+  (:func:`base_axis`) have their centres on it, whatever the pose; where it crosses the
+  shoulder's height is the point the controllers measure horizontal positions from (its tilt,
+  a wrong frame's, is left to them as any frame error is). Then the shoulder joint (q2)
   is moved alone through a few angles about the start pose and the elbow LED's positions are
   fitted with a circle (:func:`fit_circle`). The circle's centre is the shoulder offset sideways
   by the LED stand-off, along the pitch axis: its height is L1, its distance from the
@@ -62,8 +62,6 @@ class ArmGeometry:
     source : where the numbers come from: "nominal model" or how they were measured.
     residual_mm : the largest RMS residual of the fits that produced them (0 for a single
         observation).
-    base_tilt : (dx/dz, dy/dz), how far the measured base axis runs sideways per mm up (0 for
-        planar arms): the axis at height z is ``shoulder_mm``'s x, y + base_tilt (z - L1).
     """
 
     links_mm: tuple[float, ...]
@@ -71,19 +69,17 @@ class ArmGeometry:
     standoff_mm: float = 0.0
     source: str = "nominal model"
     residual_mm: float = 0.0
-    base_tilt: tuple[float, float] = (0.0, 0.0)
 
     @property
     def base_axis_mm(self) -> tuple[float, float]:
-        """Where the base axis is at the shoulder's height (x, y, mm); the rules and the
-        Jacobian tracker measure horizontal positions from the axis (:attr:`base_tilt`)."""
+        """Where the vertical base axis crosses the xy plane (mm): the origin the rules and the
+        Jacobian tracker measure the LEDs' horizontal positions from."""
         return self.shoulder_mm[0], self.shoulder_mm[1]
 
     def record(self) -> dict:
         """Plain values for ``summary.json``."""
         return {"links_mm": [round(v, 4) for v in self.links_mm],
                 "base_axis_mm": [round(v, 4) for v in self.base_axis_mm],
-                "base_tilt_deg": round(float(np.degrees(np.arctan(np.hypot(*self.base_tilt)))), 4),
                 "shoulder_mm": [round(v, 4) for v in self.shoulder_mm],
                 "standoff_mm": round(self.standoff_mm, 4), "source": self.source,
                 "residual_mm": round(self.residual_mm, 4)}
@@ -314,13 +310,12 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     world.move([0.0, -at, 0.0])
     centre, _, radius, rms = fit_circle(elbows)
     L1 = float(centre[2])
-    shoulder = axis_at_height(axis_point, axis_dir, L1)
+    shoulder = axis_at_height(axis_point, axis_dir, L1)  # the axis as measured, tilt and all
     standoff = float(np.linalg.norm(np.cross(centre - shoulder, axis_dir)))
     links = (L1, radius, float(np.median(forearm)))
-    tilt = (float(axis_dir[0] / axis_dir[2]), float(axis_dir[1] / axis_dir[2]))
     return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
                        "measured: base axis from the LEDs' circles with the base turned "
                        f"{BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle through "
                        "the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
-                       "|gripper - elbow|", max(rms, axis_rms), tilt)
+                       "|gripper - elbow|", max(rms, axis_rms))
