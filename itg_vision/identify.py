@@ -6,16 +6,18 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
 
 - planar arms: L1 = |elbow_xy| (the elbow LED turns about the base axis, taken as the eye's z
   axis through x = y = 0), L2 = |gripper_xy - elbow_xy|; one observation, no motion.
-- three-link arm: the base axis is measured, not assumed: the base joint (q1) is turned alone
-  through a few angles about the start pose, and the elbow and gripper LEDs' circles
-  (:func:`base_axis`) have their centres on it, whatever the pose; where it crosses the
+- three-link arm: the base axis is measured, not assumed: with the arm leaned
+  (:data:`BASE_SWEEP_LEAN_DEG`) the base joint (q1) is turned alone through most of a turn,
+  and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
+  whatever the pose; where it crosses the
   shoulder's height is the point the controllers measure horizontal positions from (its tilt,
   a wrong frame's, is left to them as any frame error is). Then the shoulder joint (q2)
   is moved alone through a few angles about the start pose and the elbow LED's positions are
   fitted with a circle (:func:`fit_circle`). The circle's centre is the shoulder offset sideways
   by the LED stand-off, along the pitch axis: its height is L1, its distance from the
   measured base axis the stand-off, its radius L2; L3 = |gripper - elbow|. After each sweep
-  the arm returns to its start pose exactly (the same increments, reversed).
+  the arm returns to its start pose exactly (set back to it; the shoulder's increments
+  reversed).
 
   A wrong world frame (a rig moved after calibration) displaces the whole arm in the eye's
   frame: the benchmark's rig-perturbed (1 deg about the cameras' midpoint and 5 mm) by up to
@@ -37,11 +39,19 @@ from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
 SHOULDER_SWEEP_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
-#: Base angles (deg, relative to the start pose) at which the three-link LEDs are observed to
-#: find the base axis. Straight up, the column hides an LED from a camera of the shipped rig
-#: beyond about +-80 deg (measured in 15 deg steps: seen at -75..75 and +-165..180), so the arc
-#: stops at +-60: 120 deg of the LEDs' 12 mm circles.
-BASE_SWEEP_DEG = (-60.0, -40.0, -20.0, 0.0, 20.0, 40.0, 60.0)
+#: The pose (q2, q3, deg, relative to the start pose) in which the base is turned to find the base
+#: axis: from straight up, the upper arm 60 deg above the horizontal and the forearm 60 deg below
+#: it. A circle fit's centre is as good as the arc the points cover, whatever its radius: straight
+#: up, the column hides an LED from a camera of the shipped rig beyond about +-80 deg, and the
+#: axis extrapolated from +-60 deg arcs at the LEDs' heights (200, 300 mm) down to the shoulder
+#: (100 mm) was off by up to 6 mm under 1 px noise (24 seeds). Leaned, the rig sees both LEDs at
+#: every base angle in +-160 deg (measured in 20 and 30 deg steps), and the gripper LED circles
+#: the axis at the shoulder's height (the elbow LED 87 mm above it): the axis at the shoulder
+#: is measured, not extrapolated.
+BASE_SWEEP_LEAN_DEG = (-30.0, -120.0)
+#: Base angles (deg, relative to the start pose) at which the three-link LEDs are observed, in
+#: the leaned pose, to find the base axis: 300 deg of arc.
+BASE_SWEEP_DEG = (-150.0, -120.0, -90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0, 120.0, 150.0)
 #: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
 #: (a dropped or rejected detection is tried again, as on a real rig).
 SAMPLES_PER_POSE = 5
@@ -158,12 +168,10 @@ def base_axis(point_sets) -> tuple[np.ndarray, np.ndarray, float]:
     the line through their circles' centres.
 
     Each circle is fitted in a horizontal plane (:func:`fit_circle` with the normal z): the
-    planes' own tilt is not measurable from small circles. Straight up, the LEDs circle the
-    axis at the 12 mm stand-off, and the vision's height error varies along the arc by as much
-    as the arc rises (measured at rig-perturbed seed 2: 0.45 mm over +-60 deg, which tilted a
-    fitted plane by 4 deg and moved the axis 8 mm at the shoulder). A horizontal plane leaves
-    the eye frame's tilt (1 deg: 0.2 mm up and down a 12 mm circle) to the residual. The
-    centres then give the axis' tilt over the height between them.
+    vision's height error varies along an arc (measured at rig-perturbed seed 2 straight up:
+    0.45 mm over +-60 deg, which tilted a freely fitted 12 mm circle's plane by 4 deg and moved
+    the axis 8 mm at the shoulder). A horizontal plane leaves the eye frame's tilt (1 deg) to
+    the residual. The centres then give the axis' tilt over the height between them.
 
     Parameters
     ----------
@@ -288,15 +296,14 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
         links = (float(np.linalg.norm(e)), float(np.linalg.norm(g - e)))
         return ArmGeometry(links, source="measured: |elbow_xy|, |gripper_xy - elbow_xy|")
     leds: dict[str, list] = {n: [] for n in arm.marker_names}
-    at = 0.0
+    start = np.array(world.q_deg, float)
     for rel in BASE_SWEEP_DEG:
-        world.move([rel - at, 0.0, 0.0])
-        at = rel
+        world.set_q(start + [rel, *BASE_SWEEP_LEAN_DEG])
         m = _observe(world, feedback, arm.marker_names,
-                     f"with the base turned {rel:+g} deg from the start")
+                     f"leaned, with the base turned {rel:+g} deg from the start")
         for n in arm.marker_names:
             leds[n].append(m[n])
-    world.move([-at, 0.0, 0.0])
+    world.set_q(start)
     axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
     elbows, forearm = [], []
     at = 0.0
@@ -314,8 +321,9 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     standoff = float(np.linalg.norm(np.cross(centre - shoulder, axis_dir)))
     links = (L1, radius, float(np.median(forearm)))
     return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
-                       "measured: base axis from the LEDs' circles with the base turned "
-                       f"{BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle through "
-                       "the elbow LED with the shoulder moved "
+                       "measured: base axis from the LEDs' circles with the arm leaned "
+                       f"({BASE_SWEEP_LEAN_DEG[0]:+g}, {BASE_SWEEP_LEAN_DEG[1]:+g}) deg and the "
+                       f"base turned {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
+                       "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
                        "|gripper - elbow|", max(rms, axis_rms))
