@@ -315,8 +315,8 @@ def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
 def test_a_diverged_run_says_so_from_the_benchmark_threshold(tmp_path):
     """The paper's three-link composition from its straight-up start, seen by the eye and with
     no servo limit, diverges (README: the tie at the start; the eye decides it: measured at
-    seeds 0-9, 9 of 10 diverged with the base axis assumed at x = y = 0, 8 of 10 with it
-    measured; seed 8 in both, tracking medians 145 / 142 mm); the
+    seeds 0-9, 9 of 10 diverged with the base axis assumed at x = y = 0, 9 of 10 with it
+    measured (the leaned base sweep); seed 8 in both, tracking medians 145 / 45 mm); the
     default two-link run tracks. ``diverged`` is the tracking median against DIVERGED_MM, the
     noise benchmark's threshold, and the table carries a row only for the run that diverged."""
     from itg_vision.loop import DIVERGED_MM
