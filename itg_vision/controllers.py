@@ -159,11 +159,13 @@ class JacobianTracker:
     ``dq = J^T (J J^T + lambda^2 I)^-1 (x_d - x_g)``, with J in mm/rad. Each column is a joint's
     axis crossed with the lever from that joint to the gripper LED: planar arms turn about z
     through the base (q1: lever g) and through the elbow LED (q2: lever g - e); the three-link
-    arm turns its base about z through the origin and its pitch joints about the measured pitch
-    axis (:func:`pitch_axis`) through the shoulder (q2: g - shoulder) and the elbow LED
-    (q3: g - e; the LED's stand-off lies along the axis and drops out of the cross product).
+    arm turns its base about the vertical base axis (q1: lever g less the axis point) and its
+    pitch joints about the measured pitch axis (:func:`pitch_axis`, from the LEDs relative to
+    the base axis) through the shoulder (q2: g - shoulder) and the elbow LED (q3: g - e; the
+    LED's stand-off lies along the axis and drops out of the cross product).
     The only geometry it uses is what :func:`itg_vision.identify.measure_geometry` measures at
-    start-up (the base axis is the world z axis; shoulder point, LED stand-off): no model.
+    start-up (the shoulder point, whose x, y place the vertical base axis, and the LED
+    stand-off): no model.
 
     Parameters
     ----------
@@ -204,9 +206,11 @@ class JacobianTracker:
 
             cols = [turn(g[:2])] + ([turn(g[:2] - e[:2])] if self.n == 2 else [])
             return np.column_stack(cols)
+        base = np.array([self.shoulder[0], self.shoulder[1], 0.0])  # on the base axis
         z = np.array([0.0, 0.0, 1.0])
-        a = pitch_axis(g, e, self.standoff)
-        return np.column_stack([np.cross(z, g), np.cross(a, g - self.shoulder), np.cross(a, g - e)])
+        a = pitch_axis(g - base, e - base, self.standoff)
+        return np.column_stack([np.cross(z, g - base), np.cross(a, g - self.shoulder),
+                                np.cross(a, g - e)])
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         g, e = np.asarray(markers.gripper_mm, float), np.asarray(markers.elbow_mm, float)

@@ -2,16 +2,28 @@
 
 Under vision (or truth) feedback nothing from the nominal kinematic model reaches the rules or
 the Jacobian tracker. The few lengths they use are measured before the trajectory starts, from
-the marker estimates alone (in the world frame, which calibration ties to the robot's base: the
-base axis is the world z axis through x = y = 0):
+the marker estimates alone (in the eye's frame, which calibration ties to the robot's base):
 
-- planar arms: L1 = |elbow_xy| (the elbow LED turns about the base axis), L2 = |gripper_xy -
-  elbow_xy|; one observation, no motion.
-- three-link arm: the shoulder joint (q2) is moved alone through a few angles about the start
-  pose and the elbow LED's positions are fitted with a circle (:func:`fit_circle`). The circle's
-  centre is the shoulder offset sideways by the LED stand-off, along the pitch axis: its height
-  is L1, its distance from the base axis the stand-off, its radius L2; L3 = |gripper - elbow|.
-  The arm then returns to its start pose exactly (the same increments, reversed).
+- planar arms: L1 = |elbow_xy| (the elbow LED turns about the base axis, taken as the eye's z
+  axis through x = y = 0), L2 = |gripper_xy - elbow_xy|; one observation, no motion.
+- three-link arm: the base axis is measured, not assumed: with the arm leaned
+  (:data:`BASE_SWEEP_LEAN_DEG`) the base joint (q1) is turned alone through most of a turn,
+  and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
+  whatever the pose; where it crosses the
+  shoulder's height is the point the controllers measure horizontal positions from (its tilt,
+  a wrong frame's, is left to them as any frame error is). Then the shoulder joint (q2)
+  is moved alone through a few angles about the start pose and the elbow LED's positions are
+  fitted with a circle (:func:`fit_circle`). The circle's centre is the shoulder offset sideways
+  by the LED stand-off, along the pitch axis: its height is L1, its distance from the
+  measured base axis the stand-off, its radius L2; L3 = |gripper - elbow|. After each sweep
+  the arm returns to its start pose exactly (set back to it; the shoulder's increments
+  reversed).
+
+  A wrong world frame (a rig moved after calibration) displaces the whole arm in the eye's
+  frame: the benchmark's rig-perturbed (1 deg about the cameras' midpoint and 5 mm) by up to
+  17 mm at the shoulder (seeds 0-4), more than the 12 mm stand-off. An axis assumed at
+  x = y = 0 then puts the LEDs on the wrong side of it: the eye sees the arm mirrored and every
+  pitch step has the wrong sign. Measured, the axis moves with the arm.
 
 The same fits tie a calibrated rig to the base (:mod:`itg_vision.calibration`).
 """
@@ -27,6 +39,19 @@ from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
 SHOULDER_SWEEP_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
+#: The pose (q2, q3, deg, relative to the start pose) in which the base is turned to find the base
+#: axis: from straight up, the upper arm 60 deg above the horizontal and the forearm 60 deg below
+#: it. A circle fit's centre is as good as the arc the points cover, whatever its radius: straight
+#: up, the column hides an LED from a camera of the shipped rig beyond about +-80 deg, and the
+#: axis extrapolated from +-60 deg arcs at the LEDs' heights (200, 300 mm) down to the shoulder
+#: (100 mm) was off by up to 6 mm under 1 px noise (24 seeds). Leaned, the rig sees both LEDs at
+#: every base angle in +-160 deg (measured in 20 and 30 deg steps), and the gripper LED circles
+#: the axis at the shoulder's height (the elbow LED 87 mm above it): the axis at the shoulder
+#: is measured, not extrapolated.
+BASE_SWEEP_LEAN_DEG = (-30.0, -120.0)
+#: Base angles (deg, relative to the start pose) at which the three-link LEDs are observed, in
+#: the leaned pose, to find the base axis: 300 deg of arc.
+BASE_SWEEP_DEG = (-150.0, -120.0, -90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0, 120.0, 150.0)
 #: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
 #: (a dropped or rejected detection is tried again, as on a real rig).
 SAMPLES_PER_POSE = 5
@@ -41,10 +66,12 @@ class ArmGeometry:
     ----------
     links_mm : link lengths bound to the rules' ``L1..Ln``; three-link: base height (the
         shoulder's height above the base), upper arm, forearm.
-    shoulder_mm : shape (3,), the shoulder joint on the base axis ((0, 0, 0) for planar arms).
+    shoulder_mm : shape (3,), the shoulder joint on the base axis ((0, 0, 0) for planar arms;
+        three-link: where the measured base axis crosses the shoulder's height L1).
     standoff_mm : the LEDs' offset from the links along the pitch axis (three-link), else 0.
     source : where the numbers come from: "nominal model" or how they were measured.
-    residual_mm : RMS residual of the fit that produced them (0 for a single observation).
+    residual_mm : the largest RMS residual of the fits that produced them (0 for a single
+        observation).
     """
 
     links_mm: tuple[float, ...]
@@ -53,9 +80,16 @@ class ArmGeometry:
     source: str = "nominal model"
     residual_mm: float = 0.0
 
+    @property
+    def base_axis_mm(self) -> tuple[float, float]:
+        """Where the vertical base axis crosses the xy plane (mm): the origin the rules and the
+        Jacobian tracker measure the LEDs' horizontal positions from."""
+        return self.shoulder_mm[0], self.shoulder_mm[1]
+
     def record(self) -> dict:
         """Plain values for ``summary.json``."""
         return {"links_mm": [round(v, 4) for v in self.links_mm],
+                "base_axis_mm": [round(v, 4) for v in self.base_axis_mm],
                 "shoulder_mm": [round(v, 4) for v in self.shoulder_mm],
                 "standoff_mm": round(self.standoff_mm, 4), "source": self.source,
                 "residual_mm": round(self.residual_mm, 4)}
@@ -127,6 +161,43 @@ def fit_circle(points_mm, normal=None) -> tuple[np.ndarray, np.ndarray, float, f
     in_plane = d - np.outer(d @ n, n)
     resid = np.hypot(np.linalg.norm(in_plane, axis=1) - radius, d @ n)
     return centre, n, radius, float(np.sqrt(np.mean(resid**2)))
+
+
+def base_axis(point_sets) -> tuple[np.ndarray, np.ndarray, float]:
+    """The axis that several LEDs at different heights turned about together (a base sweep):
+    the line through their circles' centres.
+
+    Each circle is fitted in a horizontal plane (:func:`fit_circle` with the normal z): the
+    vision's height error varies along an arc (measured at rig-perturbed seed 2 straight up:
+    0.45 mm over +-60 deg, which tilted a freely fitted 12 mm circle's plane by 4 deg and moved
+    the axis 8 mm at the shoulder). A horizontal plane leaves the eye frame's tilt (1 deg) to
+    the residual. The centres then give the axis' tilt over the height between them.
+
+    Parameters
+    ----------
+    point_sets : sequence of array-likes, each shape (n, 3), n >= 3: one LED's positions (mm),
+        the LEDs at different heights (or a single LED: the axis is then vertical).
+
+    Returns
+    -------
+    point_mm : (3,), a point on the axis (the mean of the circles' centres); direction : (3,),
+    unit, pointing up (z > 0); rms_mm : the largest circle fit's RMS residual.
+    """
+    fits = [fit_circle(p, (0.0, 0.0, 1.0)) for p in point_sets]
+    centres = np.array([f[0] for f in fits])
+    point = centres.mean(axis=0)
+    direction = np.array([0.0, 0.0, 1.0])
+    if len(centres) > 1:
+        direction = np.linalg.svd(centres - point, full_matrices=False)[2][0]
+        direction *= np.sign(direction[2])
+    return point, direction, max(f[3] for f in fits)
+
+
+def axis_at_height(point_mm, direction, z_mm: float) -> np.ndarray:
+    """Where the axis through ``point_mm`` along ``direction`` (not horizontal) is at height
+    ``z_mm``, shape (3,)."""
+    point, direction = np.asarray(point_mm, float), np.asarray(direction, float)
+    return point + direction * (z_mm - point[2]) / direction[2]
 
 
 def rotation_sense_axis(centre_mm, normal, points_mm) -> np.ndarray:
@@ -224,6 +295,16 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
         e = m["elbow"][:2]
         links = (float(np.linalg.norm(e)), float(np.linalg.norm(g - e)))
         return ArmGeometry(links, source="measured: |elbow_xy|, |gripper_xy - elbow_xy|")
+    leds: dict[str, list] = {n: [] for n in arm.marker_names}
+    start = np.array(world.q_deg, float)
+    for rel in BASE_SWEEP_DEG:
+        world.set_q(start + [rel, *BASE_SWEEP_LEAN_DEG])
+        m = _observe(world, feedback, arm.marker_names,
+                     f"leaned, with the base turned {rel:+g} deg from the start")
+        for n in arm.marker_names:
+            leds[n].append(m[n])
+    world.set_q(start)
+    axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
     elbows, forearm = [], []
     at = 0.0
     for rel in SHOULDER_SWEEP_DEG:
@@ -235,10 +316,14 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
         forearm.append(float(np.linalg.norm(m["gripper"] - m["elbow"])))
     world.move([0.0, -at, 0.0])
     centre, _, radius, rms = fit_circle(elbows)
-    standoff = float(np.linalg.norm(centre[:2]))
     L1 = float(centre[2])
+    shoulder = axis_at_height(axis_point, axis_dir, L1)  # the axis as measured, tilt and all
+    standoff = float(np.linalg.norm(np.cross(centre - shoulder, axis_dir)))
     links = (L1, radius, float(np.median(forearm)))
-    return ArmGeometry(links, (0.0, 0.0, L1), standoff,
-                       "measured: circle through the elbow LED with the shoulder moved "
+    return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
+                       "measured: base axis from the LEDs' circles with the arm leaned "
+                       f"({BASE_SWEEP_LEAN_DEG[0]:+g}, {BASE_SWEEP_LEAN_DEG[1]:+g}) deg and the "
+                       f"base turned {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
+                       "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
-                       "|gripper - elbow|", rms)
+                       "|gripper - elbow|", max(rms, axis_rms))

@@ -823,6 +823,9 @@ class RuleBase:
     links_mm : link lengths bound to ``L1..Ln`` and ``L``.
     f, S, w : gain (deg/mm), fixed step (deg), tolerance (mm).
     servo_step : the file declares ``#! S is the servo limit`` (see the module docstring).
+    base_axis_mm : where the arm's vertical base axis crosses the xy plane (mm), measured at
+        start-up; the rules see every position (set point and LEDs) relative to it, as they
+        are written: with the base axis at x = y = 0.
     """
 
     rules: list[Rule]
@@ -833,6 +836,7 @@ class RuleBase:
     w: float = PARAM_DEFAULTS["w"]
     source: str = "<rules>"
     servo_step: bool = False
+    base_axis_mm: tuple[float, float] = (0.0, 0.0)
     definitions: tuple[Definition, ...] = ()
     python_source: str = field(default="", repr=False)
     _fn: object = field(default=None, repr=False)
@@ -882,12 +886,14 @@ class RuleBase:
         """Whether a rule reads a joint angle ``q1..qn`` (then the loop passes the encoders)."""
         return any(self.uses(f"q{i}") for i in range(1, self.n_joints + 1))
 
-    def with_links(self, links_mm) -> "RuleBase":
-        """The same compiled rules with ``L1..Ln`` bound to other lengths (measured ones)."""
+    def with_links(self, links_mm, base_axis_mm=(0.0, 0.0)) -> "RuleBase":
+        """The same compiled rules with ``L1..Ln`` bound to other lengths and the base axis at
+        another point (measured ones)."""
         links = tuple(float(v) for v in links_mm)
         if len(links) != len(self.links_mm):
             raise ValueError(f"{len(self.links_mm)} link lengths expected, got {len(links)}")
-        return replace(self, links_mm=links)
+        axis = tuple(float(v) for v in base_axis_mm)
+        return replace(self, links_mm=links, base_axis_mm=(axis[0], axis[1]))
 
     # -------------------------------------------------------------- checks
     @property
@@ -1043,11 +1049,12 @@ class RuleBase:
 
     def arguments(self, desired_mm, markers, q_deg) -> tuple[float, ...]:
         """The compiled function's arguments, in its order, as plain Python floats (with NaN,
-        comparisons are False and raise no warning)."""
+        comparisons are False and raise no warning); x, y relative to :attr:`base_axis_mm`."""
         d, g, e = desired_mm, markers.gripper_mm, markers.elbow_mm
-        xd, yd, zd = float(d[0]), float(d[1]), float(d[2])
-        xg, yg, zg = float(g[0]), float(g[1]), float(g[2])
-        xe, ye, ze = float(e[0]), float(e[1]), float(e[2])
+        ox, oy = self.base_axis_mm
+        xd, yd, zd = float(d[0]) - ox, float(d[1]) - oy, float(d[2])
+        xg, yg, zg = float(g[0]) - ox, float(g[1]) - oy, float(g[2])
+        xe, ye, ze = float(e[0]) - ox, float(e[1]) - oy, float(e[2])
         links = self.links_mm
         nan_q = (math.nan,) * self.n_joints  # rules that read no q are not given the encoders
         return (xd, yd, zd, xg, yg, zg, xe, ye, ze,

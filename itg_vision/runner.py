@@ -428,13 +428,14 @@ def start_up_geometry(cfg: RunConfig, world, feedback, model):
 
 
 def bind_geometry(controller, geometry, model, max_step_deg=None):
-    """The controller with the lengths it may use: the rules' L1..Ln and the Jacobian tracker's
-    shoulder and stand-off come from ``geometry`` (measured, or the nominal model's)."""
+    """The controller with the lengths it may use: the rules' L1..Ln and base axis and the
+    Jacobian tracker's shoulder and stand-off come from ``geometry`` (measured, or the nominal
+    model's)."""
     from .controllers import JacobianTracker, make_controller
     from .rules import RuleBase
 
     if isinstance(controller, RuleBase):
-        return controller.with_links(geometry.links_mm)
+        return controller.with_links(geometry.links_mm, geometry.base_axis_mm)
     if isinstance(controller, JacobianTracker):
         return make_controller("jacobian", model, geometry, max_step_deg)
     return controller  # open-loop IK: the nominal model by definition
