@@ -9,7 +9,7 @@ import pytest
 from itg_vision.arm import ArmSpec
 from itg_vision.contracts import Markers
 from itg_vision.feedback import TruthFeedback
-from itg_vision.identify import measure_geometry
+from itg_vision.identify import axis_at_height, base_axis, measure_geometry
 from itg_vision.runner import RunConfig, execute, prepare
 from itg_vision.world import World
 
@@ -154,3 +154,27 @@ def test_the_base_axis_at_the_shoulder_is_measured_to_a_circle_centre_under_pixe
             np.testing.assert_array_equal(world.q_deg, arm.start_q_deg)  # back exactly
         errors.append(float(np.hypot(*geometry.base_axis_mm)))
     assert max(errors) < 1.5, errors
+
+
+def test_base_axis_is_the_line_through_the_circles_centres():
+    """Closed form: two LEDs turned about a vertical axis through (37, -21) mm, at heights 100
+    and 187 mm on radii 101 and 51 mm, 11 angles over 300 deg (the start-up's base sweep):
+    the axis is that point, vertical, and the fits' residual is float64 round-off of the
+    coordinates (~1e-13 mm; 1e-9 bounds it). Circles whose centres differ (a tilted axis)
+    give the line through the centres, and the point on it at any height."""
+    a = np.radians(np.arange(-150.0, 151.0, 30.0))
+    ring = lambda c, r, z: np.column_stack([c[0] + r * np.cos(a), c[1] + r * np.sin(a),
+                                            np.full_like(a, z)])
+    point, direction, rms = base_axis([ring((37.0, -21.0), 101.0, 100.0),
+                                       ring((37.0, -21.0), 51.0, 187.0)])
+    np.testing.assert_allclose(point[:2], (37.0, -21.0), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(direction, (0.0, 0.0, 1.0), rtol=0, atol=1e-12)
+    assert rms < 1e-9
+    # centres (0, 0, 0) and (10, 0, 100): the axis leans atan(0.1) toward +x
+    point, direction, _ = base_axis([ring((0.0, 0.0), 80.0, 0.0), ring((10.0, 0.0), 60.0, 100.0)])
+    np.testing.assert_allclose(direction, np.array([0.1, 0.0, 1.0]) / np.hypot(0.1, 1.0),
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(axis_at_height(point, direction, 50.0), (5.0, 0.0, 50.0),
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(axis_at_height(point, direction, 0.0), (0.0, 0.0, 0.0),
+                               rtol=0, atol=1e-9)
