@@ -1101,6 +1101,23 @@ def test_a_model_error_that_puts_every_set_point_out_of_reach_is_a_row_that_did_
     assert "none of 1 started" in (out / "report.md").read_text()
 
 
+@pytest.mark.parametrize("arm, folder", [("one-link", "bench-noise-quick-circle-one-link"),
+                                         ("two-link", "bench-noise-quick-circle")])
+def test_the_default_out_of_a_path_names_its_arm_unless_the_default(tmp_path, monkeypatch,
+                                                                    arm, folder):
+    """The same path file tracked by another arm is another sweep: its default folder names the
+    arm, so it does not collide with the two-link sweep of that file (the default arm, named or
+    not, keeps the folder a sweep without --arm makes)."""
+    monkeypatch.chdir(tmp_path)
+    t = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    (tmp_path / "circle.csv").write_text("x_mm,y_mm\n" + "".join(
+        f"{float(100 * np.cos(a))!r},{float(100 * np.sin(a))!r}\n" for a in t))
+    assert main(["--quick", "--arm", arm, "--trajectories", "circle.csv", "--controllers", "ik",
+                 "--conditions", "clean", "--seeds", "1", "--workers", "1", "--quiet"]) == 0
+    assert [p.name for p in (tmp_path / "runs").iterdir()] == [folder]
+    assert {r["arm"] for r in _rows(tmp_path / "runs" / folder)} == {arm}
+
+
 @pytest.mark.parametrize("option, text, given, what", [
     ("--rules", "RULE 1: IF xg > THEN q1 +S\n", "bad.rules", "--rules bad.rules: bad.rules:1:"),
     ("--rules", "RULE 1: IF 1 > 0 THEN q1 HOLD\n", "one.rules",

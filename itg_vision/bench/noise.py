@@ -169,7 +169,8 @@ def main(argv: list[str] | None = None) -> int:
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
             yours = [Path(r).stem for r in args.rules] + [
-                trajectory_label(t) for t in trajs or () if is_trajectory_file(t)] + labels(params)
+                trajectory_label(t) for t in trajs or () if is_trajectory_file(t)] + (
+                [Path(arm).stem] if Path(arm).stem != FILES_ARM else []) + labels(params)
             if yours:  # a folder of its own: the sweep without your files keeps its results
                 out = out.with_name(f"{out.name}-" + "-".join(yours))
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
