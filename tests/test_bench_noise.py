@@ -850,7 +850,7 @@ def test_rule_parameters_name_the_default_out_and_a_servo_step_may_repeat_the_li
         tmp_path, monkeypatch):
     """Without --out, other values of f, S, w go to other folders (run's labels: f0.3), so
     each sweep keeps its results; an S equal to the servo limit of a file binding S to it is
-    what it runs anyway (run accepts it too)."""
+    what it runs anyway (run accepts it too): the same runs, by the same ids, as without it."""
     monkeypatch.chdir(tmp_path)
     _write_rules(tmp_path / "mine.rules", Path(resolve_rules_path("table2")).read_text())
     for f in ("0.3", "0.4"):
@@ -860,9 +860,14 @@ def test_rule_parameters_name_the_default_out_and_a_servo_step_may_repeat_the_li
         rows = _rows(tmp_path / "runs" / f"bench-noise-quick-mine-f{f}")
         assert [r["controller_params"] for r in rows] == [f"gain_deg_per_mm={f}"]
     _write_rules(tmp_path / "plus.rules", Path(resolve_rules_path("itg-plus-two-link")).read_text())
-    specs = build_sweep(quick=True, rules=("plus.rules",), controllers=("plus-model",),
-                        rule_params={"step_deg": 20.0})
-    assert {(s.step_deg, s.max_step_deg) for s in specs} == {(20.0, 20.0)}
+    given, omitted = (build_sweep(quick=True, rules=("plus.rules",), controllers=("plus-model",),
+                                  rule_params=params) for params in ({"step_deg": 20.0}, None))
+    assert {(s.step_deg, s.max_step_deg) for s in given} == {(None, 20.0)}
+    assert [s.run_id for s in given] == [s.run_id for s in omitted]
+    from itg_vision.bench.sweep import run_config
+    from itg_vision.runner import prepare
+
+    assert prepare(run_config(given[0])).controller.S == 20.0  # S bound to the limit
 
 
 def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):

@@ -424,6 +424,16 @@ def _misfit(path: Path, arm: str) -> str | None:
     return None
 
 
+def _servo_bound(path: Path, arm: str) -> bool:
+    """Whether the rule file at ``path`` binds S to the servo limit (``#! S is the servo
+    limit``); it loads for ``arm``."""
+    from ..rules import load_rules
+
+    spec = ArmSpec.from_args(arm)
+    return load_rules(str(path), spec.n_joints, spec.links_mm,
+                      S=float(spec.benchmark["max_step_deg"])).servo_step
+
+
 def _check_params(given: str, path: Path, arm: str, params: dict[str, float]) -> None:
     """Refuse the rule parameters ``params`` for the rule file at ``path`` on ``arm`` as ``run``
     refuses them (one the rules never use; an S other than the servo limit the file binds S
@@ -477,9 +487,12 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
                 f"arm with --trajectories); on the {arms[0]} arm: {why[arms[0]]}"))
         for arm in fits if params else ():
             _check_params(given, path, arm, params)
+        own = dict(params)
+        if "step_deg" in own and _servo_bound(path, fits[0]):
+            del own["step_deg"]  # checked equal to the servo limit S is bound to: the same runs
         shipped = path.parent.resolve() == RULES_DIR.resolve() and path.stem == given
         u = UserRules(given if shipped else str(path.resolve()), tuple(fits),
-                      tuple(params.items()))
+                      tuple(own.items()))
         clash = sorted(taken & set(u.controllers))
         if clash:
             raise UserError(f"--rules {given}: its controllers would be called "
