@@ -411,27 +411,17 @@ def rules_controllers(given: str) -> tuple[str, str]:
     return f"{stem}-vision", f"{stem}-model"
 
 
-def _misfit(path: Path, arm: str) -> str | None:
-    """Why the rule file at ``path`` does not load for ``arm`` (None: it does), under the arm's
-    benchmark servo limit as S."""
+def _load_for(path: Path, arm: str):
+    """The rule file at ``path`` loaded for ``arm`` under the arm's benchmark servo limit as S,
+    or why it does not load (a string)."""
     from ..rules import load_rules
 
     spec = ArmSpec.from_args(arm)
     try:
-        load_rules(str(path), spec.n_joints, spec.links_mm, S=float(spec.benchmark["max_step_deg"]))
+        return load_rules(str(path), spec.n_joints, spec.links_mm,
+                          S=float(spec.benchmark["max_step_deg"]))
     except UserError as exc:
         return str(exc)
-    return None
-
-
-def _servo_bound(path: Path, arm: str) -> bool:
-    """Whether the rule file at ``path`` binds S to the servo limit (``#! S is the servo
-    limit``); it loads for ``arm``."""
-    from ..rules import load_rules
-
-    spec = ArmSpec.from_args(arm)
-    return load_rules(str(path), spec.n_joints, spec.links_mm,
-                      S=float(spec.benchmark["max_step_deg"])).servo_step
 
 
 def _check_params(given: str, path: Path, arm: str, params: dict[str, float]) -> None:
@@ -474,10 +464,12 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
             also = "" if first == given else f" (as --rules {first} too: the same file)"
             raise UserError(f"--rules {given}: given twice{also}; give each rule base once")
         seen[path.resolve()] = given
-        why = {arm: _misfit(path, arm) for arm in arms}
-        fits = [arm for arm in arms if why[arm] is None]
+        loaded = {arm: _load_for(path, arm) for arm in arms}
+        why = {arm: v for arm, v in loaded.items() if isinstance(v, str)}
+        fits = [arm for arm in arms if arm not in why]
         if not fits:
-            its = [a for a in arm_names() if a not in arms and _misfit(path, a) is None]
+            its = [a for a in arm_names()
+                   if a not in arms and not isinstance(_load_for(path, a), str)]
             reasons = set(why.values())  # one: the file's own error, whatever the arm
             raise UserError(f"--rules {given}: " + (
                 f"fits the {' and '.join(its)} arm, not the sweep's ({', '.join(arms)}): give "
@@ -488,7 +480,7 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
         for arm in fits if params else ():
             _check_params(given, path, arm, params)
         own = dict(params)
-        if "step_deg" in own and _servo_bound(path, fits[0]):
+        if "step_deg" in own and loaded[fits[0]].servo_step:
             del own["step_deg"]  # checked equal to the servo limit S is bound to: the same runs
         shipped = path.parent.resolve() == RULES_DIR.resolve() and path.stem == given
         u = UserRules(given if shipped else str(path.resolve()), tuple(fits),
