@@ -7,7 +7,7 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
 - planar arms: L1 = |elbow_xy| (the elbow LED turns about the base axis, taken as the eye's z
   axis through x = y = 0), L2 = |gripper_xy - elbow_xy|; one observation, no motion.
 - three-link arm: the base axis is measured, not assumed: with the arm leaned
-  (:data:`BASE_SWEEP_LEAN_DEG`) the base joint (q1) is turned alone through most of a turn,
+  (:data:`BASE_SWEEP_POSE_DEG`) the base joint (q1) is turned alone through most of a turn,
   and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
   whatever the pose; where it crosses the
   shoulder's height is the point the controllers measure horizontal positions from (its tilt,
@@ -39,18 +39,20 @@ from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
 SHOULDER_SWEEP_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
-#: The pose (q2, q3, deg, relative to the start pose) in which the base is turned to find the base
-#: axis: from straight up, the upper arm 60 deg above the horizontal and the forearm 60 deg below
-#: it. A circle fit's centre is as good as the arc the points cover, whatever its radius: straight
-#: up, the column hides an LED from a camera of the shipped rig beyond about +-80 deg, and the
-#: axis extrapolated from +-60 deg arcs at the LEDs' heights (200, 300 mm) down to the shoulder
+#: The pose (q2, q3, deg, commanded: whatever the start pose) in which the base is turned to find
+#: the base axis: the upper arm 60 deg above the horizontal and the forearm 60 deg below it. A
+#: circle fit's centre is as good as the arc the points cover, whatever its radius: straight up,
+#: the column hides an LED from a camera of the shipped rig beyond about +-80 deg, and the axis
+#: extrapolated from +-60 deg arcs at the LEDs' heights (200, 300 mm) down to the shoulder
 #: (100 mm) was off by up to 6 mm under 1 px noise (24 seeds). Leaned, the rig sees both LEDs at
 #: every base angle in +-160 deg (measured in 20 and 30 deg steps), and the gripper LED circles
 #: the axis at the shoulder's height (the elbow LED 87 mm above it): the axis at the shoulder
-#: is measured, not extrapolated.
-BASE_SWEEP_LEAN_DEG = (-30.0, -120.0)
-#: Base angles (deg, relative to the start pose) at which the three-link LEDs are observed, in
-#: the leaned pose, to find the base axis: 300 deg of arc.
+#: is measured, not extrapolated. Commanded, not relative to the start: from a start of one's
+#: own (an arm file's ``start_pose_deg``) the same pose (relative to a start of q 30, 60, -30,
+#: the LEDs were hidden from the first base angle on).
+BASE_SWEEP_POSE_DEG = (60.0, -120.0)
+#: Base angles (deg, commanded) at which the three-link LEDs are observed, in that pose, to find
+#: the base axis: 300 deg of arc, which the shipped rig sees whole.
 BASE_SWEEP_DEG = (-150.0, -120.0, -90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0, 120.0, 150.0)
 #: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
 #: (a dropped or rejected detection is tried again, as on a real rig).
@@ -297,10 +299,11 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
         return ArmGeometry(links, source="measured: |elbow_xy|, |gripper_xy - elbow_xy|")
     leds: dict[str, list] = {n: [] for n in arm.marker_names}
     start = np.array(world.q_deg, float)
-    for rel in BASE_SWEEP_DEG:
-        world.set_q(start + [rel, *BASE_SWEEP_LEAN_DEG])
+    for q1 in BASE_SWEEP_DEG:
+        world.set_q([q1, *BASE_SWEEP_POSE_DEG])
         m = _observe(world, feedback, arm.marker_names,
-                     f"leaned, with the base turned {rel:+g} deg from the start")
+                     f"leaned (q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} "
+                     f"deg) with the base at {q1:+g} deg")
         for n in arm.marker_names:
             leds[n].append(m[n])
     world.set_q(start)
@@ -322,8 +325,8 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     links = (L1, radius, float(np.median(forearm)))
     return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
                        "measured: base axis from the LEDs' circles with the arm leaned "
-                       f"({BASE_SWEEP_LEAN_DEG[0]:+g}, {BASE_SWEEP_LEAN_DEG[1]:+g}) deg and the "
-                       f"base turned {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
+                       f"(q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} deg) and the "
+                       f"base at {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
                        "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
                        "|gripper - elbow|", max(rms, axis_rms))
