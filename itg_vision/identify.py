@@ -9,11 +9,10 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
 - three-link arm: the base axis is measured, not assumed: with the arm leaned
   (:data:`BASE_SWEEP_POSE_DEG`) the base joint (q1) is turned alone through most of a turn,
   and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
-  whatever the pose; where it crosses the
-  shoulder's height is the point the controllers measure horizontal positions from (its tilt,
-  a wrong frame's, is left to them as any frame error is). Then the shoulder joint (q2)
-  is moved alone through a few angles about the start pose and the elbow LED's positions are
-  fitted with a circle (:func:`fit_circle`). The circle's centre is the shoulder offset sideways
+  whatever the pose; where it crosses the shoulder's height is the point the controllers
+  measure horizontal positions from (its tilt, a wrong frame's, is left to them as any frame
+  error is). Then the shoulder joint (q2) is moved alone through a few angles about the start
+  pose and the elbow LED's positions are fitted with a circle (:func:`fit_circle`). The circle's centre is the shoulder offset sideways
   by the LED stand-off, along the pitch axis: its height is L1, its distance from the
   measured base axis the stand-off, its radius L2; L3 = |gripper - elbow|. After each sweep
   the arm returns to its start pose exactly (set back to it; the shoulder's increments
