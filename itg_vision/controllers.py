@@ -189,6 +189,7 @@ class JacobianTracker:
         self.planar = planar
         self.n = n_joints
         self.shoulder = np.asarray(geometry.shoulder_mm, float)
+        self.base = np.array([*geometry.base_axis_mm, 0.0])  # a point on the vertical base axis
         self.standoff = float(geometry.standoff_mm)
         self.damping = damping_mm
         self.max_step = max_step_deg
@@ -206,10 +207,9 @@ class JacobianTracker:
 
             cols = [turn(g[:2])] + ([turn(g[:2] - e[:2])] if self.n == 2 else [])
             return np.column_stack(cols)
-        base = np.array([self.shoulder[0], self.shoulder[1], 0.0])  # on the base axis
         z = np.array([0.0, 0.0, 1.0])
-        a = pitch_axis(g - base, e - base, self.standoff)
-        return np.column_stack([np.cross(z, g - base), np.cross(a, g - self.shoulder),
+        a = pitch_axis(g - self.base, e - self.base, self.standoff)
+        return np.column_stack([np.cross(z, g - self.base), np.cross(a, g - self.shoulder),
                                 np.cross(a, g - e)])
 
     def step(self, desired_mm, markers, q_deg) -> Step:

@@ -12,11 +12,11 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
   whatever the pose; where it crosses the shoulder's height is the point the controllers
   measure horizontal positions from (its tilt, a wrong frame's, is left to them as any frame
   error is). Then the shoulder joint (q2) is moved alone through a few angles about the start
-  pose and the elbow LED's positions are fitted with a circle (:func:`fit_circle`). The circle's centre is the shoulder offset sideways
-  by the LED stand-off, along the pitch axis: its height is L1, its distance from the
-  measured base axis the stand-off, its radius L2; L3 = |gripper - elbow|. After each sweep
-  the arm returns to its start pose exactly (set back to it; the shoulder's increments
-  reversed).
+  pose and the elbow LED's positions are fitted with a circle (:func:`fit_circle`). The
+  circle's centre is the shoulder offset sideways by the LED stand-off, along the pitch axis:
+  its height is L1, its distance from the measured base axis the stand-off, its radius L2;
+  L3 = |gripper - elbow|. After each sweep the arm returns to its start pose exactly (set back
+  to it; the shoulder's increments reversed).
 
   A wrong world frame (a rig moved after calibration) displaces the whole arm in the eye's
   frame: the benchmark's rig-perturbed (1 deg about the cameras' midpoint and 5 mm) by up to
@@ -324,8 +324,8 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     links = (L1, radius, float(np.median(forearm)))
     return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
                        "measured: base axis from the LEDs' circles with the arm leaned "
-                       f"(q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} deg) and the "
-                       f"base at {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
+                       f"(q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} deg) and "
+                       f"the base at {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
                        "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
                        "|gripper - elbow|", max(rms, axis_rms))

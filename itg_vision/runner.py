@@ -26,7 +26,6 @@ FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
 RULE_DEFAULTS = {PARAM_FIELDS[k]: v for k, v in PARAM_DEFAULTS.items()}
-RULE_NAMES = PARAM_OF_FIELD
 #: What a run whose rule base binds S to the servo limit does instead of giving another S.
 SERVO_HINT = "set the servo limit instead (max_step_deg; run's --max-step)"
 
@@ -216,7 +215,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         from .controllers import make_controller
 
         for k in given:
-            raise ConfigError(k, f"the {cfg.controller} controller takes no {RULE_NAMES[k]} "
+            raise ConfigError(k, f"the {cfg.controller} controller takes no {PARAM_OF_FIELD[k]} "
                                  "(a rule base's parameter)")
         if cfg.rules is not None:
             raise ConfigError("rules", f"the {cfg.controller} controller takes no rule base "
@@ -270,7 +269,7 @@ def rule_controller(cfg: RunConfig, model: ArmSpec, servo_hint: str = SERVO_HINT
     given = given_rule_params(cfg)
     params = {**RULE_DEFAULTS, **given}
     controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
-                            **{RULE_NAMES[k]: v for k, v in params.items()})
+                            **{PARAM_OF_FIELD[k]: v for k, v in params.items()})
     info = {}
     if controller.servo_step:  # the rules' S is the loop's servo limit (#! in the file)
         cfg, servo_note = servo_limit_for_rules(cfg, model, controller.source, servo_hint)
@@ -279,7 +278,7 @@ def rule_controller(cfg: RunConfig, model: ArmSpec, servo_hint: str = SERVO_HINT
     used = controller.params()  # the parameters its rules read, by field name
     for k in given:
         if k not in used:
-            raise ConfigError(k, f"{controller.source} never uses {RULE_NAMES[k]}")
+            raise ConfigError(k, f"{controller.source} never uses {PARAM_OF_FIELD[k]}")
     info["rules"] = str(controller.source)
     info["controller_params"] = used
     # where each came from: a rule base that lost its '#! S is the servo limit' line runs

@@ -24,6 +24,22 @@ def roundoff(scale, ulps=16):
     return ulps * np.finfo(float).eps * scale
 
 
+def affine_eye(scale=1.0, shift_mm=(0.0, 0.0, 0.0)):
+    """A feedback that sees the simulator's LEDs through a wrong world frame, x -> scale x +
+    shift: a stereo baseline calibrated too short or long scales the world it triangulates
+    about the base; a rig moved as one body after calibration shifts it (its turn left out)."""
+    from itg_vision.feedback import Markers, TruthFeedback
+
+    shift = np.asarray(shift_mm, float)
+
+    class AffineEye(TruthFeedback):
+        def observe(self, world) -> Markers:
+            m = super().observe(world)
+            return Markers(m.gripper_mm * scale + shift, m.elbow_mm * scale + shift, m.missed)
+
+    return AffineEye()
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _native_cache(tmp_path_factory):
     """Rule bases compiled to C (itg_vision.native) go to a folder of this session, not the

@@ -161,7 +161,7 @@ def test_true_rig_hash_round_trips_and_checks_the_true_rig(rig, tmp_path):
 
 
 def test_rotation_deg_form_equals_look_at_form(rig, tmp_path):
-    
+
     doc = yaml.safe_load(PLANAR.read_text())
     cam = rig.cameras[0]
     rv = np.degrees(cv2.Rodrigues(cam.R)[0].ravel())

@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import affine_eye
 
 from itg_vision.arm import ArmSpec
 from itg_vision.contracts import Markers
@@ -76,19 +77,6 @@ def test_a_failed_start_up_groups_its_misses_by_cause_not_by_measured_value():
         "reprojection residual above 2 px (check the rig)"
 
 
-class ShiftedEye(TruthFeedback):
-    """The simulator's LEDs in a world frame displaced by ``delta_mm``: a rig moved as one body
-    after calibration (its turn left out)."""
-
-    def __init__(self, delta_mm):
-        super().__init__()
-        self.delta_mm = np.asarray(delta_mm, float)
-
-    def observe(self, world):
-        m = super().observe(world)
-        return Markers(m.gripper_mm + self.delta_mm, m.elbow_mm + self.delta_mm, m.missed)
-
-
 #: 16 mm along -a at q1 = 35 deg (a = (sin q1, -cos q1, 0), the pitch axis), where line-ab-reach
 #: runs (q1 ~ 31-39 deg): beyond the 12 mm stand-off h, so that a base axis assumed at x = y = 0
 #: sees the LEDs on the wrong side of it, P = h a + (delta . a) a = -4 a (the arm mirrored).
@@ -117,7 +105,7 @@ def test_an_eye_displaced_by_more_than_the_standoff_sees_the_arm_move_the_same(c
     prep = prepare(cfg)
     moved = dataclasses.replace(prep.trajectory, points_mm=prep.trajectory.points_mm + DELTA_MM)
     prep = dataclasses.replace(prep, trajectory=moved,
-                               feedback_factory=lambda: ShiftedEye(DELTA_MM))
+                               feedback_factory=lambda: affine_eye(shift_mm=DELTA_MM))
     trace, shifted = execute(prep)
     np.testing.assert_allclose(trace.q_deg, clean_trace.q_deg, rtol=0, atol=1e-3)
     est = [r.estimate.gripper_mm - DELTA_MM for r in trace.records]

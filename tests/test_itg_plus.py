@@ -8,11 +8,11 @@ from dataclasses import fields, is_dataclass
 
 import numpy as np
 import pytest
-from conftest import PYBULLET_RTOL
+from conftest import PYBULLET_RTOL, affine_eye
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.errors import UserError
-from itg_vision.feedback import Markers, TruthFeedback
+from itg_vision.feedback import Markers
 from itg_vision.rules import Name, RuleBase, load_rules
 from itg_vision.runner import RunConfig, execute, prepare
 
@@ -199,19 +199,6 @@ def test_motion_steps_do_not_change_with_the_link_lengths_the_rules_are_told(nam
     assert min(compared) >= n // 2, compared
 
 
-class ScaledEye(TruthFeedback):
-    """The simulator's LEDs, seen by an eye whose scale about the base is off by ``scale`` (as a
-    stereo baseline calibrated that much too short or long scales the world it triangulates)."""
-
-    def __init__(self, scale: float):
-        super().__init__()
-        self.scale = scale
-
-    def observe(self, world) -> Markers:
-        m = super().observe(world)
-        return Markers(m.gripper_mm * self.scale, m.elbow_mm * self.scale)
-
-
 @pytest.mark.parametrize("scale", [0.95, 1.0, 1.05])
 def test_one_link_tracks_through_an_eye_whose_scale_is_off(scale):
     """A scale error about the base moves no bearing, and the one-link rules step by bearings:
@@ -225,7 +212,7 @@ def test_one_link_tracks_through_an_eye_whose_scale_is_off(scale):
     gripper then sits the chord 2 b sin(r / 2) from the set point, to the simulator's float32:
     an ulp of each coordinate and of the joint angle at 100 mm, a few times over."""
     prep = prepare(RunConfig(arm="one-link", rules=ARMS["one-link"], feedback="truth", seed=0))
-    prep = dataclasses.replace(prep, feedback_factory=lambda: ScaledEye(scale))
+    prep = dataclasses.replace(prep, feedback_factory=lambda: affine_eye(scale=scale))
     trace, s = execute(prep)
     a, b, w, spacing = 100.0 * scale, 100.0, 0.5, np.radians(1.5)
     r = 0.0

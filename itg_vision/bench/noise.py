@@ -25,9 +25,9 @@ from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,
                     record_sweep_file, started)
-from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, QUICK, SWEEPS, TRAJECTORIES, RunSpec,
-                    _parse_names, build_sweep, is_trajectory_file, rules_controllers,
-                    trajectory_label, user_rules)
+from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, QUICK, SWEEPS,
+                    TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
+                    rules_controllers, trajectory_label, user_rules)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
