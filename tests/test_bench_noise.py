@@ -868,6 +868,13 @@ def test_rule_parameters_name_the_default_out_and_a_servo_step_may_repeat_the_li
     from itg_vision.runner import prepare
 
     assert prepare(run_config(given[0])).controller.S == 20.0  # S bound to the limit
+    assert main(["--quick", "--conditions", "clean", "--seeds", "1", "--controllers",
+                 "plus-model", "--rules", "plus.rules", "--step", "20", "--workers", "1",
+                 "--quiet", *FEW_PLOTS]) == 0  # and their folder: no S20 in its name
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [
+        "bench-noise-quick-mine-f0.3", "bench-noise-quick-mine-f0.4", "bench-noise-quick-plus"]
+    assert [r["run_id"] for r in _rows(tmp_path / "runs" / "bench-noise-quick-plus")] == [
+        s.run_id for s in omitted if s.condition == "clean" and s.seed == 0]
 
 
 def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
@@ -1121,6 +1128,25 @@ def test_the_default_out_of_a_path_names_its_arm_unless_the_default(tmp_path, mo
                  "--conditions", "clean", "--seeds", "1", "--workers", "1", "--quiet"]) == 0
     assert [p.name for p in (tmp_path / "runs").iterdir()] == [folder]
     assert {r["arm"] for r in _rows(tmp_path / "runs" / folder)} == {arm}
+
+
+def test_an_arm_file_named_like_a_shipped_arm_gets_a_folder_of_its_own(tmp_path, monkeypatch):
+    """An arm file is another arm whatever its name: a copy of two-link.yaml with longer links,
+    kept elsewhere under the same name, does not write into the default arm's folder."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine").mkdir()
+    _arm_file(tmp_path / "mine" / "two-link.yaml",
+              links=("links_mm: [100, 100]", "links_mm: [110, 110]"))
+    (tmp_path / "circle.csv").write_text("x_mm,y_mm\n120,0\n0,120\n-120,0\n0,-120\n")
+    for arm in ("two-link", "mine/two-link.yaml"):
+        assert main(["--quick", "--arm", arm, "--trajectories", "circle.csv", "--controllers",
+                     "ik", "--conditions", "clean", "--seeds", "1", "--workers", "1",
+                     "--quiet", *FEW_PLOTS]) == 0
+    runs = tmp_path / "runs"
+    assert sorted(p.name for p in runs.iterdir()) == [
+        "bench-noise-quick-circle", "bench-noise-quick-circle-two-link"]
+    assert {r["arm"] for r in _rows(runs / "bench-noise-quick-circle-two-link")} == {
+        str((tmp_path / "mine" / "two-link.yaml").resolve())}
 
 
 @pytest.mark.parametrize("option, text, given, what", [

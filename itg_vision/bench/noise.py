@@ -168,9 +168,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == build_parser().get_default("out"):
             out = Path("runs/bench-noise-quick" if args.quick else
                        "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
+            # the parameters the runs take (an S equal to the servo limit a file binds S to
+            # is dropped: those runs are the ones without it) and any arm but the default
+            # name (an arm file is another arm, whatever its name)
+            taken = {k: v for s in specs for k, v in s.rule_params.items()}
             yours = [Path(r).stem for r in args.rules] + [
                 trajectory_label(t) for t in trajs or () if is_trajectory_file(t)] + (
-                [Path(arm).stem] if Path(arm).stem != FILES_ARM else []) + labels(params)
+                [Path(arm).stem] if arm != FILES_ARM else []) + labels(taken)
             if yours:  # a folder of its own: the sweep without your files keeps its results
                 out = out.with_name(f"{out.name}-" + "-".join(yours))
         options = {"sweep": args.sweep, "quick": args.quick, "seeds": args.seeds,
