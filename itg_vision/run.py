@@ -27,7 +27,7 @@ from .feedback import DEFAULT_SUPERSAMPLE
 from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
-from .rule_options import add_rule_options
+from .options import OPTIONS, add_rule_options
 from .rules import shipped_rules
 from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
 
@@ -39,15 +39,6 @@ _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"
           ("true_links", "truelinks"), ("joint_offset", "offset"),
           ("correction", "corr"), ("preview", "preview"), ("video", "video"),
           ("allow_unseen", "unseen"), ("seed", "seed"))
-#: RunConfig field -> the option that sets it (errors name the option).
-OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
-           "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
-           "step_deg": "--step", "tolerance_mm": "--tolerance", "iterations": "--iterations",
-           "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
-           "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
-           "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",
-           "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset",
-           "correction": "--correction", "preview": "--preview"}
 
 
 def _numbers(what: str):

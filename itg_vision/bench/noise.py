@@ -20,7 +20,7 @@ from pathlib import Path
 from .. import outputs
 from ..arm import arm_names
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
-from ..rule_options import add_rule_options, labels, rule_params
+from ..options import add_rule_options, labels, rule_params
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,

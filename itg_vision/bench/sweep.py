@@ -429,7 +429,7 @@ def _check_params(given: str, path: Path, arm: str, params: dict[str, float]) ->
     refuses them (one the rules never use; an S other than the servo limit the file binds S
     to, here the arm's benchmark limit): a `UserError` naming ``--rules given`` and the
     option."""
-    from ..run import OPTIONS
+    from ..options import OPTIONS
     from ..runner import RunConfig, rule_controller
 
     spec = ArmSpec.from_args(arm)
@@ -517,11 +517,11 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     may name a user's CSV files (:func:`is_trajectory_file`), tracked by the arm ``arm`` (a
     shipped arm or an arm file: :func:`files_arm`).
     ``rule_params``: the rule parameters of those rule bases (RunConfig fields, checked values:
-    :func:`itg_vision.rule_options.rule_params`); the shipped controllers keep theirs, so
+    :func:`itg_vision.options.rule_params`); the shipped controllers keep theirs, so
     they need ``rules``.
     """
     if rule_params and not rules:
-        from ..run import OPTIONS
+        from ..options import OPTIONS
 
         given = ", ".join(OPTIONS[k] for k in rule_params)
         raise UserError(f"{given}: applies to your rule bases (--rules), and none is given "

@@ -1,7 +1,7 @@
-"""The command-line options of a rule base's parameters f, S and w (``--gain``, ``--step``,
-``--tolerance``): what ``run`` and ``bench noise`` share. Light to import (a command's
-``--help`` and ``--list`` need no simulator): the runner is imported only to check values
-given."""
+"""The options of ``run``, by the RunConfig field each sets (an error names the option), and
+those of a rule base's parameters f, S and w (``--gain``, ``--step``, ``--tolerance``), which
+``run`` and ``bench noise`` share. Light to import (a command's ``--help`` and ``--list`` need
+no simulator): the runner is imported only to check values given."""
 
 from __future__ import annotations
 
@@ -11,6 +11,16 @@ from .rules import PARAM_DEFAULTS, PARAM_FIELDS, PARAM_OF_FIELD
 
 #: argparse dest -> the rules' name of the parameter (its RunConfig field: ``PARAM_FIELDS``).
 RULE_OPTIONS = {"gain": "f", "step": "S", "tolerance": "w"}
+
+#: RunConfig field -> the option that sets it (errors name the option).
+OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
+           "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
+           "step_deg": "--step", "tolerance_mm": "--tolerance", "iterations": "--iterations",
+           "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
+           "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
+           "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",
+           "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset",
+           "correction": "--correction", "preview": "--preview"}
 
 
 def add_rule_options(ap: argparse.ArgumentParser, whose: str = "") -> None:
@@ -34,7 +44,6 @@ def rule_params(args: argparse.Namespace) -> dict[str, float]:
              if getattr(args, dest) is not None}
     if given:
         from .errors import ConfigError
-        from .run import OPTIONS
         from .runner import RunConfig
 
         try:
