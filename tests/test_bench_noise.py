@@ -1130,6 +1130,21 @@ def test_the_default_out_of_a_path_names_its_arm_unless_the_default(tmp_path, mo
     assert {r["arm"] for r in _rows(tmp_path / "runs" / folder)} == {arm}
 
 
+def test_each_sweep_has_a_default_folder_of_its_own(tmp_path, monkeypatch):
+    """Without --out every sweep, quick or not, writes to a folder named for it, none of them
+    bench itg-plus's (runs/bench-itg-plus, which holds that command's two sweeps): a noise
+    sweep there was refused as another command's output."""
+    monkeypatch.chdir(tmp_path)
+    made = []
+    for sweep in ("robustness", "start-tie", "itg-plus"):
+        for quick in ([], ["--quick"]):
+            assert main([*quick, "--sweep", sweep, "--limit", "0", "--quiet", *FEW_PLOTS]) == 0
+            made.append("bench-noise" + "-quick" * bool(quick)
+                        + ("" if sweep == "robustness" else f"-{sweep}"))
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == sorted(made)
+    assert "bench-itg-plus" not in made and len(set(made)) == 6
+
+
 def test_an_arm_file_named_like_a_shipped_arm_gets_a_folder_of_its_own(tmp_path, monkeypatch):
     """An arm file is another arm whatever its name: a copy of two-link.yaml with longer links,
     kept elsewhere under the same name, does not write into the default arm's folder."""

@@ -74,8 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "Pool workers exit when this process dies, however it dies.")
     ap.add_argument("--out", default="runs/bench-noise", metavar="DIR",
                     help="output folder (default %(default)s; --quick: runs/bench-noise-quick; "
-                         "--sweep start-tie: runs/bench-start-tie); a folder this benchmark made "
-                         "(rerun to resume), an empty or a new one")
+                         "--sweep S: runs/bench-noise[-quick]-S; your --rules and --trajectories "
+                         "files' stems, "
+                         "an --arm other than two-link and the rule parameters the runs take "
+                         "are added to its name); a folder this benchmark made (rerun to "
+                         "resume), an empty or a new one")
     ap.add_argument("--sweep", default="robustness", choices=tuple(SWEEPS),
                     help="robustness (default: every condition, 4 trajectories, "
                          f"{FULL_SEEDS} seeds), start-tie (the three-link arm from its "
@@ -166,8 +169,9 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         out = outputs.check_path(args.out)  # the text: '' is the empty-path error, not '.'
         if args.out == build_parser().get_default("out"):
-            out = Path("runs/bench-noise-quick" if args.quick else
-                       "runs/bench-noise" if args.sweep == "robustness" else f"runs/bench-{args.sweep}")
+            # every sweep a folder of its own, none another command's (bench itg-plus's)
+            out = Path("runs/bench-noise" + "-quick" * args.quick
+                       + ("" if args.sweep == "robustness" else f"-{args.sweep}"))
             # the parameters the runs take (an S equal to the servo limit a file binds S to
             # is dropped: those runs are the ones without it) and any arm but the default
             # name (an arm file is another arm, whatever its name)
