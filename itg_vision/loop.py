@@ -26,6 +26,14 @@ import numpy as np
 from .contracts import MARKERS, Controller, Markers, Step
 from .inputs import is_real, is_whole
 
+#: The marker without whose measurement the loop holds the joints for that look (the feedback
+#: then hands on its last estimate). The error d - g is what a step answers, and the last
+#: estimate's error was answered by the step before: deciding on it again repeats that step
+#: open-loop, once per lost look (under 4 px noise the eye loses about 1 look in 4; measured in
+#: the README, "Lost looks"). The elbow's loss does not hold: an elbow estimate a look old still
+#: gives the levers, and a pose that hides the elbow for good would stall a tracker holding on it.
+HOLD_ON_LOST = "gripper"
+
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
 #: two- and three-link arms' 200 mm reach (a line, not a gap in the data: README, "Diverged runs").
 DIVERGED_MM = 20.0
@@ -82,7 +90,8 @@ class SetPointRecord:
     q_deg : (n_joints,) commanded joint angles after the iterations.
     fired : rules fired over the iterations (first firing order).
     flags : "out_of_reach", "aim_out_of_reach" (the controller flagged the aim out of reach and
-        was asked again with the set point), "missed:<marker>".
+        was asked again with the set point), "missed:<marker>", "held" (a look missed the
+        gripper: the joints held for that iteration, :data:`HOLD_ON_LOST`).
     out_of_reach : whether the controller flagged the set point out of reach.
     in_reach : whether the simulated arm can reach the set point (the metrics count it).
     """
@@ -407,15 +416,21 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     instead of the set point (a preview's plan, :mod:`itg_vision.preview`), before the
     correction. E_i is measured from the set point whatever the aim. The loop, top to bottom:
     observe through the feedback, aim, let the controller decide, apply the step under the
-    servo limit.
+    servo limit. A look that did not measure the gripper is no decision: the joints hold for
+    that iteration, whatever the controller (:data:`HOLD_ON_LOST`).
     """
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)
+    hold = Step(np.zeros(world.arm.n_joints))
     previous = None  # the set point (or planned aim) of the previous decision
     while not session.done:
         estimate = session.observe()
         desired = session.desired_mm
+        if HOLD_ON_LOST in estimate.missed:  # no new error measured: hold
+            session.flag("held")
+            session.apply(hold)
+            continue
         target = desired if aims_mm is None else aims_mm[session.k]
         aim = aim_mm(target, previous, estimate.gripper_mm, correction, session.planar)
         previous = target

@@ -384,3 +384,67 @@ def test_a_feedback_that_breaks_the_contract_is_told_in_one_line(seen, said):
         with pytest.raises(TypeError, match=f"feedback.observe must return itg_vision.contracts"
                                             f".Markers .*{said}"):
             simulate(world, Constant([0.0, 0.0]), _Sees(seen), np.zeros((2, 3)))
+
+
+class _LosesEverySecondLook(TruthFeedback):
+    """The simulator's LEDs, but every second look (the 2nd, 4th, ...) misses ``marker`` and
+    hands on its last estimate, as the stereo eye does when it loses an LED."""
+
+    def __init__(self, marker):
+        super().__init__()
+        self.marker, self.looks, self.last = marker, 0, None
+
+    def observe(self, world):
+        m = super().observe(world)
+        self.looks += 1
+        if self.looks % 2 == 1:
+            self.last = m
+            return m
+        held = {"gripper": m.gripper_mm, "elbow": m.elbow_mm, self.marker: None}
+        held[self.marker] = getattr(self.last, f"{self.marker}_mm")
+        return Markers(held["gripper"], held["elbow"], (self.marker,))
+
+
+def _itg_plus_two_link():
+    from itg_vision.identify import nominal_geometry
+    from itg_vision.runner import bind_geometry
+
+    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="truth", points=24,
+                             max_step_deg=20.0))
+    ctrl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model, 20.0)
+    return prep, ctrl
+
+
+def test_a_look_that_lost_the_gripper_holds_the_joints():
+    """The error d - g is what a step answers: a look that did not measure the gripper (its
+    estimate the last one, already answered) decides nothing, and the joints hold. Two
+    iterations per set point whose second look loses the gripper are then one iteration per
+    set point, joint for joint (acting on the held estimate repeated the first step: the
+    T1 start's 20 deg steps twice over)."""
+    prep, ctrl = _itg_plus_two_link()
+    points = prep.trajectory.points_mm
+    with World(prep.model) as world:
+        lossy = simulate(world, ctrl, _LosesEverySecondLook("gripper"), points, iterations=2,
+                         max_step_deg=20.0)
+    with World(prep.model) as world:
+        clean = simulate(world, ctrl, TruthFeedback(), points, iterations=1, max_step_deg=20.0)
+    assert np.array_equal(np.array([r.q_deg for r in lossy.records]),
+                          np.array([r.q_deg for r in clean.records]))
+    assert all("held" in r.flags and "missed:gripper" in r.flags for r in lossy.records)
+    assert not any("held" in r.flags for r in clean.records)
+    assert np.max(np.abs(np.diff([r.q_deg for r in clean.records], axis=0))) > 5.0  # it moves
+
+
+def test_a_look_that_lost_only_the_elbow_decides():
+    """An elbow estimate one look old still gives the levers: the controller is asked at every
+    look, and the arm moves at every iteration (a pose that hides the elbow for good would
+    stall a loop that held on it)."""
+    arm = ArmSpec.from_args("two-link")
+    ctrl = Constant([1.0, -1.0])
+    with World(arm) as world:
+        trace = simulate(world, ctrl, _LosesEverySecondLook("elbow"), np.zeros((3, 3)),
+                         iterations=2)
+    assert len(ctrl.seen_q) == 6
+    assert np.allclose(trace.records[-1].q_deg - trace.records[0].q_deg, [2.0 * 2, -2.0 * 2])
+    assert not any("held" in r.flags for r in trace.records)
+    assert all("missed:elbow" in r.flags for r in trace.records)
