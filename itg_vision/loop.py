@@ -125,6 +125,7 @@ class Trace:
     records: list[SetPointRecord] = field(default_factory=list)
     est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
     n_missed: int = 0
+    n_held: int = 0
     timing_ms: dict = field(default_factory=dict)
 
     def record(self, rec: SetPointRecord) -> None:
@@ -230,6 +231,7 @@ class Trace:
             "n_flagged": int(self.out_of_reach.sum()),
             "n_aim_out_of_reach": sum("aim_out_of_reach" in r.flags for r in self.records),
             "n_missed": int(self.n_missed),
+            "n_held": int(self.n_held),
             "est_gripper_rms_mm": rms(self.est_err_mm["gripper"]),
             "est_elbow_rms_mm": rms(self.est_err_mm["elbow"]),
             "timing_ms": {k: float(np.median(v)) for k, v in self.timing_ms.items() if v},
@@ -387,6 +389,14 @@ class Session:
             self._finish_set_point(truth)
         return self.last_error_mm
 
+    def hold(self) -> float:
+        """Keep the joints where they are for this iteration (the look missed the gripper:
+        :data:`HOLD_ON_LOST`), flagged ``held`` and counted in the trace's ``n_held``; return
+        E_i (mm) as :meth:`apply` does."""
+        self.trace.n_held += 1
+        self.flag("held")
+        return self.apply(Step(np.zeros(self.world.arm.n_joints)))
+
     def _finish_set_point(self, truth: dict) -> None:
         if self.recorder is not None:
             self.recorder.frame(self.feedback, self.desired_mm)
@@ -422,14 +432,12 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)
-    hold = Step(np.zeros(world.arm.n_joints))
     previous = None  # the set point (or planned aim) of the previous decision
     while not session.done:
         estimate = session.observe()
         desired = session.desired_mm
-        if HOLD_ON_LOST in estimate.missed:  # no new error measured: hold
-            session.flag("held")
-            session.apply(hold)
+        if HOLD_ON_LOST in estimate.missed:  # no new error measured
+            session.hold()
             continue
         target = desired if aims_mm is None else aims_mm[session.k]
         aim = aim_mm(target, previous, estimate.gripper_mm, correction, session.planar)

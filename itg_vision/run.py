@@ -339,7 +339,8 @@ def summary_table(s: dict, out: Path) -> str:
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),
-                 ("LED detections missed", f(s["n_missed"]))]
+                 ("LED detections missed", f(s["n_missed"])),
+                 ("iterations held (the gripper missed)", f(s["n_held"]))]
         t = s.get("timing_ms", {})
         rows.append(("median ms render/detect/triang./rules",
                      " / ".join(f"{t.get(k, float('nan')):.2f}" for k in ("render", "detect", "triangulate", "rules"))))

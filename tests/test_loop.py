@@ -432,6 +432,7 @@ def test_a_look_that_lost_the_gripper_holds_the_joints():
                           np.array([r.q_deg for r in clean.records]))
     assert all("held" in r.flags and "missed:gripper" in r.flags for r in lossy.records)
     assert not any("held" in r.flags for r in clean.records)
+    assert (lossy.metrics()["n_held"], clean.metrics()["n_held"]) == (len(points), 0)
     assert np.max(np.abs(np.diff([r.q_deg for r in clean.records], axis=0))) > 5.0  # it moves
 
 
