@@ -29,8 +29,8 @@ from .inputs import is_real, is_whole
 #: The marker without whose measurement the loop holds the joints for that look (the feedback
 #: then hands on its last estimate). The error d - g is what a step answers, and the last
 #: estimate's error was answered by the step before: deciding on it again repeats that step
-#: open-loop, once per lost look (under 4 px noise the eye loses about 1 look in 4; measured in
-#: the README, "Lost looks"). The elbow's loss does not hold: an elbow estimate a look old still
+#: open-loop, once per lost look (under 4 px noise the eye rejects about 1 LED detection in 3;
+#: measured in the README, "Lost looks"). The elbow's loss does not hold: an elbow estimate a look old still
 #: gives the levers, and a pose that hides the elbow for good would stall a tracker holding on it.
 HOLD_ON_LOST = "gripper"
 

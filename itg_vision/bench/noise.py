@@ -75,10 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", default="runs/bench-noise", metavar="DIR",
                     help="output folder (default %(default)s; --quick: runs/bench-noise-quick; "
                          "--sweep S: runs/bench-noise[-quick]-S; your --rules and --trajectories "
-                         "files' stems, "
-                         "an --arm other than two-link and the rule parameters the runs take "
-                         "are added to its name); a folder this benchmark made (rerun to "
-                         "resume), an empty or a new one")
+                         "files' stems, an --arm other than two-link and the rule parameters the "
+                         "runs take are added to its name); a folder this benchmark made (rerun "
+                         "to resume), an empty or a new one")
     ap.add_argument("--sweep", default="robustness", choices=tuple(SWEEPS),
                     help="robustness (default: every condition, 4 trajectories, "
                          f"{FULL_SEEDS} seeds), start-tie (the three-link arm from its "
