@@ -30,8 +30,9 @@ from .inputs import is_real, is_whole
 #: then hands on its last estimate). The error d - g is what a step answers, and the last
 #: estimate's error was answered by the step before: deciding on it again repeats that step
 #: open-loop, once per lost look (under 4 px noise the eye rejects about 1 LED detection in 3;
-#: measured in the README, "Lost looks"). The elbow's loss does not hold: an elbow estimate a look old still
-#: gives the levers, and a pose that hides the elbow for good would stall a tracker holding on it.
+#: measured in the README, "Lost looks"). The elbow's loss does not hold: an elbow estimate a
+#: look old still gives the levers, and a pose that hides the elbow for good would stall a
+#: tracker holding on it.
 HOLD_ON_LOST = "gripper"
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the

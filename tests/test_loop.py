@@ -1,5 +1,7 @@
 """The loop: the servo limit, the set-point bookkeeping, and the trace's records."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import PYBULLET_RTOL, roundoff
@@ -400,19 +402,8 @@ class _LosesEverySecondLook(TruthFeedback):
         if self.looks % 2 == 1:
             self.last = m
             return m
-        held = {"gripper": m.gripper_mm, "elbow": m.elbow_mm, self.marker: None}
-        held[self.marker] = getattr(self.last, f"{self.marker}_mm")
-        return Markers(held["gripper"], held["elbow"], (self.marker,))
-
-
-def _itg_plus_two_link():
-    from itg_vision.identify import nominal_geometry
-    from itg_vision.runner import bind_geometry
-
-    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="truth", points=24,
-                             max_step_deg=20.0))
-    ctrl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model, 20.0)
-    return prep, ctrl
+        field = f"{self.marker}_mm"
+        return dataclasses.replace(m, **{field: getattr(self.last, field)}, missed=(self.marker,))
 
 
 def test_a_look_that_lost_the_gripper_holds_the_joints():
@@ -421,7 +412,12 @@ def test_a_look_that_lost_the_gripper_holds_the_joints():
     iterations per set point whose second look loses the gripper are then one iteration per
     set point, joint for joint (acting on the held estimate repeated the first step: the
     T1 start's 20 deg steps twice over)."""
-    prep, ctrl = _itg_plus_two_link()
+    from itg_vision.identify import nominal_geometry
+    from itg_vision.runner import bind_geometry
+
+    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="truth", points=24,
+                             max_step_deg=20.0))
+    ctrl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model, 20.0)
     points = prep.trajectory.points_mm
     with World(prep.model) as world:
         lossy = simulate(world, ctrl, _LosesEverySecondLook("gripper"), points, iterations=2,
