@@ -27,9 +27,9 @@ episodes: give the vector env's ``reset`` a seed. The lengths the
 start-up measurement found (what a model-free controller may know) are in
 ``info["geometry"]`` (an :class:`itg_vision.identify.ArmGeometry`) after ``reset``. After each
 ``step``, ``info["missed"]`` names the markers the new observation could not measure (their
-values in it are held from the last good estimate). ``run``'s loop decides nothing on a look
-that missed the gripper and holds the joints (:data:`itg_vision.loop.HOLD_ON_LOST`): a zero
-action does the same here.
+values in it are held from the last good estimate). At a look that missed the gripper,
+``run``'s loop gives its controller the last decision's aim for the gripper
+(:data:`itg_vision.loop.AIM_ON_LOST`); here the agent decides what a lost look means.
 
 An action holds one finite increment per joint (deg); a wrong size or a NaN or infinite value
 raises ``ValueError`` (a NaN joint would spoil the rest of the episode).

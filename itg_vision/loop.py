@@ -17,6 +17,7 @@ drives the same session with a user's actions.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -26,14 +27,15 @@ import numpy as np
 from .contracts import MARKERS, Controller, Markers, Step
 from .inputs import is_real, is_whole
 
-#: The marker without whose measurement the loop holds the joints for that look (the feedback
-#: then hands on its last estimate). The error d - g is what a step answers, and the last
-#: estimate's error was answered by the step before: deciding on it again repeats that step
-#: open-loop, once per lost look (under 4 px noise the eye rejects about 1 LED detection in 3;
-#: measured in the README, "Lost looks"). The elbow's loss does not hold: an elbow estimate a
-#: look old still gives the levers, and a pose that hides the elbow for good would stall a
-#: tracker holding on it.
-HOLD_ON_LOST = "gripper"
+#: The marker whose lost look (the feedback then hands on its last estimate) the loop answers
+#: with the last decision's aim: the gripper is taken to be where that decision asked it to go.
+#: The error d - g is what a step answers, and the last estimate's error was answered by the
+#: step before: deciding on it again repeated that step open-loop, once per lost look (under
+#: 4 px noise the eye rejects about 1 LED detection in 3); holding the joints instead lagged a
+#: set point. At the aim, only the set point's own motion since then is answered (measured in
+#: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. The
+#: elbow's loss changes nothing: an elbow estimate a look old still gives the levers.
+AIM_ON_LOST = "gripper"
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
 #: two- and three-link arms' 200 mm reach (a line, not a gap in the data: README, "Diverged runs").
@@ -91,8 +93,9 @@ class SetPointRecord:
     q_deg : (n_joints,) commanded joint angles after the iterations.
     fired : rules fired over the iterations (first firing order).
     flags : "out_of_reach", "aim_out_of_reach" (the controller flagged the aim out of reach and
-        was asked again with the set point), "missed:<marker>", "held" (a look missed the
-        gripper: the joints held for that iteration, :data:`HOLD_ON_LOST`).
+        was asked again with the set point), "missed:<marker>", "at_last_aim" (a look missed the
+        gripper: the controller was given the last decision's aim for it, :data:`AIM_ON_LOST`),
+        "held" (the same before the first decision: the joints held for that iteration).
     out_of_reach : whether the controller flagged the set point out of reach.
     in_reach : whether the simulated arm can reach the set point (the metrics count it).
     """
@@ -126,6 +129,7 @@ class Trace:
     records: list[SetPointRecord] = field(default_factory=list)
     est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
     n_missed: int = 0
+    n_at_last_aim: int = 0
     n_held: int = 0
     timing_ms: dict = field(default_factory=dict)
 
@@ -232,6 +236,7 @@ class Trace:
             "n_flagged": int(self.out_of_reach.sum()),
             "n_aim_out_of_reach": sum("aim_out_of_reach" in r.flags for r in self.records),
             "n_missed": int(self.n_missed),
+            "n_at_last_aim": int(self.n_at_last_aim),
             "n_held": int(self.n_held),
             "est_gripper_rms_mm": rms(self.est_err_mm["gripper"]),
             "est_elbow_rms_mm": rms(self.est_err_mm["elbow"]),
@@ -390,10 +395,23 @@ class Session:
             self._finish_set_point(truth)
         return self.last_error_mm
 
+    def assume_gripper_at(self, aim_mm) -> Markers:
+        """The look missed the gripper (:data:`AIM_ON_LOST`): take it to be at ``aim_mm``, the
+        last decision's aim (planar arms: x and y; the height is the LED's stand-off, kept).
+        Flagged ``at_last_aim``, counted in the trace's ``n_at_last_aim``; return the estimate
+        the controller is to use, recorded as the one it used."""
+        g = np.asarray(aim_mm, float).copy()
+        if self.planar:
+            g[2] = self._estimate.gripper_mm[2]
+        self._estimate = dataclasses.replace(self._estimate, gripper_mm=g)
+        self.trace.n_at_last_aim += 1
+        self.flag("at_last_aim")
+        return self._estimate
+
     def hold(self) -> float:
-        """Keep the joints where they are for this iteration (the look missed the gripper:
-        :data:`HOLD_ON_LOST`), flagged ``held`` and counted in the trace's ``n_held``; return
-        E_i (mm) as :meth:`apply` does."""
+        """Keep the joints where they are for this iteration (the look missed the gripper
+        before any decision had an aim: :data:`AIM_ON_LOST`), flagged ``held`` and counted in
+        the trace's ``n_held``; return E_i (mm) as :meth:`apply` does."""
         self.trace.n_held += 1
         self.flag("held")
         return self.apply(Step(np.zeros(self.world.arm.n_joints)))
@@ -427,19 +445,23 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     instead of the set point (a preview's plan, :mod:`itg_vision.preview`), before the
     correction. E_i is measured from the set point whatever the aim. The loop, top to bottom:
     observe through the feedback, aim, let the controller decide, apply the step under the
-    servo limit. A look that did not measure the gripper is no decision: the joints hold for
-    that iteration, whatever the controller (:data:`HOLD_ON_LOST`).
+    servo limit. A look that did not measure the gripper gives the controller the last
+    decision's aim for it, whatever the controller (:data:`AIM_ON_LOST`; before the first
+    decision the joints hold).
     """
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)
     previous = None  # the set point (or planned aim) of the previous decision
+    last_aim = None
     while not session.done:
         estimate = session.observe()
         desired = session.desired_mm
-        if HOLD_ON_LOST in estimate.missed:  # no new error measured
-            session.hold()
-            continue
+        if AIM_ON_LOST in estimate.missed:  # no new error measured
+            if last_aim is None:
+                session.hold()
+                continue
+            estimate = session.assume_gripper_at(last_aim)
         target = desired if aims_mm is None else aims_mm[session.k]
         aim = aim_mm(target, previous, estimate.gripper_mm, correction, session.planar)
         previous = target
@@ -451,4 +473,5 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
             aim = desired
             step = _checked(controller.step(aim, estimate, q_deg))
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0), aim_mm=aim)
+        last_aim = aim
     return session.trace

@@ -340,7 +340,8 @@ def summary_table(s: dict, out: Path) -> str:
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),
                  ("LED detections missed", f(s["n_missed"])),
-                 ("iterations held (the gripper missed)", f(s["n_held"]))]
+                 ("iterations given the last aim (the gripper missed)", f(s["n_at_last_aim"])),
+                 ("iterations held (missed before any aim)", f(s["n_held"]))]
         t = s.get("timing_ms", {})
         rows.append(("median ms render/detect/triang./rules",
                      " / ".join(f"{t.get(k, float('nan')):.2f}" for k in ("render", "detect", "triangulate", "rules"))))

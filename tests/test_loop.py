@@ -406,12 +406,72 @@ class _LosesEverySecondLook(TruthFeedback):
         return dataclasses.replace(m, **{field: getattr(self.last, field)}, missed=(self.marker,))
 
 
-def test_a_look_that_lost_the_gripper_holds_the_joints():
-    """The error d - g is what a step answers: a look that did not measure the gripper (its
-    estimate the last one, already answered) decides nothing, and the joints hold. Two
-    iterations per set point whose second look loses the gripper are then one iteration per
-    set point, joint for joint (acting on the held estimate repeated the first step: the
-    T1 start's 20 deg steps twice over)."""
+class _Spy(Constant):
+    """A Constant controller that also records the aims and the gripper estimates it was given."""
+
+    def __init__(self, dq):
+        super().__init__(dq)
+        self.aims, self.grippers = [], []
+
+    def step(self, desired_mm, markers, q_deg):
+        self.aims.append(np.array(desired_mm, float))
+        self.grippers.append(np.array(markers.gripper_mm, float))
+        return super().step(desired_mm, markers, q_deg)
+
+
+def test_a_look_that_lost_the_gripper_is_given_the_last_aim():
+    """The error d - g is what a step answers, and the stale estimate's error was answered by
+    the step before: at a look that missed the gripper the controller is given, for the
+    gripper, where its last decision aimed (a preview's plan here, not the set point), x and y
+    for a planar arm with the LED's height kept; every other look gets the eye's estimate."""
+    arm = ArmSpec.from_args("two-link")
+    points = np.column_stack([np.linspace(120.0, 150.0, 6), np.linspace(40.0, 80.0, 6), np.zeros(6)])
+    aims = points + [3.0, -2.0, 5.0]
+    ctrl = _Spy([1.0, -1.0])
+    with World(arm) as world:
+        trace = simulate(world, ctrl, _LosesEverySecondLook("gripper"), points, aims_mm=aims)
+    assert np.allclose(ctrl.aims, aims)
+    seen = [r.true_at_estimate_mm["gripper"] for r in trace.records]
+    for k in range(6):
+        if k % 2 == 0:  # measured (truth feedback)
+            assert np.allclose(ctrl.grippers[k], seen[k])
+            assert "at_last_aim" not in trace.records[k].flags
+        else:
+            assert np.allclose(ctrl.grippers[k][:2], aims[k - 1][:2])
+            assert ctrl.grippers[k][2] == pytest.approx(seen[k - 1][2])  # the stale LED's height
+            assert not np.allclose(ctrl.grippers[k][:2], seen[k][:2], atol=1.0)
+            assert {"at_last_aim", "missed:gripper"} <= set(trace.records[k].flags)
+            assert np.allclose(trace.records[k].estimate.gripper_mm, ctrl.grippers[k])  # recorded
+    assert (trace.metrics()["n_at_last_aim"], trace.metrics()["n_held"]) == (3, 0)
+    assert np.allclose(trace.records[-1].q_deg - trace.records[0].q_deg, [5.0, -5.0])  # all decide
+
+
+def test_a_look_lost_before_any_decision_holds_the_joints():
+    """No decision yet, no aim: the joints hold for that iteration, flagged and counted."""
+    arm = ArmSpec.from_args("two-link")
+    ctrl = _Spy([1.0, -1.0])
+
+    class LosesTheFirstLook(TruthFeedback):
+        looks = 0
+
+        def observe(self, world):
+            self.looks += 1
+            m = super().observe(world)
+            return dataclasses.replace(m, missed=("gripper",)) if self.looks == 1 else m
+
+    with World(arm) as world:
+        q0 = world.q_deg.copy()
+        trace = simulate(world, ctrl, LosesTheFirstLook(), np.zeros((3, 3)))
+    assert len(ctrl.aims) == 2
+    assert np.allclose(trace.records[0].q_deg, q0) and "held" in trace.records[0].flags
+    assert (trace.metrics()["n_held"], trace.metrics()["n_at_last_aim"]) == (1, 0)
+
+
+def test_a_lost_look_after_the_aim_was_reached_repeats_no_step():
+    """Acting on the stale estimate repeated the step already taken (the T1 start's 20 deg steps
+    twice over). A rule base that reaches its aim within its dead band, given two iterations
+    per set point whose second look loses the gripper, is asked the same set point again from
+    its aim and steps nothing: the one-iteration run, joint for joint."""
     from itg_vision.identify import nominal_geometry
     from itg_vision.runner import bind_geometry
 
@@ -426,9 +486,8 @@ def test_a_look_that_lost_the_gripper_holds_the_joints():
         clean = simulate(world, ctrl, TruthFeedback(), points, iterations=1, max_step_deg=20.0)
     assert np.array_equal(np.array([r.q_deg for r in lossy.records]),
                           np.array([r.q_deg for r in clean.records]))
-    assert all("held" in r.flags and "missed:gripper" in r.flags for r in lossy.records)
-    assert not any("held" in r.flags for r in clean.records)
-    assert (lossy.metrics()["n_held"], clean.metrics()["n_held"]) == (len(points), 0)
+    assert all("at_last_aim" in r.flags and "missed:gripper" in r.flags for r in lossy.records)
+    assert (lossy.metrics()["n_at_last_aim"], clean.metrics()["n_at_last_aim"]) == (len(points), 0)
     assert np.max(np.abs(np.diff([r.q_deg for r in clean.records], axis=0))) > 5.0  # it moves
 
 
@@ -443,5 +502,5 @@ def test_a_look_that_lost_only_the_elbow_decides():
                          iterations=2)
     assert len(ctrl.seen_q) == 6
     assert np.allclose(trace.records[-1].q_deg - trace.records[0].q_deg, [2.0 * 2, -2.0 * 2])
-    assert not any("held" in r.flags for r in trace.records)
+    assert not any({"held", "at_last_aim"} & set(r.flags) for r in trace.records)
     assert all("missed:elbow" in r.flags for r in trace.records)
