@@ -76,7 +76,9 @@ class Observation:
 
     Attributes
     ----------
-    markers : the estimates handed to the controller (held values for missed markers).
+    markers : the eye's estimates (held values for missed markers; ``run``'s loop gives its
+        controller the last decision's aim for a missed gripper:
+        :data:`itg_vision.loop.AIM_ON_LOST`).
     patches : marker -> per camera the image the LED was looked for in: a window around it,
         or the whole frame (``--full-frame``, ``--video``); None where the LED's window falls
         outside the frame. Whole frames are shared between markers unless strobing.
