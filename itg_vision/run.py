@@ -27,13 +27,13 @@ from .feedback import DEFAULT_SUPERSAMPLE
 from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
-from .options import OPTIONS, add_rule_options
+from .options import OPTIONS, RULE_OPTIONS, add_rule_options
 from .rules import shipped_rules
 from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
 
 #: Options that name the default output folder when they differ from their default.
-_NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"), ("gain", "f"),
-          ("step", "S"), ("tolerance", "w"), ("iterations", "it"), ("max_step", "maxstep"),
+_NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"),
+          *RULE_OPTIONS.items(), ("iterations", "it"), ("max_step", "maxstep"),
           ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
           ("strobe", "strobe"), ("supersample", "ss"), ("full_frame", "fullframe"),
           ("true_links", "truelinks"), ("joint_offset", "offset"),
