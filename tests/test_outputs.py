@@ -464,6 +464,8 @@ def test_default_run_folders_tell_rigs_and_files_apart_by_their_whole_names():
     # a run of its own, not the default run's folder (which it would be refused to replace)
     assert folder("--video") == "two-link-ellipse-t1-itg-vision-video"
     assert folder("--allow-unseen") == "two-link-ellipse-t1-itg-vision-unseen"
+    # the rule parameters by the rules' own names, as bench noise labels its folders
+    assert folder("--tolerance", "1", "--gain", "0.3") == "two-link-ellipse-t1-itg-vision-f0.3-w1"
 
 
 def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
