@@ -425,7 +425,8 @@ def test_a_look_that_lost_the_gripper_is_given_the_last_aim():
     gripper, where its last decision aimed (a preview's plan here, not the set point), x and y
     for a planar arm with the LED's height kept; every other look gets the eye's estimate."""
     arm = ArmSpec.from_args("two-link")
-    points = np.column_stack([np.linspace(120.0, 150.0, 6), np.linspace(40.0, 80.0, 6), np.zeros(6)])
+    points = np.column_stack([np.linspace(120.0, 150.0, 6), np.linspace(40.0, 80.0, 6),
+                              np.zeros(6)])
     aims = points + [3.0, -2.0, 5.0]
     ctrl = _Spy([1.0, -1.0])
     with World(arm) as world:
