@@ -17,9 +17,8 @@ drives the same session with a user's actions.
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -403,7 +402,7 @@ class Session:
         g = np.asarray(aim_mm, float).copy()
         if self.planar:
             g[2] = self._estimate.gripper_mm[2]
-        self._estimate = dataclasses.replace(self._estimate, gripper_mm=g)
+        self._estimate = replace(self._estimate, gripper_mm=g)
         self.trace.n_at_last_aim += 1
         self.flag("at_last_aim")
         return self._estimate

@@ -468,17 +468,23 @@ def test_a_look_lost_before_any_decision_holds_the_joints():
     assert (trace.metrics()["n_held"], trace.metrics()["n_at_last_aim"]) == (1, 0)
 
 
+def _itg_plus_on_t1(**config):
+    """``itg-plus-two-link`` on T1 with ideal LEDs under the arm file's 20 deg servo limit,
+    bound to the nominal lengths: (the prepared run, the controller)."""
+    from itg_vision.identify import nominal_geometry
+    from itg_vision.runner import bind_geometry
+
+    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="truth", max_step_deg=20.0,
+                             **config))
+    return prep, bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model, 20.0)
+
+
 def test_a_lost_look_after_the_aim_was_reached_repeats_no_step():
     """Acting on the stale estimate repeated the step already taken (the T1 start's 20 deg steps
     twice over). A rule base that reaches its aim within its dead band, given two iterations
     per set point whose second look loses the gripper, is asked the same set point again from
     its aim and steps nothing: the one-iteration run, joint for joint."""
-    from itg_vision.identify import nominal_geometry
-    from itg_vision.runner import bind_geometry
-
-    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="truth", points=24,
-                             max_step_deg=20.0))
-    ctrl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model, 20.0)
+    prep, ctrl = _itg_plus_on_t1(points=24)
     points = prep.trajectory.points_mm
     with World(prep.model) as world:
         lossy = simulate(world, ctrl, _LosesEverySecondLook("gripper"), points, iterations=2,
@@ -498,12 +504,7 @@ def test_losing_every_second_gripper_look_costs_a_tracker_that_reaches_its_aims_
     left plus the rules' own error on one more step, so the tracking max is at most twice the
     clean run's. Holding the joints lagged the path by a set point's spacing (1.4-2.3 mm here:
     max 2.35 mm measured on the hold's code), deciding on the stale estimate repeated steps."""
-    from itg_vision.identify import nominal_geometry
-    from itg_vision.runner import bind_geometry
-
-    prep = prepare(RunConfig(rules="itg-plus-two-link", feedback="truth", max_step_deg=20.0,
-                             laps=2))
-    ctrl = bind_geometry(prep.controller, nominal_geometry(prep.model), prep.model, 20.0)
+    prep, ctrl = _itg_plus_on_t1(laps=2)
     points = prep.trajectory.points_mm
     runs = {}
     for name, eye in (("clean", TruthFeedback()), ("lossy", _LosesEverySecondLook("gripper"))):
