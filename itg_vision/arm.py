@@ -20,6 +20,7 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
+from .shipped import ARMS_DIR, TRAJECTORY_NAMES, rig_names, rule_names
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -27,8 +28,6 @@ from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
 #: written to a file lies off it by rounding.
 REACH_TOL_MM = 0.5
 
-#: The shipped arm files.
-ARMS_DIR = Path(__file__).resolve().parent.parent / "data" / "arms"
 #: Kinds of chain: joints all about world z, or a base yaw then two pitch joints (section 3.5).
 KINDS = ("planar", "yaw-pitch-pitch")
 #: The fields of an arm file, every one required.
@@ -242,16 +241,8 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
 def _shipped(key: str) -> list[str]:
     """The shipped names a ``defaults`` entry may give: rule bases, rigs or trajectories."""
     if key == "trajectory":
-        from .trajectory import NAMES
-
-        return list(NAMES)
-    if key == "rig":
-        from .camera import CAMERAS_DIR
-
-        return sorted(p.name[:-len(".yaml")] for p in CAMERAS_DIR.glob("*.yaml"))
-    from .rules import shipped_rules
-
-    return list(shipped_rules())
+        return list(TRAJECTORY_NAMES)
+    return rig_names() if key == "rig" else rule_names()
 
 
 def _default(F: Fields, value, where: str, path: str) -> str:

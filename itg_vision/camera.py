@@ -49,6 +49,7 @@ import yaml
 
 from .errors import UserError
 from .inputs import Fields, file_sha256, read_yaml, resolve_relative
+from .shipped import CAMERAS_DIR
 
 _MM = 1e-3
 #: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
@@ -70,8 +71,6 @@ MIN_BASELINE_MM = 1.0
 MAX_EXPOSURE = 1000.0
 #: Largest |coefficient| of plumb_bob distortion accepted.
 MAX_DISTORTION = 100.0
-#: Where the shipped rigs and their calibrations live.
-CAMERAS_DIR = Path(__file__).resolve().parent.parent / "cameras"
 #: Iterations of cv2.undistortPoints: the default 5 leaves ~0.1 px error in the corners.
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 

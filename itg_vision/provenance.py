@@ -7,21 +7,19 @@ import functools
 import hashlib
 from pathlib import Path
 
-from .arm import ARMS_DIR
-from .camera import CAMERAS_DIR
-from .trajectory import TRAJECTORIES_DIR
+from .shipped import ARMS_DIR, CAMERAS_DIR, ROOT, TRAJECTORIES_DIR
 
 
 @functools.cache
 def code_hash() -> str:
     """A hash of what decides a run's numbers besides its parameters: the package's Python
-    sources and the arm, rig and trajectory files beside it (those that exist). A run's
-    ``summary.json`` and each row of a benchmark's ``results.csv`` record it (``code``)."""
+    sources and the shipped arm, rig and trajectory files beside it (those that exist).
+    A run's ``summary.json`` and each row of a benchmark's ``results.csv`` record it
+    (``code``)."""
     package = Path(__file__).resolve().parent
-    root = package.parent
     files = sorted(package.rglob("*.py")) + sorted(ARMS_DIR.glob("*.yaml")) \
         + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(TRAJECTORIES_DIR.glob("*.csv"))
     h = hashlib.sha256()
     for f in files:
-        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+        h.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()[:12]

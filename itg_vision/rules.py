@@ -81,6 +81,7 @@ import numpy as np
 from .contracts import Step
 from .errors import UserError
 from .inputs import clip, is_real, is_whole, read_text
+from .shipped import RULES_DIR, rule_names
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
@@ -1100,14 +1101,6 @@ class RuleBase:
         return 0.0
 
 
-RULES_DIR = Path(__file__).resolve().parent.parent / "data" / "rules"
-
-
-def shipped_rules() -> list[str]:
-    """The names of the rule bases in ``data/rules`` (``table2``, ``itg-plus-two-link``, ...)."""
-    return sorted(q.stem for q in RULES_DIR.glob("*.rules"))
-
-
 def resolve_rules_path(name_or_path: str) -> Path:
     """A shipped rule base by name (``table1``, ``table2``, ``three-link``) or a file path: a
     name ending in .rules or holding a folder separator is a path, any other a shipped name
@@ -1120,7 +1113,7 @@ def resolve_rules_path(name_or_path: str) -> Path:
         return p
     candidate = RULES_DIR / f"{name_or_path}.rules"
     if not candidate.exists():
-        shipped = shipped_rules()
+        shipped = rule_names()
         raise UserError(f"unknown rule base {name_or_path!r} (shipped: {', '.join(shipped)}; "
                         f"or give a path to a rule file: ./{name_or_path} for one in this folder)")
     return candidate

@@ -28,7 +28,7 @@ from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
 from .options import OPTIONS, RULE_OPTIONS, add_rule_options
-from .rules import shipped_rules
+from .shipped import rule_names
 from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
 
 #: Options that name the default output folder when they differ from their default.
@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help=f"number of set points of a named trajectory (2..{MAX_POINTS})")
     ap.add_argument("--rules", metavar="NAME|PATH",
-                    help="rule base: one shipped in data/rules (" + ", ".join(shipped_rules())
+                    help="rule base: one shipped in data/rules (" + ", ".join(rule_names())
                          + ") or a .rules file (default: the arm's). The itg-plus rule bases "
                          "take S from the servo limit (--max-step, default the arm file's)")
     ap.add_argument("--controller", default="itg", choices=CONTROLLERS,

@@ -15,6 +15,7 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import clip, read_text
+from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES
 
 
 @dataclass(frozen=True)
@@ -157,10 +158,7 @@ def line_ab_reach_mm(shoulder_mm) -> tuple[np.ndarray, np.ndarray]:
     s = np.asarray(shoulder_mm, float)
     return tuple(s + REACH_SCALE * (np.array(p) - s) for p in LINE_AB_MM)
 
-#: The shipped user-style trajectories (CSV files).
-TRAJECTORIES_DIR = Path(__file__).resolve().parent.parent / "data" / "trajectories"
-
-NAMES = ("ellipse-t1", "ellipse-t2", "abcd", "line-ab", "line-ab-reach", "arc")
+NAMES = TRAJECTORY_NAMES
 DEFAULT_POINTS = {"ellipse-t1": 180, "ellipse-t2": 180, "abcd": 200, "line-ab": 100,
                   "line-ab-reach": 100, "arc": 180}
 

@@ -10,7 +10,8 @@ import pytest
 
 from itg_vision import native, trajectory as traj
 from itg_vision.arm import ArmSpec
-from itg_vision.rules import RuleBase, load_rules, shipped_rules
+from itg_vision.rules import RuleBase, load_rules
+from itg_vision.shipped import rule_names
 from test_rules import (_ARM_OF, PARAMETER_SETS, SPECIAL_VALUES, _assert_compiled_is_reference,
                         _exactly, _situations, markers, random_rule_base, rng_pick)
 
@@ -35,7 +36,7 @@ def test_shipped_rule_bases_in_c_equal_the_reference():
     """Every shipped rule base, at four parameter sets, on the situations of test_rules (poses,
     set points out of reach, on the gripper, markers missing, degenerate poses)."""
     bases, arms = [], []
-    for name in shipped_rules():
+    for name in rule_names():
         arm = ArmSpec.from_args(_ARM_OF.get(name, "two-link"))
         for f, S, w in PARAMETER_SETS:
             bases.append(load_rules(name, arm.n_joints, arm.links_mm, f=f, S=S, w=w))

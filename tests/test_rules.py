@@ -11,7 +11,8 @@ from hypothesis import example, given, settings, strategies as st
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.errors import UserError
 from itg_vision.feedback import Markers
-from itg_vision.rules import RuleBase, load_rules, shipped_rules
+from itg_vision.rules import RuleBase, load_rules
+from itg_vision.shipped import rule_names
 
 
 def markers(g, e=(np.nan, np.nan, np.nan)):
@@ -496,7 +497,7 @@ def _situations(arm, rng, n):
         yield d, markers(g, e), (None if i % 5 == 4 else q)
 
 
-@pytest.mark.parametrize("name", shipped_rules())
+@pytest.mark.parametrize("name", rule_names())
 def test_compiled_shipped_rule_bases_equal_the_tree_walking_reference(name):
     arm = ArmSpec.from_args(_ARM_OF.get(name, "two-link"))
     rng = np.random.default_rng(7)

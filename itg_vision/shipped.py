@@ -1,0 +1,33 @@
+"""What ships beside the package: the folders of arm files, rigs, rule bases and trajectory
+files, and the names a user may give for each (``--arm two-link``, ``--rules table2``...).
+
+The modules that read these files (arm, camera, rules, trajectory) take their folder from here,
+so that an arm file's ``defaults`` can be checked against the shipped names without the arm
+module reaching up into the modules that need arms.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+#: The shipped arm files (``<name>.yaml``).
+ARMS_DIR = ROOT / "data" / "arms"
+#: The shipped rule bases (``<name>.rules``).
+RULES_DIR = ROOT / "data" / "rules"
+#: The shipped user-style trajectories (CSV files).
+TRAJECTORIES_DIR = ROOT / "data" / "trajectories"
+#: The shipped rigs and their calibrations (``<name>.yaml``, ``<name>.calib.yaml``).
+CAMERAS_DIR = ROOT / "cameras"
+#: The paper's trajectories, made by ``trajectory.named``.
+TRAJECTORY_NAMES = ("ellipse-t1", "ellipse-t2", "abcd", "line-ab", "line-ab-reach", "arc")
+
+
+def rule_names() -> list[str]:
+    """The shipped rule bases (``table2``, ``itg-plus-two-link``, ...)."""
+    return sorted(p.stem for p in RULES_DIR.glob("*.rules"))
+
+
+def rig_names() -> list[str]:
+    """The shipped rigs (``planar``, ``three-link``, ...; calibrations too)."""
+    return sorted(p.name[:-len(".yaml")] for p in CAMERAS_DIR.glob("*.yaml"))
