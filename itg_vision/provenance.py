@@ -7,18 +7,19 @@ import functools
 import hashlib
 from pathlib import Path
 
-from .shipped import ARMS_DIR, CAMERAS_DIR, ROOT, TRAJECTORIES_DIR
+from .shipped import ARMS_DIR, CAMERAS_DIR, ROOT, RULES_DIR, TRAJECTORIES_DIR
 
 
 @functools.cache
 def code_hash() -> str:
     """A hash of what decides a run's numbers besides its parameters: the package's Python
-    sources and the shipped arm, rig and trajectory files beside it (those that exist).
+    sources and the shipped arm, rig, rule and trajectory files beside it (those that exist).
     A run's ``summary.json`` and each row of a benchmark's ``results.csv`` record it
     (``code``)."""
     package = Path(__file__).resolve().parent
     files = sorted(package.rglob("*.py")) + sorted(ARMS_DIR.glob("*.yaml")) \
-        + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(TRAJECTORIES_DIR.glob("*.csv"))
+        + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(RULES_DIR.glob("*.rules")) \
+        + sorted(TRAJECTORIES_DIR.glob("*.csv"))
     h = hashlib.sha256()
     for f in files:
         h.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
