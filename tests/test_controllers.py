@@ -328,10 +328,10 @@ def test_three_link_tracker_follows_the_pitch_axis_as_the_upper_arm_leans_back()
             assert np.linalg.norm(J - J_fd) <= 0.01 * np.linalg.norm(J_fd), (q, J, J_fd)
 
 
-def test_three_link_tracker_keeps_its_axis_while_the_elbow_led_is_missed():
-    """A look that missed the elbow LED holds its estimate from an earlier pose: the forearm
-    drawn from it is wrong, so the axis stays the last decision's; the next look that sees the
-    elbow measures it afresh."""
+def test_three_link_tracker_keeps_its_axis_at_a_look_that_missed_an_led():
+    """A look that missed the elbow LED holds its estimate from an earlier pose, one that missed
+    the gripper LED gets the loop's last aim for it: the forearm drawn from either is wrong, so
+    the axis stays the last decision's; the next look that sees both measures it afresh."""
     from itg_vision.contracts import Markers
     from itg_vision.controllers import pitch_axis
 
@@ -346,6 +346,10 @@ def test_three_link_tracker_keeps_its_axis_while_the_elbow_led_is_missed():
     stale = Markers(m["gripper"], held["elbow"], missed=("elbow",))
     tracker.step(m["gripper"], stale, None)
     np.testing.assert_array_equal(tracker.axis, first)
+    aim = m["gripper"] + np.array([-60.0, 40.0, -100.0])  # the set point, where the arm is not
+    tracker.step(aim, Markers(aim, m["elbow"], missed=("gripper",)), None)
+    np.testing.assert_array_equal(tracker.axis, first)
+    assert not np.allclose(pitch_axis(aim, m["elbow"], arm.led_standoff_mm), first, atol=1e-3)
     # the held elbow would have given another axis (that is what is being kept out)
     assert not np.allclose(pitch_axis(m["gripper"], held["elbow"], arm.led_standoff_mm), first,
                            atol=1e-3)
