@@ -120,8 +120,11 @@ def pitch_axis(g_mm, e_mm, standoff_mm: float, previous=None) -> np.ndarray:
 
     Positive q2/q3 turn the links about +a = (sin q1, -cos q1, 0), which is also the side on
     which the LEDs sit, ``standoff_mm`` off the arm's plane: a . g_xy = a . e_xy = h. When the
-    forearm is not vertical, a is perpendicular to (g - e)_xy with the sign that puts the LEDs
-    on its positive side. When it is (the straight-up start is one such pose), a follows from
+    forearm is not vertical, a is perpendicular to (g - e)_xy, with the sign nearer
+    ``previous`` (without one: the sign that puts the LEDs on its positive side). That side
+    test extrapolates the LEDs' line back to the base axis: its error is the line's tilt times
+    the elbow's reach, which under 4 px (reach ~95 mm, the forearm ~25 mm across) passed h and
+    flipped the axis. When it is (the straight-up start is one such pose), a follows from
     the elbow alone: e_xy = r_e d + h a with d = a turned by +90 deg and r_e = +-sqrt(|e_xy|^2 -
     h^2), the elbow's signed horizontal reach (negative: the upper arm leans back past
     vertical). The LEDs cannot tell the two roots apart (the elbow LED lies on one of the two
@@ -145,7 +148,7 @@ def pitch_axis(g_mm, e_mm, standoff_mm: float, previous=None) -> np.ndarray:
     nu = float(np.hypot(*u))
     if nu >= VERTICAL_FOREARM_MM:
         a = np.array([u[1], -u[0]]) / nu
-        if a @ e < 0:
+        if (a @ e if previous is None else a @ np.asarray(previous)[:2]) < 0:
             a = -a
         return np.array([a[0], a[1], 0.0])
     h = float(standoff_mm)

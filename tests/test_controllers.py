@@ -356,3 +356,27 @@ def test_three_link_tracker_keeps_its_axis_at_a_look_that_missed_an_led():
     tracker.step(m["gripper"], Markers(held["gripper"], held["elbow"]), None)
     np.testing.assert_allclose(tracker.axis, [np.sin(np.radians(20)), -np.cos(np.radians(20)), 0],
                                atol=1e-12)
+
+
+def test_pitch_axis_keeps_the_previous_sign_where_the_leds_line_misses_the_stand_off():
+    """The side test reads a . e = h off the LEDs' line. An elbow estimate s off along the axis
+    tilts the forearm by s / |u| and moves the side to h + s (1 - r / |u|), r the elbow's reach:
+    with the forearm 25 mm across and the elbow 95 mm out, 12 + 6 (1 - 3.8) < 0 for s = 6 mm
+    (a few px of the eye under 4 px of noise): the test flips the axis. With the last
+    decision's axis the sign holds, and the axis is off by the tilt only (atan(6 / 25))."""
+    from itg_vision.controllers import pitch_axis
+
+    arm = ArmSpec.from_args("three-link")
+    q = np.array([50.0, -18.0, 122.5])  # forearm at 104.5 deg: 25 mm across
+    m = forward_kinematics(arm, q)
+    q1 = np.radians(q[0])
+    true = np.array([np.sin(q1), -np.cos(q1), 0.0])
+    d = np.array([-true[1], true[0], 0.0])
+    assert 24 < np.hypot(*(m["gripper"][:2] - m["elbow"][:2])) < 26
+    assert 94 < d @ m["elbow"] < 96  # the elbow's reach r
+    e = m["elbow"] + 6.0 * true
+    flipped = pitch_axis(m["gripper"], e, arm.led_standoff_mm)
+    assert flipped @ true < -0.9
+    kept = pitch_axis(m["gripper"], e, arm.led_standoff_mm, previous=true)
+    tilt = np.arctan2(6.0, 25.0)
+    assert kept @ true == pytest.approx(np.cos(tilt), abs=0.01)
