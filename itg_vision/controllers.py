@@ -148,18 +148,21 @@ def pitch_axis(g_mm, e_mm, standoff_mm: float, previous=None) -> np.ndarray:
     nu = float(np.hypot(*u))
     if nu >= VERTICAL_FOREARM_MM:
         a = np.array([u[1], -u[0]]) / nu
-        if (a @ e if previous is None else a @ np.asarray(previous)[:2]) < 0:
-            a = -a
-        return np.array([a[0], a[1], 0.0])
-    h = float(standoff_mm)
-    ne2 = float(e @ e)
-    if ne2 < 1e-12:
-        return np.array([0.0, -1.0, 0.0])  # no information at all: the start's q1 = 0 side
-    r = math.sqrt(max(ne2 - h * h, 0.0))
-    # e = r d + h a, with d = (-a_y, a_x): solve the 2x2 rotation for a, for each root
-    roots = [np.array([h * e[0] + s * e[1], h * e[1] - s * e[0]]) for s in (r, -r)]
-    a = roots[0] if previous is None else max(roots, key=lambda c: c @ np.asarray(previous)[:2])
-    a = a / np.linalg.norm(a)
+        candidates = (a, -a) if a @ e >= 0 else (-a, a)  # first: the LEDs on its positive side
+    else:
+        h = float(standoff_mm)
+        ne2 = float(e @ e)
+        if ne2 < 1e-12:
+            return np.array([0.0, -1.0, 0.0])  # no information at all: the start's q1 = 0 side
+        r = math.sqrt(max(ne2 - h * h, 0.0))
+        # e = r d + h a, with d = (-a_y, a_x): solve the 2x2 rotation for a, for each root
+        roots = (np.array([h * e[0] + s * e[1], h * e[1] - s * e[0]]) for s in (r, -r))
+        candidates = tuple(c / np.linalg.norm(c) for c in roots)  # first: r >= 0
+    if previous is None:
+        a = candidates[0]
+    else:
+        p = np.asarray(previous, float)[:2]
+        a = max(candidates, key=lambda c: c @ p)
     return np.array([a[0], a[1], 0.0])
 
 
@@ -172,9 +175,9 @@ class JacobianTracker:
     arm turns its base about the vertical base axis (q1: lever g less the axis point) and its
     pitch joints about the measured pitch axis (:func:`pitch_axis`, from the LEDs relative to
     the base axis) through the shoulder (q2: g - shoulder) and the elbow LED (q3: g - e; the
-    LED's stand-off lies along the axis and drops out of the cross product). Where the forearm
-    is vertical the LEDs allow two pitch axes and the one nearer the last decision's is taken,
-    so one tracker follows one run. A look that missed either LED keeps the last axis: the
+    LED's stand-off lies along the axis and drops out of the cross product). The axis is kept
+    continuous from the first decision (of the two the LEDs allow, the one nearer the last
+    decision's: :func:`pitch_axis`), so one tracker follows one run. A look that missed either LED keeps the last axis: the
     elbow's held estimate is from an earlier pose, and a missed gripper is the loop's last aim,
     not a measurement. Measured (vision): re-measured from a held elbow the axis flipped by
     170 deg and stayed (helix, 4 seeds: tracking max 55-60 mm; kept, 0.54 mm); from a

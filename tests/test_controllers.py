@@ -295,8 +295,7 @@ def test_the_leds_admit_two_pitch_axes_when_the_forearm_is_vertical():
     h = arm.led_standoff_mm
     for q in _lean_back_sweep()[5:]:  # q2 >= 95 deg: the roots are >= 110 deg apart
         m = forward_kinematics(arm, q)
-        base = np.array([0.0, 0.0, 0.0])
-        a = pitch_axis(m["gripper"] - base, m["elbow"] - base, h)  # no history: r >= 0
+        a = pitch_axis(m["gripper"], m["elbow"], h)  # base axis at x = y = 0; no history: r >= 0
         q1m = np.degrees(np.arctan2(a[0], -a[1]))
         mirror = forward_kinematics(arm, np.array([q1m, 180.0 - q[1], q[1] - 90.0]))
         for k in ("gripper", "elbow"):
