@@ -33,7 +33,9 @@ from .inputs import is_real, is_whole
 #: 4 px noise the eye rejects about 1 LED detection in 3); holding the joints instead lagged a
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
 #: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. The
-#: elbow's loss changes nothing: an elbow estimate a look old still gives the levers.
+#: elbow's loss changes nothing: an elbow estimate a look old still gives the levers. After a
+#: step flagged out of reach (it holds the arm) the gripper is taken to be where that decision
+#: saw it.
 AIM_ON_LOST = "gripper"
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
@@ -396,7 +398,8 @@ class Session:
 
     def assume_gripper_at(self, aim_mm) -> Markers:
         """The look missed the gripper (:data:`AIM_ON_LOST`): take it to be at ``aim_mm``, the
-        last decision's aim (planar arms: x and y; the height is the LED's stand-off, kept).
+        last decision's aim, or where it saw the gripper if it flagged its set point out of reach
+        (planar arms: x and y; the height is the LED's stand-off, kept).
         Flagged ``at_last_aim``, counted in the trace's ``n_at_last_aim``; return the estimate
         the controller is to use, recorded as the one it used."""
         g = np.asarray(aim_mm, float).copy()
@@ -445,8 +448,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     correction. E_i is measured from the set point whatever the aim. The loop, top to bottom:
     observe through the feedback, aim, let the controller decide, apply the step under the
     servo limit. A look that did not measure the gripper gives the controller the last
-    decision's aim for it, whatever the controller (:data:`AIM_ON_LOST`; before the first
-    decision the joints hold).
+    decision's aim for it, whatever the controller (:data:`AIM_ON_LOST`; after a step flagged
+    out of reach, the gripper that decision saw; before the first decision the joints hold).
     """
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
@@ -472,5 +475,7 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
             aim = desired
             step = _checked(controller.step(aim, estimate, q_deg))
         session.apply(step, decide_ms=1e3 * (time.perf_counter() - t0), aim_mm=aim)
-        last_aim = aim
+        # a step flagged out of reach aimed at nothing (the rule bases and IK hold the arm there):
+        # the arm is where that decision saw it, not at the set point it refused
+        last_aim = estimate.gripper_mm if step.out_of_reach else aim
     return session.trace

@@ -388,18 +388,19 @@ def test_a_feedback_that_breaks_the_contract_is_told_in_one_line(seen, said):
             simulate(world, Constant([0.0, 0.0]), _Sees(seen), np.zeros((2, 3)))
 
 
-class _LosesEverySecondLook(TruthFeedback):
-    """The simulator's LEDs, but every second look (the 2nd, 4th, ...) misses ``marker`` and
-    hands on its last estimate, as the stereo eye does when it loses an LED."""
+class _LosesLooks(TruthFeedback):
+    """The simulator's LEDs, but the looks numbered by ``lost`` (1-based; default every second
+    one: the 2nd, 4th, ...) miss ``marker`` and hand on its last estimate, as the stereo eye
+    does when it loses an LED."""
 
-    def __init__(self, marker):
+    def __init__(self, marker, lost=lambda n: n % 2 == 0):
         super().__init__()
-        self.marker, self.looks, self.last = marker, 0, None
+        self.marker, self.lost, self.looks, self.last = marker, lost, 0, None
 
     def observe(self, world):
         m = super().observe(world)
         self.looks += 1
-        if self.looks % 2 == 1:
+        if not self.lost(self.looks):
             self.last = m
             return m
         field = f"{self.marker}_mm"
@@ -430,7 +431,7 @@ def test_a_look_that_lost_the_gripper_is_given_the_last_aim():
     aims = points + [3.0, -2.0, 5.0]
     ctrl = _Spy([1.0, -1.0])
     with World(arm) as world:
-        trace = simulate(world, ctrl, _LosesEverySecondLook("gripper"), points, aims_mm=aims)
+        trace = simulate(world, ctrl, _LosesLooks("gripper"), points, aims_mm=aims)
     assert np.allclose(ctrl.aims, aims)
     seen = [r.true_at_estimate_mm["gripper"] for r in trace.records]
     for k in range(6):
@@ -487,7 +488,7 @@ def test_a_lost_look_after_the_aim_was_reached_repeats_no_step():
     prep, ctrl = _itg_plus_on_t1(points=24)
     points = prep.trajectory.points_mm
     with World(prep.model) as world:
-        lossy = simulate(world, ctrl, _LosesEverySecondLook("gripper"), points, iterations=2,
+        lossy = simulate(world, ctrl, _LosesLooks("gripper"), points, iterations=2,
                          max_step_deg=20.0)
     with World(prep.model) as world:
         clean = simulate(world, ctrl, TruthFeedback(), points, iterations=1, max_step_deg=20.0)
@@ -507,7 +508,7 @@ def test_losing_every_second_gripper_look_costs_a_tracker_that_reaches_its_aims_
     prep, ctrl = _itg_plus_on_t1(laps=2)
     points = prep.trajectory.points_mm
     runs = {}
-    for name, eye in (("clean", TruthFeedback()), ("lossy", _LosesEverySecondLook("gripper"))):
+    for name, eye in (("clean", TruthFeedback()), ("lossy", _LosesLooks("gripper"))):
         with World(prep.model) as world:
             runs[name] = simulate(world, ctrl, eye, points, max_step_deg=20.0).metrics()
     assert runs["lossy"]["n_at_last_aim"] == len(points) // 2
@@ -523,9 +524,32 @@ def test_a_look_that_lost_only_the_elbow_decides():
     arm = ArmSpec.from_args("two-link")
     ctrl = Constant([1.0, -1.0])
     with World(arm) as world:
-        trace = simulate(world, ctrl, _LosesEverySecondLook("elbow"), np.zeros((3, 3)),
+        trace = simulate(world, ctrl, _LosesLooks("elbow"), np.zeros((3, 3)),
                          iterations=2)
     assert len(ctrl.seen_q) == 6
     assert np.allclose(trace.records[-1].q_deg - trace.records[0].q_deg, [2.0 * 2, -2.0 * 2])
     assert not any({"held", "at_last_aim"} & set(r.flags) for r in trace.records)
     assert all("missed:elbow" in r.flags for r in trace.records)
+
+
+def test_a_look_lost_after_a_set_point_out_of_reach_is_given_where_the_arm_stayed():
+    """A step flagged out of reach holds the arm (the rule bases return zeros): it aimed at
+    nothing. A lost look right after it is given, for the gripper, where that decision saw it,
+    not the set point it refused (260 mm out on a 200 mm arm: the rules then answered an error
+    from a point the arm never reached). With ideal LEDs that is where the arm is, so the run
+    follows the joint path of the run whose look was not lost, to the last bit."""
+    prep, ctrl = _itg_plus_on_t1()
+    points = np.array([[120.0, 40.0, 0.0], [260.0, 0.0, 0.0], [125.0, 45.0, 0.0],
+                       [130.0, 50.0, 0.0]])
+    runs = {}
+    lose_third = _LosesLooks("gripper", lost=lambda n: n == 3)
+    for name, eye in (("clean", TruthFeedback()), ("lossy", lose_third)):
+        with World(prep.model) as world:
+            runs[name] = simulate(world, ctrl, eye, points, max_step_deg=20.0)
+    lossy, clean = runs["lossy"], runs["clean"]
+    assert "out_of_reach" in lossy.records[1].flags
+    assert np.array_equal(lossy.records[1].q_deg, lossy.records[0].q_deg)  # it held
+    assert {"at_last_aim", "missed:gripper"} <= set(lossy.records[2].flags)
+    assert np.allclose(lossy.records[2].estimate.gripper_mm, lossy.records[1].estimate.gripper_mm)
+    assert np.array_equal(np.array([r.q_deg for r in lossy.records]),
+                          np.array([r.q_deg for r in clean.records]))
