@@ -131,10 +131,11 @@ def _mono(obj, img, size, flags):
     return rms, K, dist.ravel(), rvecs, per_view.ravel(), std_in.ravel()
 
 
-def calibrate_views(views: Views, board: Board, size: tuple[int, int],
+def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ...],
                     camera_labels=("camera 1", "camera 2"), *, source: str = "",
                     min_views: int = MIN_VIEWS) -> StereoCalibration:
     """Mono calibration of each camera, outlier views out, then stereo calibration.
+    ``sizes``: each camera's image size (width, height), px.
     ``camera_labels``: how a message names each camera (:func:`calibrate`: its place in the
     rig, ``cameras[0] (left)``); ``source``: the rig file the messages name first.
 
@@ -163,23 +164,24 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
     res = []
     for i in range(2):  # each camera: all its views, then again without its outliers
         used = seen[i]
-        r = _mono([obj_board] * len(used), [views.corners[k][i] for k in used], size, flags)
+        r = _mono([obj_board] * len(used), [views.corners[k][i] for k in used], sizes[i], flags)
         limit = max(3.0 * float(np.median(r[4])), 0.3)
         bad = {used[j] for j in np.flatnonzero(r[4] > limit)}
         if bad and len(used) - len(bad) >= min_views:
             dropped |= bad
             used = [k for k in used if k not in bad]
-            r = _mono([obj_board] * len(used), [views.corners[k][i] for k in used], size, flags)
+            r = _mono([obj_board] * len(used), [views.corners[k][i] for k in used], sizes[i],
+                      flags)
         res.append((used, r))
     both = [k for k in both if k not in dropped]
     if len(both) < min_views:
-        raise UserError(f"only {len(both)} views with the board in both cameras are left after "
+        raise UserError(f"{where}only {len(both)} views with the board in both cameras are left after "
                         f"dropping outliers {sorted(dropped)}; need at least {min_views}")
     spans = tilt_spans_deg(res[0][1][3])
     std_rel = tuple(float(r[5][0] / r[1][0, 0]) for _, r in res)
     if min(spans) < MIN_TILT_SPAN_DEG or max(std_rel) > MAX_FOCAL_STD \
             or not all(np.isfinite(r[0]) for _, r in res):
-        raise UserError(f"degenerate board poses: the board's tilt spans only "
+        raise UserError(f"{where}degenerate board poses: the board's tilt spans only "
                         f"{spans[0]:.0f} x {spans[1]:.0f} deg over {len(res[0][0])} views (need "
                         f"{MIN_TILT_SPAN_DEG:.0f} about two axes; focal std "
                         f"{100 * max(std_rel):.2f} %): tilt the board more")
@@ -187,7 +189,7 @@ def calibrate_views(views: Views, board: Board, size: tuple[int, int],
     srms, K1, d1, K2, d2, R, T, _, _ = cv2.stereoCalibrate(
         [obj_board] * len(both), [views.corners[k][0] for k in both],
         [views.corners[k][1] for k in both],
-        K1, d1, K2, d2, size, flags=cv2.CALIB_FIX_INTRINSIC,
+        K1, d1, K2, d2, sizes[0], flags=cv2.CALIB_FIX_INTRINSIC,  # size unused: intrinsics fixed
         criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
     return StereoCalibration((K1, K2), (d1.ravel(), d2.ravel()), R, T.ravel(),
                              (float(rms1), float(rms2)), float(srms), (pv1, pv2),
@@ -515,9 +517,8 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         vs = render_views(world, true_rig, board, poses, rng, supersample=supersample,
                           progress=tick("board"))
         t1 = time.perf_counter()
-        size = true_rig.cameras[0].size
         source = str(true_rig.source or true_rig.name)  # the rig file messages name
-        cal = calibrate_views(vs, board, size, tuple(
+        cal = calibrate_views(vs, board, tuple(c.size for c in true_rig.cameras), tuple(
             f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)), source=source)
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
@@ -533,7 +534,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
     err_cal = led_errors(rig, arm, shots_check)
     common = sorted(set(err_true) & set(err_cal))
     if not common:
-        raise UserError("LED check: no LED was found by both cameras at the check poses")
+        raise UserError(f"{source}: LED check: no LED was found by both cameras at the check poses")
     e_true = np.array([err_true[k] for k in common])
     e_cal = np.array([err_cal[k] for k in common])
     rms_true, rms_cal = (float(np.sqrt(np.mean(e**2))) for e in (e_true, e_cal))

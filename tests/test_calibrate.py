@@ -122,11 +122,11 @@ def test_poses_tilted_about_one_axis_only_are_refused():
     with pytest.raises(UserError, match=r"degenerate board poses: the board's tilt spans only "
                                         r"60 x 0 deg over 12 views"):
         cal.calibrate_views(_synthetic_views(rig, board, one_axis, 0.05), board,
-                            rig.cameras[0].size)
+                            tuple(c.size for c in rig.cameras))
     two_axes = ([(a, 0.0) for a in np.linspace(-30, 30, 6)]
                 + [(0.0, b) for b in np.linspace(-25, 25, 6)])
     res = cal.calibrate_views(_synthetic_views(rig, board, two_axes, 0.05), board,
-                              rig.cameras[0].size)
+                              tuple(c.size for c in rig.cameras))
     assert min(res.tilt_span_deg) >= cal.MIN_TILT_SPAN_DEG
     # the fit leaves the noise: 0.05 px per axis over n = 12 * 54 * 2 coordinates, less the
     # p = 8 + 6 * 12 parameters fitted (fx, fy, cx, cy, k1, k2, p1, p2; a pose per view); the
@@ -369,7 +369,9 @@ def _camera_looking_away(tmp_path):
 @pytest.mark.parametrize("args, expect", [
     (["--views", "2"], "planar.yaml: the board was found by both cameras in only 1 of 2 views "
                        "(each camera alone: cameras[0] (left) 1, cameras[1] (right) 2); need at least 6"),
-    (["--views", "12", "--tilt", "0"], "degenerate board poses"),
+    # every message names the rig file first (this one did not before)
+    (["--views", "12", "--tilt", "0"], "planar.yaml: degenerate board poses: the board's tilt "
+                                       "spans only"),
     # names the rig file and the camera's place in it (the file was not named before)
     (["--views", "6", "--rig", "AWAY"], "away.yaml: cameras[1] (right): never found the board in "
                                         "6 views: is it pointed at the workspace?"),
