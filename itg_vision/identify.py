@@ -15,8 +15,8 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
   pose and the elbow LED's positions are fitted with a circle (:func:`fit_circle`). The
   circle's centre is the shoulder offset sideways by the LED stand-off, along the pitch axis:
   its height is L1, its distance from the measured base axis the stand-off, its radius L2;
-  L3 = |gripper - elbow|. After each sweep the arm returns to its start pose exactly (set back
-  to it; the shoulder's increments reversed).
+  L3 = |gripper - elbow|. The arm is then set back to its start pose exactly, and so it is
+  when a look fails (:class:`StartUpFailed`).
 
   A wrong world frame (a rig moved after calibration) displaces the whole arm in the eye's
   frame: the benchmark's rig-perturbed (1 deg about the cameras' midpoint and 5 mm) by up to
@@ -280,7 +280,8 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
 
     Parameters
     ----------
-    world : `itg_vision.world.World` at the start pose (left there on return).
+    world : `itg_vision.world.World` at the start pose (left there on return, and when it
+        raises).
     feedback : the run's feedback source (its estimates are all this function reads).
     arm : the arm's structure (which joints and markers it has; its lengths are not read).
 
@@ -297,26 +298,25 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
         links = (float(np.linalg.norm(e)), float(np.linalg.norm(g - e)))
         return ArmGeometry(links, source="measured: |elbow_xy|, |gripper_xy - elbow_xy|")
     leds: dict[str, list] = {n: [] for n in arm.marker_names}
-    start = np.array(world.q_deg, float)
-    for q1 in BASE_SWEEP_DEG:
-        world.set_q([q1, *BASE_SWEEP_POSE_DEG])
-        m = _observe(world, feedback, arm.marker_names,
-                     f"leaned (q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} "
-                     f"deg) with the base at {q1:+g} deg")
-        for n in arm.marker_names:
-            leds[n].append(m[n])
-    world.set_q(start)
-    axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
     elbows, forearm = [], []
-    at = 0.0
-    for rel in SHOULDER_SWEEP_DEG:
-        world.move([0.0, rel - at, 0.0])
-        at = rel
-        m = _observe(world, feedback, arm.marker_names,
-                     f"with the shoulder moved {rel:+g} deg from the start")
-        elbows.append(m["elbow"])
-        forearm.append(float(np.linalg.norm(m["gripper"] - m["elbow"])))
-    world.move([0.0, -at, 0.0])
+    start = np.array(world.q_deg, float)
+    try:  # back at the start however it ends: a failed look leaves a sweep's pose otherwise
+        for q1 in BASE_SWEEP_DEG:
+            world.set_q([q1, *BASE_SWEEP_POSE_DEG])
+            m = _observe(world, feedback, arm.marker_names,
+                         f"leaned (q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} "
+                         f"deg) with the base at {q1:+g} deg")
+            for n in arm.marker_names:
+                leds[n].append(m[n])
+        for rel in SHOULDER_SWEEP_DEG:
+            world.set_q(start + [0.0, rel, 0.0])
+            m = _observe(world, feedback, arm.marker_names,
+                         f"with the shoulder moved {rel:+g} deg from the start")
+            elbows.append(m["elbow"])
+            forearm.append(float(np.linalg.norm(m["gripper"] - m["elbow"])))
+    finally:
+        world.set_q(start)
+    axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
     centre, _, radius, rms = fit_circle(elbows)
     L1 = float(centre[2])
     shoulder = axis_at_height(axis_point, axis_dir, L1)  # the axis as measured, tilt and all

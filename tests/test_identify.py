@@ -40,6 +40,36 @@ def test_start_up_takes_the_median_of_its_looks():
     np.testing.assert_allclose(one_bad.links_mm, clean.links_mm, rtol=0, atol=1e-9)
 
 
+class BlindFrom(TruthFeedback):
+    """The simulator's truth for the first ``good`` looks, then every marker missed."""
+
+    def __init__(self, good):
+        super().__init__()
+        self.good, self.looks = good, 0
+
+    def observe(self, world):
+        m = super().observe(world)
+        self.looks += 1
+        return m if self.looks <= self.good else Markers(m.gripper_mm, m.elbow_mm,
+                                                          ("gripper", "elbow"))
+
+
+@pytest.mark.parametrize("good", [7, 60])  # blind in the base sweep; in the shoulder sweep
+def test_a_failed_start_up_leaves_the_arm_at_its_start_pose(good):
+    """The three-link start-up moves the arm through two sweeps. A look that fails in either
+    (the base sweep's second pose after 7 good looks; the shoulder sweep's second after the
+    55 of the base sweep and the 5 of its first) raises StartUpFailed, and the arm is back at its start, to
+    the bit: a run that goes on without the measurement (``--allow-unseen``) starts there. It
+    stayed at the failing look's pose (q1 -120 deg, leaned) before."""
+    from itg_vision.identify import StartUpFailed
+
+    arm = dataclasses.replace(ArmSpec.from_args("three-link"), start_pose_deg=(10.0, 73.3, -10.0))
+    with World(arm) as world:
+        with pytest.raises(StartUpFailed, match="measured in only"):
+            measure_geometry(world, BlindFrom(good), arm)
+        np.testing.assert_array_equal(world.q_deg, arm.start_q_deg)
+
+
 def test_a_failed_start_up_groups_its_misses_by_cause_not_by_measured_value():
     """Each look's miss reason carries its measured value ('blob area 0.30 of expected'); the
     failure counts looks per cause (the observation's cause code, not its text), so one cause
