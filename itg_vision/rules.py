@@ -94,7 +94,7 @@ PARAM_OF_FIELD = {field_: name for name, field_ in PARAM_FIELDS.items()}
 PARAM_DEFAULTS = {"f": 0.5, "S": 2.0, "w": 0.5}
 PARAM_NAMES = ("f", "S", "w")
 #: The declaration that a rule base's S is the loop's servo limit (a line of its own).
-SERVO_STEP = re.compile(r"^#![ \t]*S is the servo limit[ \t]*$", re.M)
+SERVO_STEP = re.compile(r"^[ \t]*#![ \t]*S is the servo limit[ \t]*$", re.M)  # indented too
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: Deepest condition or expression accepted (levels of nesting and of operators).
 MAX_DEPTH = 50

@@ -635,6 +635,10 @@ def test_a_rule_base_whose_s_is_the_servo_limit_needs_s_given():
     with pytest.raises(UserError, match="my.rules: S is the servo limit here"):
         RuleBase.from_text(text, 2, TWO, source="my.rules")
     assert RuleBase.from_text(text, 2, TWO, S=5.0).S == 5.0
+    # an indented line declares it too (it was read as a plain comment: the file loaded with
+    # the default S, silently not the servo limit)
+    with pytest.raises(UserError, match="my.rules: S is the servo limit here"):
+        RuleBase.from_text("  " + text, 2, TWO, source="my.rules")
 
 
 def test_a_rule_base_for_another_arm_names_every_shipped_one_for_each_arm():
