@@ -416,15 +416,18 @@ def report(r: dict, base: RunConfig) -> str:
         f"{v5b} |")
     # experiment 6
     n_oor = e6["line-ab"]["n_out_of_reach"]
-    ok6 = n_oor == 0 and lim["e_av_mm"] <= EXP6_FACTOR * PAPER_EXP6_E_AV_MM
+    # judged on the paper's own line and setup (one iteration, no servo limit), not a variant
+    ok6 = n_oor == 0 and e6["line-ab"]["e_av_mm"] <= EXP6_FACTOR * PAPER_EXP6_E_AV_MM
     v6 = verdict(ok6)
     L.append(
         f"| 6 | line A(50, 30, 220) to B(250, 200, 400), 100 points, average error about {PAPER_EXP6_E_AV_MM} mm | the paper's line: "
         f"{n_oor} of {e6['line-ab']['n_setpoints']} set points out of reach (B is 439 mm from the shoulder, z = 400 mm above "
-        f"the 300 mm the arm reaches; RULE 0 flags {e6['line-ab']['n_flagged']}). Reachable variant (`line-ab-reach`): as the paper, E_av "
+        f"the 300 mm the arm reaches; RULE 0 flags {e6['line-ab']['n_flagged']}), E_av {e6['line-ab']['e_av_mm']:.1f} mm over "
+        f"the {e6['line-ab']['n_setpoints'] - n_oor} in reach. Reachable variant (`line-ab-reach`): as the paper, E_av "
         f"{asis['e_av_mm']:.1f} mm; with a 2 deg/iteration servo limit and 5 iterations E_av {lim['e_av_mm']:.2f} mm "
         f"(E_max {lim['e_max_mm']:.0f} mm, the start), {lim['e_av_second_half_mm']:.2f} mm on the second half | agrees if "
-        f"every point is in reach and E_av <= {EXP6_FACTOR:g} x {PAPER_EXP6_E_AV_MM} mm | {v6} as given |")
+        f"every point of the paper's line is in reach and its E_av (as the paper: one iteration, no servo limit) <= "
+        f"{EXP6_FACTOR:g} x {PAPER_EXP6_E_AV_MM} mm | {v6} as given |")
     L += ["", "## Experiment 5: where the settled lap flails, and why", ""]
     # a cause is confirmed when changing it removes the flails (every settled-lap E_max at most
     # FLAIL_MM, the height that defines a flail), refuted when a flail is left at some n_t
