@@ -19,7 +19,7 @@ import numpy as np
 from . import outputs, plot
 from . import trajectory as traj
 from .errors import exit_status, run_main
-from .feedback import Markers, TruthFeedback
+from .feedback import Markers, ModelFeedback, TruthFeedback
 from .identify import nominal_geometry
 from .loop import simulate
 from .rules import PARAM_DEFAULTS
@@ -46,8 +46,30 @@ def verdict(ok: bool, partly: bool = False) -> str:
     return "agrees" if ok else ("partly" if partly else "disagrees")
 
 
-def _run(base: RunConfig, **kw):
-    return execute(prepare(replace(base, **kw)))
+class ExactModel(ModelFeedback):
+    """The model's forward kinematics rounded to 1e-9 mm, so that where the paper's equations
+    make two coordinates equal they are equal: at the two-link arm's straight-up start
+    (q 90, 0 deg) x_g = x_e = 0, where floating point's cos 90 deg = 6e-17 puts the gripper
+    6e-15 mm right of the elbow and so decides Table 2's RULE 3/4 tie. Elsewhere it moves every
+    coordinate by under 1e-9 mm."""
+
+    name = "model, rounded to 1e-9 mm"
+
+    def observe(self, world) -> Markers:
+        m = super().observe(world)
+        return Markers(np.round(m.gripper_mm, 9), np.round(m.elbow_mm, 9))
+
+
+def _prepare(base: RunConfig, exact: bool, **kw):
+    """``base`` with ``kw`` prepared; ``exact``: the feedback is :class:`ExactModel`."""
+    prep = prepare(replace(base, **kw))
+    if exact:
+        prep.feedback_factory = lambda: ExactModel(prep.model)
+    return prep
+
+
+def _run(base: RunConfig, exact: bool = False, **kw):
+    return execute(_prepare(base, exact, **kw))
 
 
 def settle_index(e: np.ndarray, threshold_mm: float) -> int:
@@ -59,9 +81,9 @@ def settle_index(e: np.ndarray, threshold_mm: float) -> int:
     return len(e)
 
 
-def _simulate_points(base: RunConfig, points_mm: np.ndarray, **kw):
+def _simulate_points(base: RunConfig, points_mm: np.ndarray, exact: bool = False, **kw):
     """Run the two-link arm (or ``kw['arm']``) on raw points with the base configuration."""
-    prep = prepare(replace(base, **{"arm": "two-link", "trajectory": "ellipse-t1", **kw}))
+    prep = _prepare(base, exact, **{"arm": "two-link", "trajectory": "ellipse-t1", **kw})
     fb = prep.feedback_factory()
     fb.reset(base.seed)
     with World(prep.true_arm) as w:
@@ -70,16 +92,24 @@ def _simulate_points(base: RunConfig, points_mm: np.ndarray, **kw):
                         planar=prep.model.planar, max_step_deg=prep.config.max_step_deg)
 
 
-def exp1(base, out) -> dict:
-    """The jump B-C, against a control run where B-C is crossed by 100 set points."""
-    trace, s = _run(base, arm="two-link", trajectory="abcd")
+def _jump(base, exact: bool = False):
+    """ABCD and its control (B-C crossed by 100 set points): the trace, its summary, E_i on C-D
+    with and without the jump, and the set points until the jump is forgotten."""
+    trace, s = _run(base, exact, arm="two-link", trajectory="abcd")
     e = trace.error_mm()
     n = len(e) // 2
     pts = np.asarray(trace.desired_mm)
     bridge = pts[n - 1] + np.linspace(0, 1, 102)[1:-1, None] * (pts[n] - pts[n - 1])
-    control = _simulate_points(base, np.vstack([pts[:n], bridge, pts[n:]])).error_mm()[-n:]
+    control = _simulate_points(base, np.vstack([pts[:n], bridge, pts[n:]]), exact).error_mm()[-n:]
     cd = e[n:]
-    after = settle_index(np.abs(cd - control), 0.1)  # set points until the jump is forgotten
+    return trace, s, cd, control, settle_index(np.abs(cd - control), 0.1)
+
+
+def exp1(base, out) -> dict:
+    """The jump B-C, against a control run where B-C is crossed by 100 set points."""
+    trace, s, cd, control, after = _jump(base)
+    e = trace.error_mm()
+    n = len(e) // 2
     plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain_deg_per_mm, trace,
                         [(n - 1, n, "B-C: the jump (no set point between)")])],
                       "Fig. 4.1", out / "exp1_path.png")
@@ -148,16 +178,30 @@ def exp3(base, out) -> dict:
     return {"n_t": ns.tolist(), "by_gain_deg_per_mm": res}
 
 
+EXP4_GAINS = np.round(np.geomspace(0.02, 1.2, 19), 4)
+
+
+def _gain_sweep(base, name: str, exact: bool = False) -> dict:
+    """E_av on ``name`` over experiment 4's grid of f; the best f and the good range."""
+    fs = EXP4_GAINS
+    eav = np.array([_run(base, exact, arm="two-link", trajectory=name,
+                         gain_deg_per_mm=float(f))[1]["e_av_mm"] for f in fs])
+    good = fs[eav <= GOOD_F_FACTOR * eav.min()]
+    return {"f_deg_per_mm": fs.tolist(), "e_av_mm": eav.tolist(),
+            "best_f_deg_per_mm": float(fs[int(np.argmin(eav))]),
+            "good_f_range_deg_per_mm": [float(good.min()), float(good.max())],
+            "min_e_av_mm": float(eav.min())}
+
+
+def _overlap(a, b) -> bool:
+    return a[0] <= b[1] and b[0] <= a[1]
+
+
 def exp4(base, out) -> dict:
-    fs = np.round(np.geomspace(0.02, 1.2, 19), 4)
     res, series = {}, {}
     for name in ("ellipse-t1", "ellipse-t2"):
-        eav = np.array([_run(base, arm="two-link", trajectory=name, gain_deg_per_mm=float(f))[1]["e_av_mm"] for f in fs])
-        best = float(fs[int(np.argmin(eav))])
-        good = fs[eav <= GOOD_F_FACTOR * eav.min()]
-        res[name] = {"f_deg_per_mm": fs.tolist(), "e_av_mm": eav.tolist(), "best_f_deg_per_mm": best,
-                     "good_f_range_deg_per_mm": [float(good.min()), float(good.max())], "min_e_av_mm": float(eav.min())}
-        series[name.replace("ellipse-", "").upper()] = (fs, eav)
+        res[name] = _gain_sweep(base, name)
+        series[name.replace("ellipse-", "").upper()] = (EXP4_GAINS, np.array(res[name]["e_av_mm"]))
     # the paper's f = 0.001 read as rad/mm, with a few iterations per set point (its 3.2(i))
     res["paper_f_as_rad_per_mm_e_av_t1_mm"] = {
         str(k): _run(base, arm="two-link", trajectory="ellipse-t1", gain_deg_per_mm=PAPER_F_AS_DEG_PER_MM,
@@ -308,6 +352,27 @@ def exp6(base, out) -> dict:
     return res
 
 
+TABLE2_X_TIE_RULES = (3, 4)  # Table 2's q2 rules, decided by x_g against x_e
+
+
+def two_link_tie(base, out=None) -> dict:
+    """The two-link straight-up start (q 90, 0 deg: x_g = x_e) is a tie of Table 2's RULE 3/4,
+    which the paper resolves as 'no update'. With the model's forward kinematics in floating
+    point RULE 4 fires; rounded to 1e-9 mm (:class:`ExactModel`) neither does. Experiments 1 and
+    4 (those whose figures move) both ways, model feedback."""
+    base = replace(base, feedback="model")
+    res = {}
+    for label, exact in (("floating point", False), ("exact", True)):
+        trace, _, cd, control, after = _jump(base, exact)
+        res[label] = {"first_rules": sorted(trace.fired[0]), "jump_e_mm": float(cd[0]),
+                      "forgotten_after_setpoints": int(after), "cd_setpoints": len(cd),
+                      "e_av_cd_mm": float(cd.mean()), "e_av_cd_control_mm": float(control.mean()),
+                      **{name: {k: v for k, v in _gain_sweep(base, name, exact).items()
+                                if k in ("best_f_deg_per_mm", "good_f_range_deg_per_mm")}
+                         for name in ("ellipse-t1", "ellipse-t2")}}
+    return res
+
+
 def _after_best(res: dict) -> str:
     """E_av at the best f and at the next f of the grid (where it rises), as text."""
     fs, eav = res["f_deg_per_mm"], res["e_av_mm"]
@@ -386,8 +451,7 @@ def report(r: dict, base: RunConfig) -> str:
         + v3 + (": it holds for every f" if all(ok3.values()) else
                 ": it holds for some gains only" if any(ok3.values()) else ": for no f") + " |")
     g1, g2 = t1["good_f_range_deg_per_mm"], t2["good_f_range_deg_per_mm"]
-    overlap = min(g1[1], g2[1]) >= max(g1[0], g2[0])
-    v4 = verdict(overlap)
+    v4 = verdict(_overlap(g1, g2))
     L.append(
         f"| 4 | the best range of f is the same for T1 and T2 (Fig. 4.4) | best f: T1 {t1['best_f_deg_per_mm']:.3f}, T2 "
         f"{t2['best_f_deg_per_mm']:.3f} deg/mm; good f [{g1[0]:.3f}, {g1[1]:.3f}] (T1), "
@@ -476,6 +540,28 @@ def report(r: dict, base: RunConfig) -> str:
                                                       "track_p95_mm", "track_max_mm")) + " |")
     L += ["", "The sign of rg2 - re2 at the start, not the link lengths, decides whether the arm tracks or diverges. "
           "How often noise decides it badly: `python -m itg_vision.bench noise --sweep start-tie` (40 seeds per cell).", ""]
+    L += ["## Experiments 1 and 4: the two-link arm's straight-up tie", "",
+          "The two-link arm starts straight up too (q 90, 0 deg), where x_g = x_e: a tie of Table 2's RULE 3/4 (q2), which "
+          "the paper resolves as 'no update'. With the model's forward kinematics in floating point, cos 90 deg = 6e-17 puts "
+          "the gripper 6e-15 mm right of the elbow, and RULE 4 fires at the first set point; the table above is that run. "
+          "With the model rounded to 1e-9 mm the tie is exact (model feedback both ways; the same thresholds):", "",
+          "| start tie | rules at the first set point | exp. 1: E_i after the jump (mm) | forgotten after (set points) | "
+          "exp. 1 verdict | exp. 4: best f T1 / T2 (deg/mm) | good ranges | exp. 4 verdict |",
+          "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for label, row in r["two_link_tie"].items():
+        fa_t = row["forgotten_after_setpoints"]
+        r1, r2 = (row[n]["good_f_range_deg_per_mm"] for n in ("ellipse-t1", "ellipse-t2"))
+        never = f"never (C-D's {row['cd_setpoints']})" if fa_t >= row["cd_setpoints"] else fa_t
+        L.append(f"| {label} | {', '.join(map(str, row['first_rules']))} | {row['jump_e_mm']:.1f} | {never} | "
+                 f"{verdict(fa_t <= JUMP_FORGOTTEN_AGREE, fa_t <= JUMP_FORGOTTEN_PARTLY)} | "
+                 f"{row['ellipse-t1']['best_f_deg_per_mm']:.2f} / {row['ellipse-t2']['best_f_deg_per_mm']:.2f} | "
+                 f"{r1[0]:.2f}-{r1[1]:.2f} / {r2[0]:.2f}-{r2[1]:.2f} | {verdict(_overlap(r1, r2))} |")
+    v1_tie = {label: verdict(row["forgotten_after_setpoints"] <= JUMP_FORGOTTEN_AGREE,
+                             row["forgotten_after_setpoints"] <= JUMP_FORGOTTEN_PARTLY)
+              for label, row in r["two_link_tie"].items()}
+    L += ["", "The tie alone turns experiment 1's verdict: "
+          + ", ".join(f"{v} ({k})" for k, v in v1_tie.items()) + "."
+          if len(set(v1_tie.values())) > 1 else "The tie does not turn experiment 1's verdict.", ""]
     L += ["## The figures, each beside the paper's claim", "",
           "Each verdict is the table's, computed from the threshold beside it there; the figures draw "
           "those thresholds where they are lines or bands.", ""]
@@ -528,7 +614,7 @@ def main(argv: list[str] | None = None) -> int:
         with outputs.staged_dir(args.out, "paper", force=args.force,
                                 key=results["settings"]) as tmp:  # text: "" is an error
             for name, fn in (("exp1", exp1), ("exp2", exp2), ("exp3", exp3), ("exp4", exp4),
-                             ("exp5", exp5), ("exp6", exp6)):
+                             ("exp5", exp5), ("exp6", exp6), ("two_link_tie", two_link_tie)):
                 if not args.quiet:
                     print(f"running {name} ...", file=sys.stderr)
                 results[name] = fn(base, tmp)

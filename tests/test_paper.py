@@ -28,7 +28,7 @@ def paper_run(tmp_path_factory):
 @pytest.mark.slow
 def test_paper_writes_every_figure_and_a_report(paper_run):
     out, r = paper_run
-    assert set(r) == {"settings", "exp1", "exp2", "exp3", "exp4", "exp5", "exp6"}
+    assert set(r) == {"settings", "exp1", "exp2", "exp3", "exp4", "exp5", "exp6", "two_link_tie"}
     # the options it ran with are recorded where a reader of the folder finds them
     assert r["settings"] == {"feedback": "model", "gain_deg_per_mm": 0.5, "seed": 0}
     assert json.loads((out / outputs.MANIFEST).read_text())["key"] == r["settings"]
@@ -79,6 +79,14 @@ def test_verdicts_follow_their_numbers(paper_run):
     # experiment 2 judges both laps: a flail on the second (as measured) disagrees; without it,
     # the first lap's settled figures decide
     assert _row(paper.report(r, base), 2).endswith("| disagrees |")
+    # the two-link start tie: each way's verdict from its own number, and the sentence follows
+    assert "turns experiment 1's verdict: partly (floating point), disagrees (exact)." in text
+    quick = copy.deepcopy(r)
+    quick["two_link_tie"]["exact"]["forgotten_after_setpoints"] = paper.JUMP_FORGOTTEN_AGREE
+    quick["two_link_tie"]["floating point"]["forgotten_after_setpoints"] = 0
+    tied = paper.report(quick, base)
+    assert "| exact | 2 | 70.0 | 5 | agrees |" in tied
+    assert "The tie does not turn experiment 1's verdict." in tied
     calm = copy.deepcopy(r)
     calm["exp2"].update(e_av_after_settling_mm=4.0, e_max_after_settling_mm=9.0)
     assert _row(paper.report(calm, base), 2).endswith("| agrees |")
@@ -123,6 +131,33 @@ def test_three_link_start_tie_is_decided_by_its_sign_not_by_the_links():
         elif row["elbow_bias_mm"] < 0:
             assert row["rg2_minus_re2_mm2"] > 0 and row["first_q3_rule"] == 7
             assert row["track_median_mm"] < 1
+
+
+def test_two_link_start_tie_is_decided_by_rounding_unless_the_model_is_exact():
+    """Straight up (q 90, 0 deg) the paper's equations give x_g = x_e. In floating point the
+    model puts the gripper 6e-15 mm right of the elbow (cos 90 deg = 6e-17, times 100 mm), and
+    Table 2's RULE 4 moves q2 at the first set point; rounded to 1e-9 mm it is a tie, and
+    neither RULE 3 nor 4 fires (the paper's 'no update'). Away from ties the two feedbacks
+    agree within the rounding."""
+    from itg_vision.arm import ArmSpec
+    from itg_vision.feedback import ModelFeedback
+    from itg_vision.world import World
+
+    arm = ArmSpec.from_args("two-link")
+    with World(arm) as world:
+        world.set_q([90.0, 0.0])
+        m, x = ModelFeedback(arm).observe(world), paper.ExactModel(arm).observe(world)
+        assert 0 < m.gripper_mm[0] - m.elbow_mm[0] < 1e-13
+        assert x.gripper_mm[0] == x.elbow_mm[0] == 0.0
+        for q in np.random.default_rng(0).uniform(-180, 180, (50, 2)):
+            world.set_q(q)
+            m, x = ModelFeedback(arm).observe(world), paper.ExactModel(arm).observe(world)
+            np.testing.assert_allclose(x.gripper_mm, m.gripper_mm, rtol=0, atol=5e-10)
+            np.testing.assert_allclose(x.elbow_mm, m.elbow_mm, rtol=0, atol=5e-10)
+    base = RunConfig(feedback="model")
+    for exact, fires in ((False, {4}), (True, set())):
+        trace, _ = paper._run(base, exact, arm="two-link", trajectory="abcd", points=4)
+        assert set(trace.fired[0]) & set(paper.TABLE2_X_TIE_RULES) == fires, exact
 
 
 def test_peaks_are_ordered_largest_first_so_the_verdict_takes_the_largest():
