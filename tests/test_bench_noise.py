@@ -330,6 +330,31 @@ def test_cells_where_a_run_did_not_start_are_named_and_left_out_of_the_compariso
     assert no_start_lines(summarize([r for r in rows if not r["no_start"]])) == []
 
 
+def test_cells_missing_a_run_say_so_and_are_left_out_of_the_comparisons():
+    """A run that failed (or a --limit that stopped the sweep) leaves its cell over fewer seeds
+    than the sweep has. The cell says so, and the conclusion compares only cells whose every
+    run has its row (before, itg-vision's clean cell over seeds 0-1 was compared with ik's
+    over seed 0 alone, and the note said nothing)."""
+    from itg_vision.bench.report import conclusion, missing_lines, summarize, _no_start_note
+
+    cols = ("e_av_mm", "e_max_mm", "track_median_mm", "track_mean_mm", "track_p95_mm",
+            "track_max_mm")
+    rows = [{"trajectory": "ellipse-t1", "condition": c, "controller": k, "seed": str(s),
+             "diverged": "0", "no_start": "", **{col: str(v) for col in cols}}
+            for c in ("clean", "links+5%") for k, v in (("itg-vision", 9.0), ("ik", 1.0))
+            for s in range(3) if not (k == "ik" and c == "clean" and s > 0)]  # 2 ik runs failed
+    expected = {("ellipse-t1", c, k): 3 for c in ("clean", "links+5%") for k in ("itg-vision", "ik")}
+    summary = summarize(rows, expected)
+    cell = summary["ellipse-t1", "clean", "ik"]
+    assert (cell["n"], cell["missing"]) == (1, 2)
+    assert _no_start_note(cell) == " (2 of 3 have no result)"
+    text = "\n".join(conclusion(summary, ["ellipse-t1"], ["clean", "links+5%"], ["itg-vision", "ik"]))
+    assert "lower in 0 of 1 cells, higher in 1" in text  # links+5% only
+    assert "ik: links+5%" not in text  # its clean cell, the base of the deltas, is incomplete
+    assert missing_lines(summary)[0].endswith("ik clean on ellipse-t1: 2 of 3.")
+    assert missing_lines(summarize(rows)) == []  # without the sweep's counts nothing is missing
+
+
 def test_the_conclusion_counts_ties_within_5_percent_plus_0_01_mm_and_names_the_largest_loss():
     """A cell is a tie when the two medians are within 5 % of the larger plus 0.01 mm (1.04
     against 1.00, and 0.02 against 0.011 by the 0.01 mm), a loss beyond it (1.10 against 1.00;

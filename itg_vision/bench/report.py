@@ -62,14 +62,15 @@ PLOT_METRICS = {"e_av": "E_av", "track_median": "tracking median E_i",
 DEFAULT_PLOT_METRICS = ("e_av", "track_median", "track_max")
 
 
-def summarize(rows: list[dict]) -> dict:
+def summarize(rows: list[dict], expected: dict | None = None) -> dict:
     """(trajectory, condition, controller) -> per-run statistics over seeds.
 
     ``s["track_max"] = (median, q1, q3)`` over seeds of each run's statistic (keys: the
     ``STATS`` columns without ``_mm``), ``worst_max`` the largest tracking-phase E_i of any
     seed, ``diverged`` and ``n`` the number of diverged runs and of runs that started,
-    ``no_start`` the number that did not start (``why``: their reasons). The statistics are
-    over the runs that started.
+    ``no_start`` the number that did not start (``why``: their reasons), ``missing`` the number
+    of runs ``expected`` (a cell's count of runs in the sweep) has that have no row (failed, or
+    not run yet). The statistics are over the runs that started.
     """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
@@ -81,14 +82,25 @@ def summarize(rows: list[dict]) -> dict:
         s = {col.removesuffix("_mm"): _stats(_float(r[col]) for r in ran) for col, _ in STATS}
         s.update({"worst_max": worst(ran), "diverged": sum(r["diverged"] == "1" for r in ran),
                   "n": len(ran), "no_start": len(rs) - len(ran),
+                  "missing": max(0, (expected or {}).get(key, 0) - len(rs)),
                   "why": sorted({r["no_start"] for r in rs if r["no_start"]})})
         out[key] = s
     return out
 
 
 def _no_start_note(s) -> str:
-    """`` (3 of 5 did not start)`` for a cell whose runs did not all start, else ``""``."""
-    return f" ({s['no_start']} of {s['n'] + s['no_start']} did not start)" if s["no_start"] else ""
+    """`` (3 of 5 did not start)`` for a cell whose runs did not all start, `` (1 of 5 have no
+    result)`` for one whose runs have not all a row, else ``""``."""
+    total = s["n"] + s["no_start"] + s["missing"]
+    parts = ([f"{s['no_start']} of {total} did not start"] if s["no_start"] else []) \
+        + ([f"{s['missing']} of {total} have no result"] if s["missing"] else [])
+    return f" ({'; '.join(parts)})" if parts else ""
+
+
+def complete(s) -> bool:
+    """Every run of the cell started and has its row: its medians are over every seed, so it
+    may be compared with another cell."""
+    return not s["no_start"] and not s["missing"]
 
 
 def _no_start_cell(s) -> str:
@@ -164,15 +176,15 @@ def _compare(med, trajs, conds, a_ctrl, b_ctrl):
 
 def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> list[str]:
     """Plain-words findings computed from the medians over seeds (thresholds stated inline).
-    A cell where a run did not start is left out (its median is over fewer seeds than the
-    others'); :func:`no_start_lines` names it."""
+    A cell where a run did not start or has no row is left out (its median is over fewer seeds
+    than the others'); :func:`no_start_lines` names it."""
     out = []
     if subject not in ctrls:
         return [f"({subject} not in this sweep: no comparison.)"]
     for metric, label in (("e_av", "E_av (the paper's metric, start transient included)"),
                           ("track_mean", "tracking-phase mean E_i"),
                           ("track_max", "tracking-phase max E_i (the tail)")):
-        med = {k: v[metric][0] for k, v in summary.items() if not v["no_start"]}
+        med = {k: v[metric][0] for k, v in summary.items() if complete(v)}
         parts = []
         for other in [c for c in ctrls if c != subject]:
             wins, losses, ties = _compare(med, trajs, conds, subject, other)
@@ -194,11 +206,11 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
             parts = []
             for k in ctrls:
                 base = summary.get((t, "clean", k))
-                if base is None or base["no_start"] or not math.isfinite(base["track_median"][0]):
+                if base is None or not complete(base) or not math.isfinite(base["track_median"][0]):
                     continue
                 deltas = [f"{c} {summary[(t, c, k)]['track_median'][0] - base['track_median'][0]:+.2f}"
                           for c in model_conds if (t, c, k) in summary
-                          and not summary[(t, c, k)]["no_start"]
+                          and complete(summary[(t, c, k)])
                           and math.isfinite(summary[(t, c, k)]["track_median"][0])]
                 if deltas:
                     parts.append(f"{k}: " + ", ".join(deltas))
@@ -227,6 +239,15 @@ def no_start_lines(summary) -> list[str]:
             f"plots): {cells}. Why: " + " / ".join(why), ""]
 
 
+def missing_lines(summary) -> list[str]:
+    """The cells with runs that have no row (failed, or not run yet); [] when none has."""
+    cells = "; ".join(f"{k} {c} on {t}: {s['missing']} of {s['n'] + s['no_start'] + s['missing']}"
+                      for (t, c, k), s in sorted(summary.items()) if s["missing"])
+    return [f"Runs without a result (failed, or not run yet: the same command runs them; their "
+            f"cells are over the other seeds, left out of the conclusions' comparisons and of "
+            f"the plots): {cells}.", ""] if cells else []
+
+
 def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
                  failures: dict[str, str], plot_metrics=DEFAULT_PLOT_METRICS
                  ) -> list[Path]:
@@ -238,7 +259,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     trajs = list(dict.fromkeys(trajectory_label(s.trajectory) for s in specs))
     conds = list(dict.fromkeys(s.condition for s in specs))
     ctrls = list(dict.fromkeys(s.controller for s in specs))
-    summary = summarize(rows)
+    summary = summarize(rows, Counter((trajectory_label(s.trajectory), s.condition, s.controller)
+                                      for s in specs))
     seeds = sorted({s.seed for s in specs})
     ran = started(rows)
     pts = {t: sorted({int(_float(r["points"])) for r in ran if trajectory_label(r["trajectory"]) == t})
@@ -259,7 +281,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
               + ("." if len(codes) == 1 else
                  ": more than one, so the rows may not be comparable; rerun into a new --out "
                  "for rows of one code."), ""]
-    L += no_start_lines(summary)
+    L += no_start_lines(summary) + missing_lines(summary)
     if failures:
         L += [f"**{len(failures)} runs failed** this time (rerun to retry): "
               + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
@@ -365,9 +387,9 @@ def _sweep_line(specs: list[RunSpec], traj: str) -> str:
 def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> list[Path]:
     made = []
 
-    def cell(t, c, k, metric):  # (median, q1, q3); NaN where no run started
+    def cell(t, c, k, metric):  # (median, q1, q3); NaN where a run did not start or has no row
         s = summary.get((t, c, k))
-        return s[metric] if s and not s["no_start"] else (float("nan"),) * 3
+        return s[metric] if s and complete(s) else (float("nan"),) * 3
 
     def diverged(t, c, k):
         s = summary.get((t, c, k))
