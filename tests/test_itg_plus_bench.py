@@ -305,9 +305,34 @@ def test_a_target_over_a_run_that_did_not_start_is_not_met():
     assert [t.measured for t in after[:2]] == [t.measured for t in before[:2]]
     assert [t.no_start for t in after] == [1, 1, 0, 1, 2]  # DLS's clean and noisy seed 2
     assert not any(t.met for t in after)
-    assert "1 of its runs did not start: not met until every run starts" in after[0].full_note
+    assert ("1 of its runs did not start or have no result: not met until every run has "
+            "started and has its row") in after[0].full_note
     first = itg_plus.first_step_target([_no_start(rows[0])] + rows[1:], itg_plus.SUBJECT, "c")
     assert first.measured == 0 and first.no_start == 1 and not first.met
+
+
+def test_a_path_whose_runs_failed_keeps_its_targets_not_met():
+    """A run that failed has no row. Its path's targets used to vanish from targets.md (a cell
+    with no rows read as a path not in this sweep: '10 of 12 targets met'); the sweep's specs
+    give it a stand-in row (store.missing_rows, never written) that counts as a run without a
+    result, so each target over it is there, and not met."""
+    from itg_vision.bench.store import NO_RESULT, missing_rows
+
+    args = itg_plus.build_parser().parse_args(["--trajectories", "ellipse-t1", "--seeds", "2"])
+    specs = next(sp for sweep, _, _, sp in itg_plus.build_sweeps(args) if sweep == "itg-plus")
+    rows = [_row(k, s, condition=c) for k in (itg_plus.DLS, itg_plus.TABLE2, itg_plus.SUBJECT)
+            for c in ("clean", "noise-1px") for s in range(2)
+            if not (k == itg_plus.SUBJECT and c == "clean")]  # ITG+'s clean runs failed
+    assert itg_plus.tracking_targets(rows, ["ellipse-t1"]) == []  # what a failure did
+    ours = [s for s in specs if s.controller == itg_plus.SUBJECT and s.condition == "clean"]
+    stand_in = missing_rows(ours, [])
+    assert len(stand_in) == 2 and all(r["no_start"] == NO_RESULT for r in stand_in)
+    assert {(r["controller"], r["trajectory"], r["condition"]) for r in stand_in} == {
+        (itg_plus.SUBJECT, "ellipse-t1", "clean")}
+    targets = itg_plus.tracking_targets(rows + stand_in, ["ellipse-t1"])
+    assert len(targets) == 5 and not any(t.met for t in targets)
+    assert targets[0].no_start == 2 and "have no result" in targets[0].full_note
+    assert missing_rows(ours, stand_in) == []  # a run with its row has no stand-in
 
 
 def test_servo_bound_is_a_lower_bound_and_tight():

@@ -101,6 +101,21 @@ def test_damaged_rows_are_reported_by_line_and_repaired(tmp_path):
     assert Results(path).problems == []
 
 
+def test_a_run_with_two_rows_keeps_the_first_and_the_repair_drops_the_second(tmp_path):
+    """Two sweeps run into one --out at once each append every run: each run twice. Reading
+    kept the first silently, and the file kept both for good (anyone counting rows counted
+    each run twice); now the second is a problem by line, and the repair drops it."""
+    path = tmp_path / "results.csv"
+    a, b = _row(f"{1:016x}"), _row(f"{2:016x}")
+    second = a.replace(",1,", ",2,", 1)  # the same run, other numbers: the first is kept
+    path.write_text(",".join(COLUMNS) + "\n" + a + b + second)
+    r = Results(path)
+    assert sorted(r.rows) == [f"{1:016x}", f"{2:016x}"] and r.rows[f"{1:016x}"][COLUMNS[1]] == "1"
+    assert r.problems == [f"{path}:4: a second row of run {1:016x}: dropped, the first kept"]
+    r.repair()
+    assert path.read_text() == ",".join(COLUMNS) + "\n" + a + b
+
+
 def test_a_damaged_middle_row_is_redone_and_named_on_stderr(tmp_path, capsys):
     args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path / "n"),
             "--quiet", "--workers", "1"]

@@ -38,7 +38,7 @@ from .. import outputs
 from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, spec_limits, worst
-from .store import Results, check_sweep_file, definition_hash, started
+from .store import NO_RESULT, Results, check_sweep_file, definition_hash, missing_rows, started
 from .sweep import FF_CORRECTION, SWEEPS, _default_points, _parse_names
 
 #: What each target compares (issue 13).
@@ -80,8 +80,8 @@ class Target:
 
     @property
     def full_note(self) -> str:
-        return self.note + (f"; {self.no_start} of its runs did not start: not met until every "
-                            "run starts" if self.no_start else "")
+        return self.note + (f"; {self.no_start} of its runs did not start or have no result: not "
+                            "met until every run has started and has its row" if self.no_start else "")
 
 
 def _median(rows, col) -> float:
@@ -554,8 +554,9 @@ def main(argv: list[str] | None = None) -> int:
         for sweep, sub, seeds, specs in sweeps:
             options = {"sweep": sweep, "seeds": seeds, "points": args.points,
                        "trajectories": args.trajectories if sweep == "itg-plus" else None}
-            done, rows[sweep] = noise.run_sweep(specs, out / sub, options, command,
-                                                workers=args.workers, quiet=args.quiet)
+            done, got = noise.run_sweep(specs, out / sub, options, command,
+                                        workers=args.workers, quiet=args.quiet)
+            rows[sweep] = got + missing_rows(specs, got)  # a failed run is not left out unsaid
             status = max(status, done)
         arm = ArmSpec.from_args("two-link")
         bounds, greedy, plans = {}, {}, {}
@@ -590,10 +591,14 @@ def main(argv: list[str] | None = None) -> int:
                 "and takes at each set point the servo-limited step landing closest to it, from "
                 "the same start (`greedy_tracking_mm`).", ""]
         text += table(targets) + [""]
-        n_gone = sum(len(rs) - len(started(rs)) for rs in rows.values())
+        n_missing = sum(r["no_start"] == NO_RESULT for rs in rows.values() for r in rs)
+        n_gone = sum(len(rs) - len(started(rs)) for rs in rows.values()) - n_missing
         text += [f"{sum(t.met for t in targets)} of {len(targets)} targets met. Runs that did not "
                  f"start: {n_gone}" + (" (a target over any of them is not met; the sweeps' "
-                                       "report.md name them)" if n_gone else "") + ".", ""]
+                                       "report.md name them)" if n_gone else "") + "."
+                 + (f" **Runs without a result: {n_missing}** (they failed, see each sweep's "
+                    "failures.log; the same command runs them): a target over any of them is "
+                    "not met." if n_missing else ""), ""]
         checks, lines = memory_checks(rows["itg-plus"], two_link)
         if checks:
             text += MEMORY_INTRO + table(checks, "check") + [""] + [memory_verdict(checks)] \

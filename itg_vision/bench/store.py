@@ -81,6 +81,18 @@ def make_row(spec: RunSpec, s: dict | None, no_start: str = "") -> dict:
     return {c: _cell(row.get(c)) for c in COLUMNS}
 
 
+#: ``no_start`` of a stand-in row for a run of the sweep that has no row (:func:`missing_rows`).
+NO_RESULT = "no result: the run failed (see failures.log) or has not run; the same command runs it"
+
+
+def missing_rows(specs, rows: list[dict]) -> list[dict]:
+    """Stand-in rows (never written) for the runs of ``specs`` that have no row in ``rows``:
+    ``no_start`` says :data:`NO_RESULT`, the metrics are empty, so what reads them counts the
+    run as one that did not start rather than leave it out unsaid."""
+    have = {r["run_id"] for r in rows}
+    return [make_row(s, None, no_start=NO_RESULT) for s in specs if s.run_id not in have]
+
+
 def started(rows: list[dict]) -> list[dict]:
     """The rows of runs that started (a run whose start-up measurement failed has ``no_start``,
     why, and no metrics)."""
@@ -136,9 +148,13 @@ class Results:
                 self.problems.append(f"{self.path}:{lineno}: damaged row ({got}, expected "
                                      f"{len(COLUMNS)}): dropped, its run will be redone")
                 continue
-            keep.append(raw)
             row = dict(zip(COLUMNS, fields))
-            self.rows.setdefault(row["run_id"], row)
+            if row["run_id"] in self.rows:  # two sweeps wrote into the same --out at once
+                self.problems.append(f"{self.path}:{lineno}: a second row of run "
+                                     f"{row['run_id']}: dropped, the first kept")
+                continue
+            keep.append(raw)
+            self.rows[row["run_id"]] = row
         if last and lines:
             self.problems.append(f"{self.path}:{len(lines) + 1}: torn last line (an interrupted "
                                  "write): dropped, its run will be redone")
