@@ -486,7 +486,7 @@ def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
                       f"to render a frame ({BYTES_PER_PIXEL} bytes per pixel); the limit is "
                       f"{MAX_IMAGE_PIXELS / 1e6:.1f} Mpx (4096 x 4096)")
     km = f"{where}.camera_matrix"
-    K = F.array(d["camera_matrix"], 9, km).reshape(3, 3)
+    K = F.array(d["camera_matrix"], 9, km, shape=(3, 3)).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     for label, f in (("fx", fx), ("fy", fy)):
         if f <= 0:
@@ -594,7 +594,7 @@ def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarr
         F.fail(where, head + "look_at_mm, rotation_deg or rotation_matrix + translation_mm")
     F.mapping(d, where, *forms[0])
     if "rotation_matrix" in d:
-        R = F.array(d["rotation_matrix"], 9, f"{where}.rotation_matrix").reshape(3, 3)
+        R = F.array(d["rotation_matrix"], 9, f"{where}.rotation_matrix", shape=(3, 3)).reshape(3, 3)
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             F.fail(f"{where}.rotation_matrix", "must be a rotation (orthonormal, det +1)")
         t = F.array(d["translation_mm"], 3, f"{where}.translation_mm")

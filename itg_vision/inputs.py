@@ -16,6 +16,7 @@ import hashlib
 import math
 import numbers
 import re
+import reprlib
 from pathlib import Path
 
 import numpy as np
@@ -171,10 +172,17 @@ def read_yaml(path: str | Path, what: str):
         raise UserError(f"{path}: nested too deeply to be {article} {what}") from None
 
 
+#: How much of a value :func:`show` writes out: a few levels and items of each, so that a value
+#: made of YAML aliases (a few bytes in the file, billions of items written out) stays short.
+_SHOW = reprlib.Repr()  # (keyword arguments only from Python 3.12)
+_SHOW.maxlevel, _SHOW.maxstring, _SHOW.maxlong, _SHOW.maxother = 3, 60, 60, 60
+_SHOW.maxtuple = _SHOW.maxlist = _SHOW.maxdict = _SHOW.maxset = 4
+
+
 def show(v) -> str:
     """A value read from the file, for a one-line message (shortened)."""
     try:
-        return clip(repr(v))
+        return clip(_SHOW.repr(v))
     except (RecursionError, ValueError):  # nested deeply, an int beyond int's str limit
         return f"a {type(v).__name__}"
 
@@ -231,22 +239,29 @@ class Fields:
             self.fail(where, f"must be {span}{unit}, got {x:g}")
         return x
 
-    def numbers(self, v, n: int | None, where: str, what: str = "numbers", **kw) -> tuple:
-        """A list of ``n`` (any number of, when None) finite numbers, each as :meth:`number`."""
+    def numbers(self, v, n: int | None, where: str, what: str = "numbers",
+                shape: tuple[int, int] | None = None, **kw) -> tuple:
+        """A list of ``n`` (any number of, when None) finite numbers, each as :meth:`number`;
+        or ROS's matrix form ``{rows, cols, data}`` of them, ``rows x cols`` ``shape`` when
+        given."""
         if isinstance(v, dict) and "data" in v:  # ROS's matrix form (rig files)
-            shape = [self.integer(v[k], f"{where}.{k}", 1, 1000) for k in ("rows", "cols") if k in v]
+            self.mapping(v, where, ("rows", "cols", "data"))
+            rows, cols = (self.integer(v[k], f"{where}.{k}", 1, 1000) for k in ("rows", "cols"))
+            if shape is not None and (rows, cols) != tuple(shape):
+                self.fail(where, f"rows x cols must be {shape[0]} x {shape[1]}, got {rows} x "
+                                 f"{cols}")
             v = v["data"]
-            if len(shape) == 2 and isinstance(v, (list, tuple)) and shape[0] * shape[1] != len(v):
-                self.fail(where, f"rows x cols is {shape[0]} x {shape[1]}, but data holds "
+            if isinstance(v, (list, tuple)) and rows * cols != len(v):
+                self.fail(where, f"rows x cols is {rows} x {cols}, but data holds "
                                  f"{count(v, 'value')}")
         if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n) or not v:
             got = count(v, "value") if isinstance(v, (list, tuple)) else show(v)
             self.fail(where, f"must be a list of {'' if n is None else f'{n} '}{what}, got {got}")
         return tuple(self.number(x, f"{where}[{i}]", **kw) for i, x in enumerate(v))
 
-    def array(self, v, n: int, where: str) -> np.ndarray:
+    def array(self, v, n: int, where: str, shape: tuple[int, int] | None = None) -> np.ndarray:
         """:meth:`numbers` as an array."""
-        return np.array(self.numbers(v, n, where))
+        return np.array(self.numbers(v, n, where, shape=shape))
 
     def integer(self, v, where: str, lo: int | None = None, hi: int | None = None) -> int:
         """An integer (in ``lo..hi`` when given)."""

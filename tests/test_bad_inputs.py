@@ -127,6 +127,8 @@ def make_inputs(tmp):
     f["rig-km-2x3"] = _rig(tmp, "km-2x3", shape("camera_matrix", rows=2))
     f["rig-dist-1x4"] = _rig(tmp, "dist-1x4", shape("distortion_coefficients", cols=4))
     f["rig-rows-text"] = _rig(tmp, "rows-text", shape("camera_matrix", rows="three"))
+    f["rig-km-9x1"] = _rig(tmp, "km-9x1", shape("camera_matrix", rows=9, cols=1))
+    f["rig-km-colls"] = _rig(tmp, "km-colls", shape("camera_matrix", colls=3))
     f["rig-same-place"] = _rig(tmp, "same-place", _pose(1, position_mm=[-180.0, -60.0, 620.0]))
     f["rig-40000x30000"] = _rig(tmp, "40000x30000", _set(0, image_width=40000, image_height=30000))
     f["rig-away"] = _rig(tmp, "away", _pose(0, look_at_mm=[-180.0, -60.0, 1620.0]))
@@ -239,7 +241,10 @@ CASES = [
     ("rig-folder", "run", ["--quiet", "--rig", "{folder}"], "a-folder: is a folder, not a rig file"),
     ("arm-folder", "run", ["--quiet", "--arm", "{folder}"], "a-folder: is a folder, not an arm file"),
     ("rig-fx-1e300", "run", ["--quiet", "--rig", "{rig-fx-huge}"], "cameras[1].camera_matrix: fx must be at most 1e+06 px"),
-    ("rig-matrix-2x3", "run", ["--quiet", "--rig", "{rig-km-2x3}"], "rig-km-2x3.yaml: cameras[0].camera_matrix: rows x cols is 2 x 3, but data holds 9 values"),
+    ("rig-matrix-2x3", "run", ["--quiet", "--rig", "{rig-km-2x3}"], "rig-km-2x3.yaml: cameras[0].camera_matrix: rows x cols must be 3 x 3, got 2 x 3"),
+    # the right count in the wrong shape, and a misspelt key beside the matrix (both ran)
+    ("rig-matrix-9x1", "run", ["--quiet", "--rig", "{rig-km-9x1}"], "rig-km-9x1.yaml: cameras[0].camera_matrix: rows x cols must be 3 x 3, got 9 x 1"),
+    ("rig-matrix-colls", "run", ["--quiet", "--rig", "{rig-km-colls}"], "rig-km-colls.yaml: cameras[0].camera_matrix.colls: unknown field (known: rows, cols, data)"),
     ("rig-distortion-1x4", "run", ["--quiet", "--rig", "{rig-dist-1x4}"], "rig-dist-1x4.yaml: cameras[0].distortion_coefficients: rows x cols is 1 x 4, but data holds 5 values"),
     ("rig-rows-text", "run", ["--quiet", "--rig", "{rig-rows-text}"], "rig-rows-text.yaml: cameras[0].camera_matrix.rows: must be a whole number in 1..1000, got 'three'"),
     ("rig-same-place", "run", ["--quiet", "--rig", "{rig-same-place}"], "cameras[1].pose: at the same place as cameras[0]"),
@@ -574,3 +579,18 @@ def test_soak_random_bad_files_never_crash_nor_touch_a_canary(tmp_path, monkeypa
 def test_soak_long(tmp_path, monkeypatch, capsys):
     outcomes = _soak(tmp_path, monkeypatch, capsys, seed=1010, per_kind=150)
     assert outcomes.get(2, 0) >= 300
+
+
+def test_a_value_made_of_yaml_aliases_is_shown_short_without_being_written_out():
+    """Ten levels of ten aliases are 1.7 KB of YAML and 1e10 items: a message that wrote the
+    value out whole before shortening it ran out of memory (a traceback, exit 1); it writes a
+    few items of a few levels."""
+    import yaml
+
+    from itg_vision.inputs import show
+
+    text = "a0: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]\n" + "".join(
+        f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]\n" for i in range(1, 10))
+    bomb = yaml.safe_load(text)["a9"]
+    shown = show(bomb)
+    assert shown.startswith("[[[") and len(shown) < 200, shown
