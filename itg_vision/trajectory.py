@@ -213,17 +213,22 @@ def read_csv(path: str | Path) -> Trajectory:
     path = Path(path)
     text = read_text(path, "trajectory CSV")
     reader = csv.reader(re.split(r"\r\n|\r|\n", text), strict=True)  # \f is no line end
-    rows = []
+    rows, starts = [], []  # each row, and the line it starts on (a quoted field may go on)
     while True:
-        start = reader.line_num + 1  # the line a row starts on (a quoted field may go on)
+        start = reader.line_num + 1
         try:
             rows.append(next(reader))
         except StopIteration:
             break
         except csv.Error as exc:  # a stray or unclosed quote, a field beyond csv's limit (128 KiB)
             raise UserError(f"{path}:{start}: not CSV ({exc})") from None
-    if not rows or not any(cell.strip() for cell in rows[0]):
+        starts.append(start)
+    blank = [not any(cell.strip() for cell in row) for row in rows]
+    if all(blank):
         raise UserError(f"{path}: empty file (expected a header x_mm,y_mm[,z_mm][,t_s])")
+    if blank[0]:
+        raise UserError(f"{path}:1: blank; the first line must be the header "
+                        "x_mm,y_mm[,z_mm][,t_s]")
     header = [h.strip() for h in rows[0]]
     allowed = (["x_mm", "y_mm"], ["x_mm", "y_mm", "z_mm"], ["x_mm", "y_mm", "t_s"],
                ["x_mm", "y_mm", "z_mm", "t_s"])
@@ -231,7 +236,7 @@ def read_csv(path: str | Path) -> Trajectory:
         raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got "
                         f"{clip(','.join(header), 60)!r}")
     values, linenos = [], []
-    for lineno, row in enumerate(rows[1:], 2):
+    for lineno, row in zip(starts[1:], rows[1:]):
         if not any(cell.strip() for cell in row):
             continue
         if len(row) != len(header):

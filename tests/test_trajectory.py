@@ -140,6 +140,11 @@ def test_csv_reader_good(tmp_path):
     ("x_mm,y_mm\n1,2\n1e308,0\n", ":3: field x_mm: 1e308 is beyond +-1e+06 mm"),
     ("x_mm,y_mm\n1,2\f\n3,abc\n", ":3: field y_mm: not a number"),  # a form feed ends no line
     ("x_mm,y_mm\n1,2\n1,-1000001\n", ":3: field y_mm: -1000001 is beyond"),
+    # after a quoted field over two lines, the line a row starts on (it said 3)
+    ("x_mm,y_mm\n\"50\n\",50\n60,abc\n", ":4: field y_mm: not a number: 'abc'"),
+    # blank lines then the header: not "empty file"
+    ("\n\nx_mm,y_mm\n50,50\n60,60\n", ":1: blank; the first line must be the header"),
+    ("\n\n\n", "empty file"),
 ])
 def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
     f = tmp_path / "bad.csv"
