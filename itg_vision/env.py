@@ -61,8 +61,10 @@ from .world import World
 
 #: Servo limit (deg per iteration) when the configuration sets none: an action space needs bounds.
 DEFAULT_MAX_STEP_DEG = 20.0
-#: Bounds of the observed positions (mm): far beyond any arm of the paper.
-POSITION_BOUND_MM = 1.0e4
+#: Bounds of the observed positions (mm): none. An arm file's links and a trajectory file's
+#: coordinates have bounds of their own (up to 1e6 mm); a finite box here clipped an estimate
+#: beyond it without a word, and a set point beyond it left the space.
+POSITION_BOUND_MM = np.inf
 
 
 class TrackingEnv(gym.Env):
@@ -186,8 +188,7 @@ class TrackingEnv(gym.Env):
     def _observation(self, markers) -> dict:
         obs = {"desired_mm": np.array(self._session.desired_mm, np.float64)}
         for m in self.marker_names:
-            obs[f"{m}_mm"] = np.clip(np.asarray(markers.get(m), np.float64),
-                                     -POSITION_BOUND_MM, POSITION_BOUND_MM)
+            obs[f"{m}_mm"] = np.array(markers.get(m), np.float64)
         if self.images:
             obs["camera_images"] = tuple(np.ascontiguousarray(f, np.uint8)
                                          for f in self._feedback.last_observation.frames())

@@ -11,10 +11,26 @@ from itg_vision.runner import RunConfig, execute, prepare
 
 
 @pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")  # degrees by design
+@pytest.mark.filterwarnings("ignore:.*value is (-)?infinity")  # positions unbounded by design
 def test_env_passes_gymnasiums_checker():
     env = TrackingEnv(feedback="truth", noise_mm=0.2, points=20)
     check_env(env, skip_render_check=True)
     env.close()
+
+
+def test_observations_are_not_clipped_and_stay_in_the_space():
+    """An arm file allows links of kilometres and a trajectory coordinates up to 1e6 mm. The
+    space bounded positions at 1e4 mm: the three-link arm with 5 m links, straight up, had its
+    gripper (z 15 m) reported at 10 m, a wrong position without a flag; now the observation is
+    the estimate, and the space holds it."""
+    env = TrackingEnv(arm="three-link", links_mm=(5000.0, 5000.0, 5000.0), feedback="truth",
+                      points=3)
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs["gripper_mm"][2] == pytest.approx(15000.0, abs=1e-6)
+        assert env.observation_space.contains(obs)
+    finally:
+        env.close()
 
 
 def test_reset_with_a_seed_reproduces_the_episode():
@@ -86,6 +102,7 @@ def test_an_episode_of_laps_tracks_from_the_second_lap():
 
 
 @pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
+@pytest.mark.filterwarnings("ignore:.*value is (-)?infinity")  # positions unbounded by design
 def test_images_on_request_are_the_frames_the_estimate_came_from():
     """With images=True the observation holds both cameras' whole frames; each shows the
     gripper LED (red) where its estimate projects (within the LED's ~5 px image radius)."""
