@@ -215,8 +215,10 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
                 if deltas:
                     parts.append(f"{k}: " + ", ".join(deltas))
             if parts:
-                out.append(f"- **Model error on {t}** (change of the median tracking E_i from "
-                           "clean, mm): " + "; ".join(parts) + ".")
+                out.append(f"- **Model error on {t}**, alone and with noise or a moved rig "
+                           "(change of the median tracking E_i from clean, mm; a combined "
+                           "condition's change holds its other error's too): "
+                           + "; ".join(parts) + ".")
     div = [(key, s) for key, s in summary.items() if s["diverged"]]
     if div:
         out.append(f"- **Diverged runs** (tracking-phase median E_i > {DIVERGED_MM:g} mm): "
