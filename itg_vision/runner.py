@@ -194,15 +194,17 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                               f"finite offsets in deg within +-180, got {cfg.joint_offset_deg}")
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
     trajectory = traj.load(cfg.trajectory_name, cfg.points, arm=model).repeated(cfg.laps)
+    # a trajectory the arm file chose is that file's field, not an option the user gave
+    field = "trajectory" if cfg.trajectory else f"{model.source or model.name}: defaults.trajectory"
     if not trajectory.planar and model.planar:
-        raise ConfigError("trajectory", f"{trajectory.name} has z values, but arm {model.name} "
-                                        "is planar (x_mm,y_mm)")
+        raise ConfigError(field, f"{trajectory.name} has z values, but arm {model.name} "
+                                 "is planar (x_mm,y_mm)")
     if trajectory.planar and not model.planar:
-        raise ConfigError("trajectory", f"arm {model.name} needs a 3-D trajectory "
-                                        f"(x_mm,y_mm,z_mm), but {trajectory.name} is planar")
+        raise ConfigError(field, f"arm {model.name} needs a 3-D trajectory "
+                                 f"(x_mm,y_mm,z_mm), but {trajectory.name} is planar")
     if not any(true_arm.reachable(p) for p in trajectory.points_mm):
         lo, hi = true_arm.reach_mm()
-        raise NothingInReach("trajectory", f"none of the {len(trajectory.points_mm) // trajectory.laps}"
+        raise NothingInReach(field, f"none of the {len(trajectory.points_mm) // trajectory.laps}"
                           f" set points of {trajectory.name} is in reach of arm {true_arm.name} "
                           f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")
     info: dict = {}

@@ -74,6 +74,7 @@ ARM_EDITS = [
     ("rules-unknown", r"^defaults:.*$", "defaults: {rules: nosuch, rig: planar, trajectory: ellipse-t1}"),
     ("rig-unknown", r"^defaults:.*$", "defaults: {rules: table2, rig: nosuch, trajectory: ellipse-t1}"),
     ("trajectory-unknown", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: circle}"),
+    ("trajectory-3d", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: line-ab-reach}"),
     ("rig-list", r"^defaults:.*$", "defaults: {rules: table2, rig: [a], trajectory: ellipse-t1}"),
     ("servo-abc", r"^benchmark:.*$", "benchmark: {max_step_deg: abc, iterations: 1}"),
     ("servo-quoted", r"^benchmark:.*$", "benchmark: {max_step_deg: '1e1', iterations: 1}"),
@@ -219,6 +220,8 @@ CASES = [
     ("arm-default-trajectory-7", "run", RUN + ["--arm", "{arm-trajectory-7.yaml}"], "arm-trajectory-7.yaml: defaults.trajectory: must be a name or a path on one line, got 7"),
     ("arm-default-rules-unknown", "run", RUN + ["--arm", "{arm-rules-unknown.yaml}"], "arm-rules-unknown.yaml: defaults.rules: no shipped one is called 'nosuch' (shipped: itg-plus-one-link,"),
     ("arm-default-rig-unknown", "run", ["--quiet", "--arm", "{arm-rig-unknown.yaml}"], "arm-rig-unknown.yaml: defaults.rig: no shipped one is called 'nosuch' (shipped: planar, planar.calib, three-link, three-link.calib; or give a file's path)"),
+    # a trajectory the file chose is the file's field, not --trajectory (the user gave none)
+    ("arm-default-trajectory-3d", "run", RUN + ["--arm", "{arm-trajectory-3d.yaml}"], "arm-trajectory-3d.yaml: defaults.trajectory: line-ab-reach has z values, but arm two-link is planar"),
     ("arm-default-trajectory-unknown", "run", RUN + ["--arm", "{arm-trajectory-unknown.yaml}"], "arm-trajectory-unknown.yaml: defaults.trajectory: no shipped one is called 'circle' (shipped: ellipse-t1,"),
     ("calibrate-arm-default-rules-unknown", "calibrate", ["--quiet", "--arm", "{arm-rules-unknown.yaml}", "--out", "{tmp}/c.yaml"], "arm-rules-unknown.yaml: defaults.rules: no shipped one is called 'nosuch'"),
     ("arm-default-rig-list", "run", ["--quiet", "--arm", "{arm-rig-list.yaml}"], "arm-rig-list.yaml: defaults.rig: must be a name or a path on one line, got ['a']"),
