@@ -116,6 +116,26 @@ def test_a_run_with_two_rows_keeps_the_first_and_the_repair_drops_the_second(tmp
     assert path.read_text() == ",".join(COLUMNS) + "\n" + a + b
 
 
+def test_a_second_sweep_into_the_same_out_at_once_is_refused_in_one_line(tmp_path, capsys):
+    """Two sweeps into one --out at once each appended every run and rewrote results.csv at
+    their end, one over the other. A sweep holds the folder's lock while it writes: another
+    is refused (exit 2, one line, nothing written); the lock's file alone, as a sweep killed
+    before it wrote anything leaves, does not make the folder a stranger's."""
+    from itg_vision.bench.store import LOCK, sweep_lock
+
+    out = tmp_path / "n"
+    args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(out), "--quiet",
+            "--workers", "1"]
+    with sweep_lock(out):
+        capsys.readouterr()
+        assert main(args) == 2
+        assert capsys.readouterr().err == (f"error: --out {out}: another sweep is writing into it "
+                                           "now; wait for it to end, or choose another --out\n")
+        assert sorted(p.name for p in out.iterdir()) == [LOCK]
+    assert main(args) == 0  # the lock released, the same folder runs
+    assert len(Results(out / "results.csv").rows) == len(build_sweep(quick=True, controllers=("ik",), seeds=1))
+
+
 def test_a_damaged_middle_row_is_redone_and_named_on_stderr(tmp_path, capsys):
     args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path / "n"),
             "--quiet", "--workers", "1"]

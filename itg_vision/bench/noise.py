@@ -12,6 +12,7 @@ This module parses, calls and prints.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shlex
 import sys
@@ -24,7 +25,7 @@ from ..options import add_rule_options, labels, rule_params
 from .execute import dask_executor, local_executor, results, shutdown
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,
-                    record_sweep_file, started)
+                    LOCK, record_sweep_file, started, sweep_lock)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, QUICK, SWEEPS,
                     TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
                     rules_controllers, trajectory_label, user_rules)
@@ -45,7 +46,7 @@ def check_out(out: Path, command: str = COMMAND) -> Path:
     path = outputs.check_path(out)
     if path.exists() and not path.is_dir():
         raise UserError(f"--out {out}: exists and is not a folder")
-    if path.is_dir() and any(path.iterdir()):
+    if path.is_dir() and any(p.name != LOCK for p in path.iterdir()):  # a lock alone: made here
         made = outputs.read_manifest(path)
         if made is not None and made.get("command") != command:
             raise UserError(f"--out {out}: holds the output of `{made.get('command')}`; choose "
@@ -236,58 +237,66 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     else:
         n_workers = workers or os.cpu_count() or 1
         executor = local_executor(n_workers)
-    outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
-    record_sweep_file(out, definition, options, specs)
-    store.repair()
-    for msg in store.problems + [m for m in [code_warning(store)] if m]:
-        print(f"warning: {msg}", file=sys.stderr)
-    todo = [s for s in specs if s.run_id not in store.rows]
-    if limit is not None:
-        todo = todo[:limit]
-    todo_cost = sum(s.cost_s() for s in todo)
-    where = f"Dask at {scheduler}" if scheduler else f"{n_workers} local worker(s)"
-    print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
-          f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
-          f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
-    failures: dict[str, str] = {}
-
-    def stored() -> int:  # runs of this sweep with their row in results.csv
-        return sum(1 for s in specs if s.run_id in store.rows)
-
-    try:
-        _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
-    except BaseException as exc:
-        shutdown(executor, cancel=True, client=client)
-        if isinstance(exc, KeyboardInterrupt):  # counted on disk, what a resume will find:
-            # Ctrl-C may land between a row's fsync and its entry in the store's memory
-            try:
-                on_disk = Results(store.path).rows
-            except UserError:  # unreadable now: what this process stored
-                on_disk = store.rows
-            done = sum(1 for s in specs if s.run_id in on_disk)
-            print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same "
-                  "command runs the rest", file=sys.stderr)
+    lock = contextlib.ExitStack()
+    try:  # a second sweep into this --out at once is refused
+        lock.enter_context(sweep_lock(out))
+    except BaseException:
+        shutdown(executor, client=client)
         raise
-    shutdown(executor, client=client)
-    store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
-    rows = list(store.rows.values())
-    plots = write_report(out, rows, specs, command, failures, plot_metrics)
-    failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
-    if failures:
-        outputs.write_text(out / "failures.log",
-                           "".join(f"{k}\t{v}\n" for k, v in failures.items()))
-    elif (out / "failures.log").exists():  # every run it listed has its row now
-        (out / "failures.log").unlink()
-    done = stored()
-    gone = len(rows) - len(started(rows))
-    print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
-          + (f" ({gone} did not start: see the report)" if gone else "")
-          + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)
-    if failures:
-        print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
-              "same command to retry them", file=sys.stderr)
-        return 1, rows
-    return 0, rows
+    with lock:
+        store = Results(out / "results.csv")  # as the lock found it (a sweep may just have ended)
+        outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
+        record_sweep_file(out, definition, options, specs)
+        store.repair()
+        for msg in store.problems + [m for m in [code_warning(store)] if m]:
+            print(f"warning: {msg}", file=sys.stderr)
+        todo = [s for s in specs if s.run_id not in store.rows]
+        if limit is not None:
+            todo = todo[:limit]
+        todo_cost = sum(s.cost_s() for s in todo)
+        where = f"Dask at {scheduler}" if scheduler else f"{n_workers} local worker(s)"
+        print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
+              f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
+              f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
+        failures: dict[str, str] = {}
+
+        def stored() -> int:  # runs of this sweep with their row in results.csv
+            return sum(1 for s in specs if s.run_id in store.rows)
+
+        try:
+            _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
+        except BaseException as exc:
+            shutdown(executor, cancel=True, client=client)
+            if isinstance(exc, KeyboardInterrupt):  # counted on disk, what a resume will find:
+                # Ctrl-C may land between a row's fsync and its entry in the store's memory
+                try:
+                    on_disk = Results(store.path).rows
+                except UserError:  # unreadable now: what this process stored
+                    on_disk = store.rows
+                done = sum(1 for s in specs if s.run_id in on_disk)
+                print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same "
+                      "command runs the rest", file=sys.stderr)
+            raise
+        shutdown(executor, client=client)
+        store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
+        rows = list(store.rows.values())
+        plots = write_report(out, rows, specs, command, failures, plot_metrics)
+        failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
+        if failures:
+            outputs.write_text(out / "failures.log",
+                               "".join(f"{k}\t{v}\n" for k, v in failures.items()))
+        elif (out / "failures.log").exists():  # every run it listed has its row now
+            (out / "failures.log").unlink()
+        done = stored()
+        gone = len(rows) - len(started(rows))
+        print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
+              + (f" ({gone} did not start: see the report)" if gone else "")
+              + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)
+        if failures:
+            print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
+                  "same command to retry them", file=sys.stderr)
+            return 1, rows
+        return 0, rows
 
 
 def _earlier_failures(path: Path, store: Results, tried: list[RunSpec]) -> dict[str, str]:

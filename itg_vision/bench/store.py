@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import functools
@@ -91,6 +92,31 @@ def missing_rows(specs, rows: list[dict]) -> list[dict]:
     run as one that did not start rather than leave it out unsaid."""
     have = {r["run_id"] for r in rows}
     return [make_row(s, None, no_start=NO_RESULT) for s in specs if s.run_id not in have]
+
+
+#: The file a sweep holds locked while it writes into its --out.
+LOCK = ".itg_vision-lock"
+
+
+@contextlib.contextmanager
+def sweep_lock(out: Path):
+    """Hold ``out``'s lock while a sweep writes there: a second sweep into the same folder at
+    once (each appending every run to results.csv, each rewriting it at its end) is refused
+    with one line. An advisory lock (``fcntl.flock``), released when the sweep ends however it
+    ends; where there is no ``fcntl`` (Windows) there is no lock."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / LOCK, "a") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise UserError(f"--out {out}: another sweep is writing into it now; wait for it to "
+                            "end, or choose another --out") from None
+        yield
 
 
 def started(rows: list[dict]) -> list[dict]:
