@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pybullet as p
 
 from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
@@ -27,7 +28,7 @@ from ..errors import ArgumentParser, UserError, at_least_one, exit_status, run_m
 from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..rules import RuleBase, load_rules
 from .. import native, outputs, trajectory as traj
-from ..world import World
+from ..world import IK_JOINT_DAMPING, World
 
 
 def _per_call_us(methods: dict, repeat: int) -> dict:
@@ -113,6 +114,7 @@ def decision_costs(n_points: int = DECISION_POINTS, repeat: int = DECISION_PASSE
     methods = {"rules_compiled_us": (rb.compiled, raw_args),
                "rules_step_us": (rb.step, rule_args),
                "itg_plus_compiled_us": (plus.compiled, plus_args),
+               "itg_plus_arguments_us": (plus.arguments, plus_step),
                "ik_closed_form_us": (two_link_ik, ik_args)}
     try:  # the same rule bases compiled to C, called from Python with the same arguments
         nothing = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD", 2, arm.links_mm)
@@ -122,13 +124,15 @@ def decision_costs(n_points: int = DECISION_POINTS, repeat: int = DECISION_PASSE
         native_error = None
     except native.NativeUnavailable as exc:
         native_error = str(exc)
-    # PyBullet's IK as a tracking loop would call it: from the previous set point's solution
-    # (a call's cost does not depend on where it starts: 20 iterations unless within 0.1 mm)
+    # PyBullet's IK as a tracking loop would call it: from the previous set point's solution,
+    # through World (its mm and deg converted), and the call alone with them converted before
     goals = [(p[0], p[1], arm.led_standoff_mm) for p in pts]
     solved = [np.array(two_link_ik(p[0], p[1], *arm.links_mm)[0]) for p in pts]
     ik_from_previous = [(g, "gripper", q) for g, q in zip(goals, solved[-1:] + solved[:-1])]
     with World(arm) as world:
         methods["ik_pybullet_us"] = (world.inverse_kinematics, ik_from_previous)
+        methods["ik_pybullet_call_us"] = (lambda args, kw: p.calculateInverseKinematics(*args, **kw),
+                                          [world.ik_arguments(*a) for a in ik_from_previous])
         out = _per_call_us(methods, repeat)
         landed = [forward_kinematics(arm, world.inverse_kinematics(*a))["gripper"]
                   for a in ik_from_previous]
@@ -359,18 +363,22 @@ def main(argv: list[str] | None = None) -> int:
                            ("itg_plus_native_us", "ITG+ rules, compiled to C"),
                            ("call_native_us", "C rules that compute nothing (the call)"),
                            ("ik_closed_form_us", "closed-form inverse kinematics (math)"),
-                           ("ik_pybullet_us", "pybullet.calculateInverseKinematics")):
+                           ("itg_plus_arguments_us", "ITG+ arguments packed (RuleBase.arguments)"),
+                           ("ik_pybullet_us", "pybullet.calculateInverseKinematics"),
+                           ("ik_pybullet_call_us", "  the call alone (metres, radians given)")):
             if key in c:
                 say(f"{label:<44}{c[key]:>10.3f}{c[key + '_mean']:>10.3f}{c[key + '_max']:>10.3f}"
                     f"{c[key] / base:>10.2f}")
         if c["native_error"]:
             say(f"rules compiled to C: not timed ({c['native_error']})")
         miss = c["ik_pybullet_miss_mm"]
-        say("pybullet.calculateInverseKinematics is one call with its defaults (20 iterations, "
-            "stopping within 0.1 mm), started from the previous set point's solution, as a "
-            f"tracking loop would: it lands median {np.median(miss):.3f} / p95 "
-            f"{np.percentile(miss, 95):.3f} / max {miss.max():.3f} mm from its set point; "
-            "each rules row is one decision, not a solution")
+        say("pybullet.calculateInverseKinematics is one call (damped least squares, at most 20 "
+            f"iterations, stopping within 0.1 mm; joint damping {IK_JOINT_DAMPING:g}: with "
+            "PyBullet's default it never reached that stop here), through World (mm and deg "
+            "converted), started from the previous set point's solution, as a tracking loop "
+            f"would: it lands median {np.median(miss):.5f} / p95 {np.percentile(miss, 95):.5f} / "
+            f"max {miss.max():.5f} mm from its set point; each rules row is one decision, not a "
+            "solution, timed with its arguments packed before (the IK row converts its own)")
         ik = c["ik_pybullet_us"]
         for key, label in (("itg_plus_compiled_us", "ITG+ step compiled to Python"),
                            ("itg_plus_native_us", "ITG+ step compiled to C"),
@@ -378,6 +386,10 @@ def main(argv: list[str] | None = None) -> int:
                            ("rules_native_us", "Table 2 step compiled to C")):
             if key in c:
                 say(f"PyBullet IK / {label}: {ik / c[key]:.1f}x")
+        if "itg_plus_native_us" in c:
+            say(f"the IK call alone / ITG+ step compiled to C, neither side converting: "
+                f"{c['ik_pybullet_call_us'] / c['itg_plus_native_us']:.1f}x; with both "
+                f"converting (the IK row / arguments packed + the C step): {ik / (c['itg_plus_arguments_us'] + c['itg_plus_native_us']):.1f}x")
         ratio, compiled = itg_plus_speed(c)
         say(f"target: PyBullet IK / ITG+ step compiled to {compiled} >= {SPEED_FACTOR:g}x: "
             f"{ratio:.1f}x ({'met' if ratio >= SPEED_FACTOR else 'NOT met'})")
@@ -405,6 +417,7 @@ def main(argv: list[str] | None = None) -> int:
                            "gripper_from_set_point_mm": {k: _tails(v) for k, v in far.items()}},
                        "native_error": c["native_error"],
                        "ik_pybullet_miss_mm": c["ik_pybullet_miss_mm"],
+                       "ik_joint_damping": IK_JOINT_DAMPING,
                        "target": {"ratio": ratio, "compiled_to": compiled,
                                   "at_least": SPEED_FACTOR, "met": ratio >= SPEED_FACTOR},
                        "stereo_loop": {"frames": args.frames, "passes": args.passes,
