@@ -68,6 +68,7 @@ class World:
         self._joints = [names[n] for n in arm.joint_names]
         self._leds = {m: names[f"{m}_led"] for m in arm.marker_names}
         self._offset_rad = np.radians(np.asarray(arm.joint_offset_deg or (0.0,) * arm.n_joints))
+        self._ik_damping = [IK_JOINT_DAMPING] * len(self._joints)  # one per degree of freedom
         self.q_deg = np.zeros(arm.n_joints)
         self.set_q(arm.start_q_deg if q_deg is None else q_deg)
 
@@ -117,9 +118,8 @@ class World:
         :meth:`inverse_kinematics` makes (metres, radians), for timing the call alone."""
         start = {} if start_q_deg is None else {
             "currentPositions": [float(v) for v in np.radians(start_q_deg) + self._offset_rad]}
-        n = p.computeDofCount(self.body, physicsClientId=self.client)
         return ((self.body, self._leds[marker], [float(v) * _MM for v in target_mm]),
-                {"jointDamping": [IK_JOINT_DAMPING] * n, "physicsClientId": self.client, **start})
+                {"jointDamping": self._ik_damping, "physicsClientId": self.client, **start})
 
     def inverse_kinematics(self, target_mm, marker: str = "gripper",
                            start_q_deg=None) -> np.ndarray:

@@ -12,7 +12,6 @@ This module parses, calls and prints.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import shlex
 import sys
@@ -226,7 +225,6 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     Raises :class:`UserError` (before writing anything) for an ``--out`` that is not this
     sweep's."""
     check_out(out)
-    n_vision = sum(s.vision for s in specs)
     definition = definition_hash(specs)
     store = Results(out / "results.csv")
     # every refusal comes before any write: a foreign --out keeps every row
@@ -237,66 +235,72 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     else:
         n_workers = workers or os.cpu_count() or 1
         executor = local_executor(n_workers)
-    lock = contextlib.ExitStack()
     try:  # a second sweep into this --out at once is refused
-        lock.enter_context(sweep_lock(out))
-    except BaseException:
+        with sweep_lock(out):
+            return _run_locked(specs, out, options, command, definition, executor, n_workers,
+                               client, where=f"Dask at {scheduler}" if scheduler else
+                               f"{n_workers} local worker(s)", limit=limit, quiet=quiet,
+                               plot_metrics=plot_metrics)
+    finally:  # after the runs, and after a refusal (stopping a stopped executor is a no-op)
         shutdown(executor, client=client)
+
+
+def _run_locked(specs, out, options, command, definition, executor, n_workers, client, *,
+                where, limit, quiet, plot_metrics) -> tuple[int, list[dict]]:
+    """:func:`run_sweep` under its --out's lock."""
+    n_vision = sum(s.vision for s in specs)
+    store = Results(out / "results.csv")  # as the lock found it (a sweep may just have ended)
+    outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
+    record_sweep_file(out, definition, options, specs)
+    store.repair()
+    for msg in store.problems + [m for m in [code_warning(store)] if m]:
+        print(f"warning: {msg}", file=sys.stderr)
+    todo = [s for s in specs if s.run_id not in store.rows]
+    if limit is not None:
+        todo = todo[:limit]
+    todo_cost = sum(s.cost_s() for s in todo)
+    print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
+          f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
+          f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
+    failures: dict[str, str] = {}
+
+    def stored() -> int:  # runs of this sweep with their row in results.csv
+        return sum(1 for s in specs if s.run_id in store.rows)
+
+    try:
+        _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
+    except BaseException as exc:
+        shutdown(executor, cancel=True, client=client)
+        if isinstance(exc, KeyboardInterrupt):  # counted on disk, what a resume will find:
+            # Ctrl-C may land between a row's fsync and its entry in the store's memory
+            try:
+                on_disk = Results(store.path).rows
+            except UserError:  # unreadable now: what this process stored
+                on_disk = store.rows
+            done = sum(1 for s in specs if s.run_id in on_disk)
+            print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same "
+                  "command runs the rest", file=sys.stderr)
         raise
-    with lock:
-        store = Results(out / "results.csv")  # as the lock found it (a sweep may just have ended)
-        outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
-        record_sweep_file(out, definition, options, specs)
-        store.repair()
-        for msg in store.problems + [m for m in [code_warning(store)] if m]:
-            print(f"warning: {msg}", file=sys.stderr)
-        todo = [s for s in specs if s.run_id not in store.rows]
-        if limit is not None:
-            todo = todo[:limit]
-        todo_cost = sum(s.cost_s() for s in todo)
-        where = f"Dask at {scheduler}" if scheduler else f"{n_workers} local worker(s)"
-        print(f"noise sweep {definition}: {len(specs)} runs ({n_vision} with rendering), "
-              f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
-              f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
-        failures: dict[str, str] = {}
-
-        def stored() -> int:  # runs of this sweep with their row in results.csv
-            return sum(1 for s in specs if s.run_id in store.rows)
-
-        try:
-            _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
-        except BaseException as exc:
-            shutdown(executor, cancel=True, client=client)
-            if isinstance(exc, KeyboardInterrupt):  # counted on disk, what a resume will find:
-                # Ctrl-C may land between a row's fsync and its entry in the store's memory
-                try:
-                    on_disk = Results(store.path).rows
-                except UserError:  # unreadable now: what this process stored
-                    on_disk = store.rows
-                done = sum(1 for s in specs if s.run_id in on_disk)
-                print(f"\n{done} of {len(specs)} runs are in {out / 'results.csv'}; the same "
-                      "command runs the rest", file=sys.stderr)
-            raise
-        shutdown(executor, client=client)
-        store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
-        rows = list(store.rows.values())
-        plots = write_report(out, rows, specs, command, failures, plot_metrics)
-        failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
-        if failures:
-            outputs.write_text(out / "failures.log",
-                               "".join(f"{k}\t{v}\n" for k, v in failures.items()))
-        elif (out / "failures.log").exists():  # every run it listed has its row now
-            (out / "failures.log").unlink()
-        done = stored()
-        gone = len(rows) - len(started(rows))
-        print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
-              + (f" ({gone} did not start: see the report)" if gone else "")
-              + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)
-        if failures:
-            print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
-                  "same command to retry them", file=sys.stderr)
-            return 1, rows
-        return 0, rows
+    shutdown(executor, client=client)
+    store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
+    rows = list(store.rows.values())
+    plots = write_report(out, rows, specs, command, failures, plot_metrics)
+    failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
+    if failures:
+        outputs.write_text(out / "failures.log",
+                           "".join(f"{k}\t{v}\n" for k, v in failures.items()))
+    elif (out / "failures.log").exists():  # every run it listed has its row now
+        (out / "failures.log").unlink()
+    done = stored()
+    gone = len(rows) - len(started(rows))
+    print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
+          + (f" ({gone} did not start: see the report)" if gone else "")
+          + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)
+    if failures:
+        print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
+              "same command to retry them", file=sys.stderr)
+        return 1, rows
+    return 0, rows
 
 
 def _earlier_failures(path: Path, store: Results, tried: list[RunSpec]) -> dict[str, str]:

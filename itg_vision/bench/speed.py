@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
+import pybullet
 
 from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
@@ -131,7 +131,7 @@ def decision_costs(n_points: int = DECISION_POINTS, repeat: int = DECISION_PASSE
     ik_from_previous = [(g, "gripper", q) for g, q in zip(goals, solved[-1:] + solved[:-1])]
     with World(arm) as world:
         methods["ik_pybullet_us"] = (world.inverse_kinematics, ik_from_previous)
-        methods["ik_pybullet_call_us"] = (lambda args, kw: p.calculateInverseKinematics(*args, **kw),
+        methods["ik_pybullet_call_us"] = (lambda args, kw: pybullet.calculateInverseKinematics(*args, **kw),
                                           [world.ik_arguments(*a) for a in ik_from_previous])
         out = _per_call_us(methods, repeat)
         landed = [forward_kinematics(arm, world.inverse_kinematics(*a))["gripper"]
