@@ -147,8 +147,8 @@ static PyObject *step_{k}(PyObject *self, PyObject *const *args, Py_ssize_t narg
         PyErr_Format(PyExc_TypeError, "rule step takes {n_in} arguments (%zd given)", nargs);
         return NULL;
     }}
-    for (int i = 0; i < {n_in}; i++) {{
-        in[i] = PyFloat_AsDouble(args[i]);
+    for (int i = 0; i < {n_in}; i++) {{  /* a float read directly; anything else converted */
+        in[i] = PyFloat_CheckExact(args[i]) ? PyFloat_AS_DOUBLE(args[i]) : PyFloat_AsDouble(args[i]);
         if (in[i] == -1.0 && PyErr_Occurred()) return NULL;
     }}
     int out = rules_{k}(in, dq, fired, &n_fired);

@@ -176,6 +176,14 @@ def test_bad_arguments_are_refused_like_a_python_function():
     assert fn(*([2.0] + [0.0] * 17)) == ([2.0], [1])
     assert fn(*([2] + [0] * 17)) == ([2.0], [1])  # ints are numbers, as in Python
 
+    class Reading:  # not a float: read through its __float__
+        def __float__(self):
+            return 2.5
+
+    # floats are read directly, the rest converted: each kind gives its own value
+    assert fn(*([np.float64(2.25)] + [0.0] * 17)) == ([2.25], [1])
+    assert fn(*([Reading()] + [0.0] * 17)) == ([2.5], [1])
+
 
 def test_modules_are_cached_by_source_and_a_failed_build_leaves_nothing(tmp_path, monkeypatch):
     monkeypatch.setenv("ITG_VISION_CACHE", str(tmp_path))
