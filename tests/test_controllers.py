@@ -1,6 +1,7 @@
 """The baselines against independent computations: the simulator's finite differences, its
 forward kinematics, and clean runs that must be exact."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,7 +10,7 @@ from conftest import roundoff
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.controllers import (InverseKinematics, JacobianTracker, three_link_ik,
-                                    two_link_ik)
+                                    two_link_ik, wrap_deg)
 from itg_vision.feedback import TruthFeedback
 from itg_vision.identify import measure_geometry, nominal_geometry
 from itg_vision.runner import RunConfig, execute, prepare
@@ -162,8 +163,8 @@ def test_clean_ik_under_the_servo_limit_turns_the_short_way_and_is_exact():
     iteration, 1 iteration): the loop clips IK's step too (each set point's joint change, from
     the start pose on, is within limit x iterations), and the tracking phase is still exact (the
     clean IK bound, 0.01 mm), as it can be only if IK turns the short way round (wrapped to
-    +-180 deg) on the branch nearer the current pose: a turn the long way round or onto the other
-    branch takes many set points at 20 deg each."""
+    +-180 deg): a turn the long way round takes many set points at 20 deg each. (Both branches
+    leave the straight start alike here; which branch it picks is the next test's.)"""
     arm = ArmSpec.from_args("two-link")
     limit, iterations = arm.benchmark["max_step_deg"], arm.benchmark["iterations"]
     trace, s = execute(prepare(RunConfig(controller="ik", feedback="model", max_step_deg=limit,
@@ -171,6 +172,59 @@ def test_clean_ik_under_the_servo_limit_turns_the_short_way_and_is_exact():
     moves = np.abs(np.diff(np.vstack([arm.start_q_deg, trace.q_deg]), axis=0))
     assert moves.max() <= limit * iterations + 1e-9
     assert s["track_max_mm"] < 0.01
+
+
+def test_ik_takes_the_branch_nearest_the_current_pose_compared_the_short_way_round():
+    """Two-link: of the two branches that reach a point, the IK returns the one nearer the
+    arm's pose, the angles' differences wrapped (a pose one turn on is the same pose): from
+    (30, 60) + one turn the branch (30, 60) is 3.6 deg away, (90, -60) 303 and 118 deg away
+    unwrapped, nearer than the turn's 363 deg."""
+    arm = ArmSpec.from_args("two-link")
+    ik = InverseKinematics(arm)
+    p = forward_kinematics(arm, np.array([30.0, 60.0]))["gripper"]
+    branches = [np.array(b) for b in two_link_ik(p[0], p[1], *arm.links_mm)]
+    np.testing.assert_allclose(sorted(b[1] for b in branches), [-60.0, 60.0], atol=1e-9)
+    for branch in branches:
+        for turn in (0.0, 360.0, -360.0):
+            got = ik.solve(p, branch + [turn + 3.0, -2.0])
+            np.testing.assert_allclose(wrap_deg(got - branch), 0.0, atol=1e-9)
+
+
+def test_three_link_ik_reaches_forwards_and_over_the_top_and_takes_the_nearest():
+    """Three-link: a point in reach has four solutions, each elbow with the arm reaching
+    forwards and with the base turned round and the upper arm leaning back over the top (a
+    negative horizontal reach L2 cos q2 + L3 cos(q2 + q3)); each puts the LED on the point
+    (forward kinematics), and the IK returns the one the arm is near."""
+    arm = ArmSpec.from_args("three-link")
+    _, L2, L3 = arm.links_mm
+    ik = InverseKinematics(arm)
+    p = forward_kinematics(arm, np.array([40.0, 60.0, -70.0]))["gripper"]
+    sols = [np.array(s) for s in three_link_ik(p, arm.links_mm, arm.led_standoff_mm)]
+    reach = [L2 * math.cos(math.radians(s[1])) + L3 * math.cos(math.radians(s[1] + s[2]))
+             for s in sols]
+    assert len(sols) == 4 and sum(r < 0 for r in reach) == 2, (sols, reach)
+    for s in sols:
+        np.testing.assert_allclose(forward_kinematics(arm, s)["gripper"], p, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(wrap_deg(ik.solve(p, s + [2.0, -3.0, 2.0]) - s), 0.0,
+                                   atol=1e-9)
+
+
+def test_three_link_jacobian_off_the_origin_equals_the_simulators_finite_differences():
+    """The base axis measured off the origin (the rig-perturbed condition moves it by up to
+    ~17 mm): the same arm, its LEDs and measured shoulder shifted by (17, -9) mm, has the same
+    Jacobian, the simulator's central differences at the origin (1 %, as above)."""
+    arm = ArmSpec.from_args("three-link")
+    shift = np.array([17.0, -9.0, 0.0])
+    nominal = nominal_geometry(arm)
+    geometry = dataclasses.replace(nominal, shoulder_mm=tuple(np.add(nominal.shoulder_mm, shift)))
+    tracker = JacobianTracker(geometry, False, 3)
+    with World(arm) as world:
+        for q in random_poses(arm, 24, np.random.default_rng(12)):
+            world.set_q(q)
+            m = world.true_markers()
+            J = tracker.jacobian(m["gripper"] + shift, m["elbow"] + shift)
+            J_fd = simulator_jacobian(world, q, 3)
+            assert np.linalg.norm(J - J_fd) <= 0.01 * np.linalg.norm(J_fd), (q, J, J_fd)
 
 
 @pytest.mark.parametrize("name", ARMS)
