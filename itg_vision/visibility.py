@@ -12,8 +12,9 @@ renders a frame (instead of ending with every detection missed and a meaningless
 - **points**: the gripper LED at every set point in reach, both LEDs at the start pose, and the
   elbow LED of at least one of the two inverse-kinematics branches at each set point in reach
   must lie in front of the camera between the renderer's near and far planes, project inside
-  the image with a margin (the LED's projected radius + :data:`MARGIN_PX`), and look large
-  enough to be detected (projected radius at least :data:`MIN_LED_RADIUS_PX`).
+  the image with a margin (the LED's projected radius + :data:`MARGIN_PX`) on the lens's
+  invertible part (see :func:`_visible`), and look large enough to be detected (projected
+  radius at least :data:`MIN_LED_RADIUS_PX`).
 
 Pure numpy and the camera model: nothing is rendered. ``--allow-unseen`` skips the check
 (to measure the failure).
@@ -77,8 +78,20 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
     return np.array(gripper), elbows
 
 
+#: How far (px) undistorting a point's distorted pixel may land from its pinhole pixel for the
+#: renderer to draw it there (on the lens's invertible part the round trip is exact to
+#: ~1e-10 px; beyond a fold the two preimages of a pixel lie tens to hundreds of px apart).
+FOLD_TOL_PX = 0.5
+
+
 def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
-    """Per point: None if seen, else why not (a short phrase)."""
+    """Per point: None if seen, else why not (a short phrase).
+
+    A lens whose polynomial turns back outside the frame (k1 = -0.3, say: the rig file allows
+    it, as its fold lies beyond the image) brings points far outside the field of view back
+    inside the image. The renderer draws each pixel from the one pinhole point undistorting it
+    gives (:func:`itg_vision.imaging.distortion_source_map`), the one on the lens's invertible
+    part; so a point is seen only where that round trip returns its own pinhole pixel."""
     from .urdf import LED_RADIUS_MM
 
     X = np.asarray(X_mm, float).reshape(-1, 3)
@@ -88,6 +101,7 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
         r_px = min(camera.fx, camera.fy) * LED_RADIUS_MM / np.where(z > 0, z, np.nan)
         pin = camera.project(X, distort=False)
         uv = camera.project(X)
+        drawn_from = camera.undistort(np.where(np.isfinite(uv), uv, 0.0))
     out = []
     for k in range(len(X)):
         if not z[k] - LED_RADIUS_MM > near_mm:  # the LED's near side, as led_windows asks
@@ -102,13 +116,16 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
             m = r_px[k] + MARGIN_PX
             u, v = uv[k]
             inside = m <= u <= W - 1 - m and m <= v <= H - 1 - m
-            # a point far outside the field of view can come back inside through the distortion
-            # polynomial: its pinhole projection must be near the image too
-            pu, pv = pin[k]
-            near = abs(pu - camera.cx) <= 2 * W and abs(pv - camera.cy) <= 2 * H
-            out.append(None if inside and near else
-                       f"projects to ({u:.0f}, {v:.0f}) px, outside the {W} x {H} px image less a "
-                       f"{m:.0f} px margin")
+            if not inside:
+                out.append(f"projects to ({u:.0f}, {v:.0f}) px, outside the {W} x {H} px image "
+                           f"less a {m:.0f} px margin")
+            elif not np.hypot(*(drawn_from[k] - pin[k])) <= FOLD_TOL_PX:
+                pu, pv = pin[k]
+                out.append(f"lies outside the field of view (pinhole ({pu:.0f}, {pv:.0f}) px), "
+                           f"where the lens model folds back to ({u:.0f}, {v:.0f}) px: the "
+                           "renderer draws that pixel from the lens's near side")
+            else:
+                out.append(None)
     return out
 
 

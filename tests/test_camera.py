@@ -112,6 +112,23 @@ def test_gl_matrices_match_opencv_with_tinyrenderer_rule(seed):
     assert np.all(np.abs(ndc[:, 2]) < 1)  # inside the near/far range
 
 
+def test_gl_projection_puts_the_near_and_far_planes_at_the_clip_range(rig):
+    """OpenGL clips at ndc z = -1 and +1: points at the near and far depths given (camera z,
+    anywhere across the image) must land there, and midway depths inside; a wrong depth row
+    moves the planes the renderer clips at (and the check in visibility.py relies on)."""
+    cam = rig.cameras[0]
+    near, far = 0.05, 5.0
+    proj = cam.gl_projection(near, far).reshape(4, 4, order="F")
+    for depth, ndc_z in ((near, -1.0), (far, 1.0), (0.5, None)):
+        for x, y in ((0.0, 0.0), (0.3, -0.2)):
+            clip = proj @ np.array([x * depth, y * depth, -depth, 1.0])  # GL camera looks down -z
+            z = clip[2] / clip[3]
+            if ndc_z is None:
+                assert -1.0 < z < 1.0
+            else:
+                assert abs(z - ndc_z) < 1e-12, (depth, z)
+
+
 def test_gl_functions_are_the_methods(rig):
     cam = rig.cameras[0]
     assert np.array_equal(cam.gl_view(), gl_view_matrix(cam.R, cam.t_mm))

@@ -12,7 +12,8 @@ from itg_vision.detect import MIN_SCORE
 from itg_vision.errors import UserError
 from itg_vision.trajectory import named
 from itg_vision.urdf import LED_RADIUS_MM
-from itg_vision.visibility import MARGIN_PX, _render_range_mm, _visible, check_visible, led_points
+from itg_vision.visibility import (MARGIN_PX, MIN_LED_RADIUS_PX, _render_range_mm, _visible,
+                                   check_visible, led_points)
 
 
 @pytest.mark.parametrize("arm, trajectory", [("one-link", "arc"), ("two-link", "ellipse-t1"),
@@ -108,6 +109,30 @@ def test_the_image_margin_grows_with_the_led_s_projected_radius():
     assert all(w and w.endswith("outside the 640 x 480 px image less a 8 px margin")
                for w in why[:2]), why
     assert why[2:] == [None, None], why
+    vs = (m - 0.5, 479 - m + 0.5, m + 0.5, 479 - m - 0.5)  # the same along v
+    why = _visible(cam, [cam.back_project([cam.cx, v], 600.0) for v in vs], *_render_range_mm())
+    assert all(w and w.endswith("8 px margin") for w in why[:2]) and why[2:] == [None, None], why
+
+
+def test_an_led_must_image_at_least_two_pixels_across():
+    """f = 90 px at 600 mm images an LED (radius 6 mm) 0.9 px in radius, below
+    MIN_LED_RADIUS_PX (1 px): refused; f = 110 px, 1.1 px: seen."""
+    assert MIN_LED_RADIUS_PX == 1.0
+    X = [[0.0, 0.0, 12.0]]
+    small = _visible(_down(0.0, 0.0, 600.0, f_px=90.0), X, *_render_range_mm())[0]
+    assert small == "an LED there would be 1.8 px across (the detector needs 2)", small
+    assert _visible(_down(0.0, 0.0, 600.0, f_px=110.0), X, *_render_range_mm()) == [None]
+
+
+def test_the_image_check_reads_the_distorted_projection():
+    """Barrel distortion (k1 = -0.3, 640 x 480, f = 600 px) draws a point 330 px right of
+    the centre on the pinhole image (outside the frame) 0.55 (1 - 0.3 x 0.55^2) x 600 = 300 px
+    right, inside it: seen. A point 300 px right on the pinhole image lands 251 px right."""
+    cam = dataclasses.replace(_down(0.0, 0.0, 600.0, size=(640, 480)),
+                              dist=(-0.3, 0.0, 0.0, 0.0, 0.0))
+    X = cam.back_project([[cam.cx + 330.0, cam.cy]], 600.0, distorted=False)
+    assert cam.project(X, distort=False)[0, 0] > 639 and cam.project(X)[0, 0] < 631
+    assert _visible(cam, X, *_render_range_mm()) == [None]
 
 
 def test_sensor_noise_raises_the_exposure_an_led_needs():
@@ -137,6 +162,7 @@ def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
     with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the elbow LED at set "
                                         r"point 1 of those in reach: \(66.1, 75.0, 12.0\) mm"):
         check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2], p)
+    check_visible(*_two_link(_down(-35.0, 130.0, 600.0))[:2], p)  # the - branch alone, as well
 
 
 def test_a_camera_beyond_the_renderer_s_far_plane_is_refused():
@@ -166,3 +192,38 @@ def test_the_check_and_the_windows_share_the_near_plane():
     assert why[1].startswith("behind the camera or nearer than 50 mm (depth 53 mm")
     assert why[2] is None
     assert [w is None for w in led_windows(cam, X, LED_RADIUS_MM)] == [True, True, False]
+
+
+def test_an_led_beyond_the_lens_fold_is_not_seen_as_the_renderer_does_not_draw_it():
+    """k1 = -0.3 (640 x 480, f = 600 px; the rig file allows it: its fold, at normalised radius
+    1 / sqrt(0.9), lies beyond the frame) maps the pinhole radius 1.6 to 1.6 (1 - 0.3 x 1.6^2) =
+    0.371, 223 px from the centre: inside the frame, though 960 px off it on the pinhole image
+    (within the 2 W the check used to allow). The renderer draws that pixel from radius about
+    0.4 (0.4 maps to 0.381, 228 px), undistorting it: an LED there is drawn (the control), the
+    LED beyond the fold is not, and the check now says so. Rendered: the two-link arm's start
+    pose (the gripper LED at (0, 200) mm) under a camera 600 mm above the LED plane, 240 or
+    960 mm to its -x side."""
+    from itg_vision.camera import _distortion_check
+    from itg_vision.detect import score_image
+    from itg_vision.imaging import FLAT_LIGHT, capture
+    from itg_vision.urdf import LED_RGB
+    from itg_vision.world import World
+
+    arm = ArmSpec.from_args("two-link")
+    leds = forward_kinematics(arm, arm.start_q_deg)
+    seen = {}
+    with World(arm) as world:
+        for offset in (240.0, 960.0):
+            cam = dataclasses.replace(_down(-offset, 200.0, 600.0, size=(640, 480)),
+                                      dist=(-0.3, 0.0, 0.0, 0.0, 0.0))
+            assert _distortion_check(cam.fx, cam.fy, cam.cx, cam.cy, 640, 480, cam.dist)[0] == ""
+            why = _visible(cam, [leds["gripper"]], *_render_range_mm())[0]
+            score = score_image(capture(world, cam, None, supersample=1, lighting=FLAT_LIGHT),
+                                LED_RGB["gripper"])
+            seen[offset] = why, int((score > MIN_SCORE).sum()), cam.project(leds["gripper"])
+    (why_near, drawn_near, uv_near), (why_far, drawn_far, uv_far) = seen[240.0], seen[960.0]
+    np.testing.assert_allclose([uv_far[0], uv_near[0]], 319.5 + 600 * np.array(
+        [1.6 * (1 - 0.3 * 1.6**2), 0.4 * (1 - 0.3 * 0.4**2)]), atol=1e-6)  # both in the frame
+    assert why_near is None and drawn_near > 50  # an LED 6 mm in radius images ~6 px in radius
+    assert drawn_far == 0
+    assert why_far.startswith("lies outside the field of view (pinhole (1280, 240) px)"), why_far
