@@ -19,7 +19,7 @@ import sys
 from contextlib import nullcontext
 from pathlib import Path
 
-from . import outputs, plot
+from . import outputs, plot, trajectory as traj
 from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
@@ -236,6 +236,9 @@ def main(argv: list[str] | None = None) -> int:
             raise exc.as_option(OPTIONS) from None
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")
+        note = traj.span_note(prep.trajectory, prep.true_arm.reach_mm()[1])
+        if note:
+            print(note, file=sys.stderr)
         key = run_key(prep)
         if args.out is not None:  # '' is check_path's empty-path error, not the default folder
             out = outputs.check_path(args.out)

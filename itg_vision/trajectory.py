@@ -274,6 +274,24 @@ def read_csv(path: str | Path) -> Trajectory:
                       file=Path(path).resolve())
 
 
+#: A path all of whose set points lie within this fraction of the arm's outer reach of one
+#: another is likely written in other units (metres under an ``x_mm`` header): :func:`span_note`.
+SMALL_SPAN_FRACTION = 0.01
+
+
+def span_note(trajectory: Trajectory, reach_mm: float) -> str | None:
+    """A one-line note when ``trajectory`` spans less than :data:`SMALL_SPAN_FRACTION` of
+    ``reach_mm`` (its set points' bounding box's diagonal, mm), else None: such a path is run
+    as written, but a file in metres reads as a path 1000 times too small."""
+    p = np.asarray(trajectory.points_mm, float)
+    span = float(np.linalg.norm(np.ptp(p, axis=0)))
+    if span >= SMALL_SPAN_FRACTION * reach_mm:
+        return None
+    return (f"note: trajectory {trajectory.name} spans {span:.3g} mm, under "
+            f"{100 * SMALL_SPAN_FRACTION:g} % of the arm's {reach_mm:g} mm reach: its "
+            "coordinates are read as millimetres, not metres")
+
+
 def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory:
     """A named trajectory (placed on ``arm``, see :func:`named`) or a CSV file's."""
     if name_or_path in NAMES:

@@ -171,6 +171,24 @@ def test_bad_files_name_file_and_line(main_in_process, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_path_in_metres_is_run_and_noted(main_in_process, tmp_path):
+    """A circle of radius 40 mm about (60, 0) written in metres spans 0.113 mm, under 1 % of
+    the two-link arm's 200 mm reach: it runs (every set point is in reach: the arm's inner
+    radius is 0) and a note says its numbers are read as millimetres. Written in millimetres
+    it runs without the note."""
+    a = np.radians(np.arange(0, 360, 10))
+    for scale, noted in ((1e-3, True), (1.0, False)):
+        path = tmp_path / f"circle-{scale:g}.csv"
+        path.write_text("x_mm,y_mm\n" + "".join(
+            f"{scale * (60 + 40 * np.cos(t)):.6g},{scale * 40 * np.sin(t):.6g}\n" for t in a))
+        res = main_in_process("itg_vision.run", "--feedback", "model", "--trajectory", path,
+                              "--out", tmp_path / f"o{scale:g}", "--quiet")
+        assert res.returncode == 0, res.stderr
+        note = (f"note: trajectory {path} spans 0.113 mm, under 1 % of the arm's 200 mm reach: "
+                "its coordinates are read as millimetres, not metres")
+        assert (note in res.stderr) == noted, res.stderr
+
+
 @pytest.mark.slow
 def test_vision_tracking_meets_the_bound_against_truth():
     """Issue bound: E_av(vision) <= 1.5 E_av(truth) + 0.5 mm on ellipse-t1, same rules/gain.
