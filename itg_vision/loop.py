@@ -32,8 +32,9 @@ from .inputs import is_real, is_whole
 #: step before: deciding on it again repeated that step open-loop, once per lost look (under
 #: 4 px noise the eye rejects about 1 LED detection in 3); holding the joints instead lagged a
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
-#: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. The
-#: elbow's loss changes nothing: an elbow estimate a look old still gives the levers. After a
+#: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. A
+#: lost elbow leaves the feedback's last elbow estimate, however old (measured in the README,
+#: "Lost looks": it misleads Table 2's rules, hardly ITG+ or the Jacobian tracker). After a
 #: step flagged out of reach (it holds the arm) the gripper is taken to be where that decision
 #: saw it.
 AIM_ON_LOST = "gripper"
