@@ -71,10 +71,11 @@ def points_arg(text: str) -> int:
     return n
 
 
-#: What the system says of a path the user chose (too long, on a full or read-only disk, not
-#: a folder, ...): one line naming the file, status 2, as for any other bad input.
-_REFUSED_PATH = {errno.ENAMETOOLONG, errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES,
-                 errno.EPERM, errno.ENOTDIR, errno.EISDIR, errno.ELOOP}
+#: What the system says of a path the user chose (too long, on a full or read-only disk, over
+#: the file size limit, not a folder, ...): one line naming the file, status 2, as for any
+#: other bad input.
+_REFUSED_PATH = {errno.ENAMETOOLONG, errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS,
+                 errno.EACCES, errno.EPERM, errno.ENOTDIR, errno.EISDIR, errno.ELOOP}
 
 
 def run_main(body: Callable[[], int]) -> int:

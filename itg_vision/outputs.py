@@ -139,11 +139,13 @@ def read_manifest(folder: str | Path) -> dict | None:
     return doc if isinstance(doc, dict) and doc.get("made_by") == "itg_vision" else None
 
 
-def manifest(command: str, key=None, entries: list[str] | None = None) -> dict:
+def manifest(command: str, key=None, entries: list[str] | None = None,
+             digests: dict[str, str] | None = None) -> dict:
     """The manifest a command writes into its output folder (no time stamp: the same run gives
     the same bytes). ``key``: what identifies the result (e.g. a run's settings). ``entries``:
     what the command wrote there (:func:`listing`), the only things a later run of it may
-    replace; :func:`staged_dir` fills it in."""
+    replace; ``digests``: each written file's SHA-256 (:func:`digests`), so that a file edited
+    since counts as the user's; :func:`staged_dir` fills both in."""
     from . import __version__
 
     doc = {"made_by": "itg_vision", "command": command, "version": __version__}
@@ -151,7 +153,30 @@ def manifest(command: str, key=None, entries: list[str] | None = None) -> dict:
         doc["key"] = key
     if entries is not None:
         doc["entries"] = list(entries)
+    if digests is not None:
+        doc["sha256"] = dict(digests)
     return doc
+
+
+def digests(folder: Path, entries: list[str]) -> dict[str, str]:
+    """The SHA-256 of each regular file among ``entries`` (:func:`listing` of ``folder``)."""
+    from .inputs import file_sha256
+
+    return {e: file_sha256(folder / e) for e in entries
+            if not e.endswith("/") and (folder / e).is_file() and not (folder / e).is_symlink()}
+
+
+def _edited(folder: Path, made: dict) -> list[str]:
+    """The files of ``folder`` whose bytes differ from what the manifest ``made`` recorded of
+    them (none for a manifest without digests)."""
+    recorded = made.get("sha256")
+    if not isinstance(recorded, dict):
+        return []
+    try:
+        now = digests(folder, [e for e in recorded if isinstance(e, str)])
+    except OSError:
+        return []  # unreadable: the listing's own check says so
+    return sorted(e for e, h in now.items() if h != recorded[e])
 
 
 #: Files that file managers put into any folder they show (macOS Finder, Windows Explorer):
@@ -275,6 +300,10 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
                         "anyway (the link is kept)")
     if not path.is_dir():
         raise UserError(f"{option} {out}: exists and is not a folder; choose another {option}")
+    if os.path.ismount(path):  # a volume: results replace --out whole, by renaming it
+        raise UserError(f"{option} {out}: is a mount point, which cannot be renamed, and results "
+                        f"replace {option} whole by renaming; give a folder inside it (e.g. "
+                        f"{option} {path / 'results'})")
     try:
         entries = sorted(e.name for e in os.scandir(path))
     except OSError as exc:
@@ -292,11 +321,17 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
             foreign = _foreign(path, set(recorded) | set(own or ()))
         except OSError as exc:
             raise UserError(f"{option} {out}: cannot read the folder ({exc.strerror})") from None
-        if not foreign:
+        edited = _edited(path, made)
+        if not foreign and not edited:
             return path
-        n = f"{len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'}"
-        raise UserError(f"{option} {out}: holds {n} that {command} did not write (first: "
-                        f"{foreign[0]}); move {'it' if len(foreign) == 1 else 'them'} out or "
+        if foreign:
+            n = f"{len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'}"
+            what = f"holds {n} that {command} did not write (first: {foreign[0]})"
+        else:
+            n = f"{len(edited)} file{'' if len(edited) == 1 else 's'}"
+            what = f"holds {n} changed since {command} wrote {'it' if len(edited) == 1 else 'them'} (first: {edited[0]})"
+        raise UserError(f"{option} {out}: {what}; move "
+                        f"{'it' if len(foreign) + len(edited) == 1 else 'them'} out or "
                         f"choose another {option}, or add --force to write there anyway (the folder is kept)")
     if made is not None:
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
@@ -401,7 +436,12 @@ def _make_parents(folder: Path) -> list[Path]:
     created = []
     try:
         for d in reversed(missing):
-            d.mkdir()
+            try:
+                d.mkdir()
+            except FileExistsError:  # "b/.." once b is made: there already
+                if not d.is_dir():
+                    raise
+                continue
             created.append(d)
     except BaseException:
         _remove_dirs(created)
@@ -434,20 +474,46 @@ def probe_folder(folder: str | Path, option: str = "--out") -> None:
 
 
 @contextmanager
+def _folder_lock(folder: Path):
+    """Hold an advisory lock on ``folder`` (``fcntl.flock`` on the folder itself: nothing is
+    written into it) while outputs beside each other are checked and swapped: two commands
+    swapping into the same ``--out`` at once take turns, each seeing the other's result whole.
+    No lock where there is no ``fcntl`` (Windows) or the folder cannot be opened."""
+    try:
+        import fcntl
+
+        fd = os.open(folder, os.O_RDONLY)
+    except (ImportError, OSError):
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+@contextmanager
 def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = False,
                key=None, option: str = "--out"):
     """Yield a fresh staging folder; on success it replaces ``out`` whole, on error it goes.
 
     ``out`` is checked first (:func:`check_out_dir`: only a folder ``command`` made that holds
-    nothing else, an empty one, or any folder with ``force``); the staging folder is marked with
-    the manifest of ``command`` (and ``key``), which lists, once the command has written its
-    results, every entry it wrote: a later run of the same command may replace those, and
-    nothing else. Readers of ``out`` see either the old results or the new ones, never a mix.
-    Whatever goes wrong before the swap (a bad input, an error, Ctrl-C, a file the user put
-    into ``out`` meanwhile) leaves ``out`` as it was and no staging folder behind.
+    nothing else and no file changed since, an empty one, or any folder with ``force``; never a
+    mount point); the staging folder is marked with the manifest of ``command`` (and ``key``),
+    which lists, once the command has written its results, every entry it wrote and each file's
+    SHA-256: a later run of the same command may replace those, and nothing else. Readers of
+    ``out`` see either the old results or the new ones, never a mix; commands swapping into
+    the same ``out`` at once take turns (:func:`_folder_lock`). Whatever goes wrong before the
+    swap (a bad input, an error, a full disk, Ctrl-C, a file the user put into ``out``
+    meanwhile) leaves ``out`` as it was and no staging folder behind, and a file that could not
+    be written is named under ``out``, not under the staging folder. A swap the system refuses
+    leaves ``out`` as it was and the new results beside it (``<name>.new-N``), said in one line.
     """
-    clean_stale(check_path(out, option))  # first: a killed swap's old folder comes back
-    out = check_out_dir(out, command, force=force, option=option)
+    path = check_path(out, option)
+    with _folder_lock(path.parent) if path.parent.is_dir() else contextlib.nullcontext():
+        clean_stale(path)  # first: a killed swap's old folder comes back
+        out = check_out_dir(out, command, force=force, option=option)
     created: list[Path] = []
     try:
         created = _make_parents(out.parent)
@@ -459,29 +525,66 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
             from None
     try:
         write_json(tmp / MANIFEST, manifest(command, key))  # marks the staging folder as ours
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:
+            raise _named_under(exc, tmp, out, option) from None
         entries = listing(tmp)
-        write_json(tmp / MANIFEST, manifest(command, key, entries))
-        check_out_dir(out, command, force=force, option=option, own=entries)  # changed meanwhile?
-        keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(
-            out, command, entries))
+        write_json(tmp / MANIFEST, manifest(command, key, entries, digests(tmp, entries)))
+        with _folder_lock(out.parent):
+            check_out_dir(out, command, force=force, option=option, own=entries)  # changed?
+            keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(
+                out, command, entries))
+            old = _swap(out, tmp, keep, command, option)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_dirs(created)
         raise
-    old = None
-    if keep:  # --force over what this command did not make (or a link): kept, renamed
-        old = keep_aside(out, f"{option} {out}: " + ("was a symbolic link" if out.is_symlink()
-                                                     else f"held what {command} did not write"))
-    elif out.exists() or out.is_symlink():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        os.replace(out, old)
-    os.replace(tmp, out)
     if old is not None and not keep:
         if old.is_symlink() or not old.is_dir():
             old.unlink()  # a link (never what it points to)
         else:  # ours: the manifest goes last
             _remove_ours(old)
+
+
+def _named_under(exc: OSError, tmp: Path, out: Path, option: str) -> OSError | UserError:
+    """A write that failed in the staging folder, said of ``out``: the staging folder is about
+    to go, and ``out`` is what the user named (a path the system refuses: one line)."""
+    from .errors import _REFUSED_PATH
+
+    name = os.fsdecode(exc.filename) if exc.filename is not None else ""
+    if exc.errno not in _REFUSED_PATH or not name.startswith(str(tmp)):
+        return exc
+    rel = Path(name).relative_to(tmp)
+    return UserError(f"{option} {out}: could not write {rel} there ({exc.strerror or exc}); "
+                     f"{out} was left as it was")
+
+
+def _swap(out: Path, tmp: Path, keep: bool, command: str, option: str) -> Path | None:
+    """Put the staging folder ``tmp`` in place of ``out``: the old ``out`` is renamed aside
+    first (kept as ``<name>.replaced-N`` if ``keep``, else to a name of ours the caller
+    removes), which it returns (None if there was none). If the system refuses a rename, the
+    old ``out`` is put back and the new results are kept as ``<name>.new-N`` beside it: a
+    `UserError` says so."""
+    old = None
+    try:
+        if keep:  # --force over what this command did not make (or a link): kept, renamed
+            old = keep_aside(out, f"{option} {out}: " + ("was a symbolic link" if out.is_symlink()
+                                                         else f"held what {command} did not write"))
+        elif out.exists() or out.is_symlink():
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            os.replace(out, old)
+        os.replace(tmp, out)
+    except OSError as exc:
+        if old is not None and not (out.exists() or out.is_symlink()):
+            os.replace(old, out)
+        k = 1
+        while (new := out.parent / f"{out.name}.new-{k}").exists() or new.is_symlink():
+            k += 1
+        os.replace(tmp, new)  # a whole result of ours, its manifest kept
+        raise UserError(f"{option} {out}: could not be replaced ({exc.strerror or exc}); it is "
+                        f"as it was, and the new results are in {new}") from None
+    return old
 
 
 def _replaceable(out: Path, command: str, own: list[str]) -> bool:

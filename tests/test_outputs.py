@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import ROOT
+
 from itg_vision import outputs
 from itg_vision.errors import UserError, run_main
 from itg_vision.progress import LineProgress, progress
@@ -109,6 +111,77 @@ def test_a_file_put_inside_a_folder_the_command_wrote_is_the_users(tmp_path):
                                         r"video/cut.mp4\); move it out"):
         _make(out)
     assert (out / "video" / "cut.mp4").read_bytes() == b"the user's edit"
+
+
+def test_a_file_the_user_edited_in_a_folder_the_command_wrote_is_the_users(tmp_path):
+    """A note appended to a result's trace.csv was overwritten by the next run: the manifest
+    named the file, not its bytes. It now keeps each file's SHA-256: a file changed since is
+    the user's, refused like a file put in; --force keeps the folder aside."""
+    out = tmp_path / "r"
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "trace.csv").write_text("x_mm\n1\n")
+        (tmp / "summary.json").write_text("{}")
+    _make(out)  # unedited: replaced
+    with outputs.staged_dir(out, "run") as tmp:
+        (tmp / "trace.csv").write_text("x_mm\n1\n")
+    with open(out / "trace.csv", "a") as f:
+        f.write("my annotation\n")
+    before = _tree(tmp_path)
+    with pytest.raises(UserError) as exc:
+        _make(out)
+    assert str(exc.value) == (f"--out {out}: holds 1 file changed since run wrote it (first: "
+                              "trace.csv); move it out or choose another --out, or add --force to "
+                              "write there anyway (the folder is kept)")
+    assert _tree(tmp_path) == before
+    with outputs.staged_dir(out, "run", force=True) as tmp:
+        (tmp / "result.txt").write_text("forced")
+    assert (tmp_path / "r.replaced-1" / "trace.csv").read_text().endswith("my annotation\n")
+
+
+def test_a_mount_point_is_refused_before_any_work(tmp_path, monkeypatch):
+    """A mount point (a container's volume) cannot be renamed, and results replace --out by
+    renaming it: the whole run used to finish, then end in an EBUSY traceback with its results
+    in a hidden staging folder. Refused first, even with --force, pointing inside it."""
+    out = tmp_path / "volume"
+    out.mkdir()
+    real = os.path.ismount
+    monkeypatch.setattr(os.path, "ismount", lambda p: Path(p) == out or real(p))
+    for force in (False, True):
+        with pytest.raises(UserError, match=rf"--out {out}: is a mount point, which cannot be "
+                                            rf"renamed, .*\(e.g. --out {out}/results\)"):
+            with outputs.staged_dir(out, "run", force=force):
+                raise AssertionError("no work before the refusal")
+    assert sorted(tmp_path.iterdir()) == [out]
+
+
+def test_a_swap_the_system_refuses_keeps_both_results(tmp_path, monkeypatch):
+    """If renaming --out fails at the swap (EBUSY: a mount point that got past the check, a
+    file system that refuses), the old results stay in place and the new ones are kept beside
+    them as <name>.new-1, said in one line."""
+    out = tmp_path / "r"
+    _make(out, text="old")
+    real = os.replace
+
+    def busy(src, dst):
+        if Path(src) == out:
+            raise OSError(16, "Device or resource busy", str(src))
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", busy)
+    with pytest.raises(UserError) as exc:
+        _make(out, text="new")
+    assert str(exc.value) == (f"--out {out}: could not be replaced (Device or resource busy); it "
+                              f"is as it was, and the new results are in {out}.new-1")
+    assert (out / "result.txt").read_text() == "old"
+    assert (tmp_path / "r.new-1" / "result.txt").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r", "r.new-1"]
+
+
+def test_a_path_through_a_folder_not_yet_made_is_made(tmp_path, monkeypatch):
+    """b/../c with b missing: mkdir -p makes it; the swap used to refuse it ("File exists")."""
+    monkeypatch.chdir(tmp_path)
+    _make(Path("b/../c"))
+    assert (tmp_path / "c" / "result.txt").read_text() == "new" and (tmp_path / "b").is_dir()
 
 
 def test_what_an_earlier_run_wrote_counts_as_the_commands_own(tmp_path):
@@ -602,6 +675,27 @@ def test_a_path_the_system_refuses_is_one_line_status_2(tmp_path, capsys):
 
     with pytest.raises(ConnectionResetError):
         run_main(a_bug)
+
+
+def test_a_file_size_limit_is_one_line_naming_out_not_the_staging_folder(tmp_path):
+    """Under a file size limit (ulimit -f) a run's figure write fails with EFBIG: it was a
+    traceback; on a full disk the line named the staging folder's file, gone by then. Now one
+    line naming --out and the file, status 2, nothing left behind."""
+    resource = pytest.importorskip("resource")
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20 * 1024, 20 * 1024))
+
+    out = tmp_path / "o"
+    res = subprocess.run([sys.executable, "-m", "itg_vision.run", "--feedback", "model",
+                          "--points", "5", "--quiet", "--out", str(out)], capture_output=True,
+                         text=True, preexec_fn=limit, cwd=tmp_path,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: --out {out}: could not write "), lines
+    assert lines[0].endswith(f"there (File too large); {out} was left as it was")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_deleted_current_folder_is_said_before_anything_runs(monkeypatch, capsys):
