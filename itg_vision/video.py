@@ -66,6 +66,7 @@ class VideoRecorder:
         self._writer = None
         self._written: Path | None = None  # where OpenCV writes (self.path, or a stand-in)
         self._stand_in: Path | None = None  # a temporary folder for a path OpenCV cannot take
+        self.frames = 0  # frames written
 
     def frame(self, feedback, desired_mm: np.ndarray) -> None:
         """One frame from ``feedback.last_observation`` (whole frames: the run forces
@@ -101,6 +102,24 @@ class VideoRecorder:
             self._writer, self._written, self.codec_note = open_writer(target, self.fps, (w, h))
             self.path = self.path.with_suffix(self._written.suffix)
         self._writer.write(frame)
+        self.frames += 1
+
+    def check(self) -> None:
+        """Read the finished video back: a `UserError` unless every frame written decodes (OpenCV's
+        writer says nothing of a write the system refused: a full disk, a file size limit)."""
+        if not self.frames:
+            return
+        read = 0
+        with quiet_c_streams("stderr"):  # FFmpeg's own words on a cut file: said below
+            cap = cv2.VideoCapture(str(self.path))
+            try:
+                while read < self.frames and cap.grab():
+                    read += 1
+            finally:
+                cap.release()
+        if read < self.frames:
+            raise UserError(f"video: {self.path.name}: only {read} of its {self.frames} frames "
+                            "could be read back (the disk full, or a file size limit?)")
 
     def close(self) -> None:
         if self._writer is not None:
@@ -117,5 +136,7 @@ class VideoRecorder:
     def __enter__(self) -> "VideoRecorder":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, *exc) -> None:
         self.close()
+        if exc_type is None:
+            self.check()

@@ -146,6 +146,9 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--controller", "ik", "--rules", "table2"], "--rules: the ik controller takes no rule base"),
     (["--controller", "jacobian", "--rules", "itg-plus-two-link"],
      "--rules: the jacobian controller takes no rule base"),
+    # lengths that put the arm file's own path out of reach: the option is named, not the file
+    (["--true-links", "10,10"], "--true-links: none of the 180 set points of ellipse-t1"),
+    (["--links", "10,10"], "--links: none of the 180 set points of ellipse-t1"),
 ])
 def test_bad_input_one_line_exit_2_old_output_kept(main_in_process, tmp_path, args, expect):
     out = tmp_path / "r"
@@ -226,6 +229,36 @@ def test_run_video_writes_a_browser_playable_video(cli, tmp_path):
     assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 12
     ok, frame = cap.read()
     assert ok and frame.shape[1] == 2 * 640
+
+
+def test_a_video_cut_short_is_an_error_not_a_result(tmp_path):
+    """OpenCV's writer says nothing of writes the system refuses (a full disk, ulimit -f): a
+    run kept a video of which 24 of 30 frames decoded and exited 0. The recorder now reads the
+    finished video back: every frame written decodes, or a one-line UserError (which leaves
+    --out as it was). Here 12 frames of noise, whole and then cut to half their bytes."""
+    from types import SimpleNamespace
+
+    from itg_vision.camera import Rig, default_rig_path
+    from itg_vision.errors import UserError
+    from itg_vision.video import VideoRecorder
+
+    rig = Rig.from_yaml(default_rig_path("two-link"))
+    rng = np.random.default_rng(0)
+    views = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(2)]
+    eye = SimpleNamespace(last_observation=SimpleNamespace(frames=lambda: views, detections={}),
+                          estimate_rig=rig)
+    with VideoRecorder(tmp_path / "whole") as rec:  # closes and checks
+        for _ in range(12):
+            rec.frame(eye, np.zeros(3))
+    cut = VideoRecorder(tmp_path / "cut")
+    for _ in range(12):
+        cut.frame(eye, np.zeros(3))
+    cut.close()
+    data = cut.path.read_bytes()
+    cut.path.write_bytes(data[:len(data) // 2])
+    with pytest.raises(UserError, match=rf"video: {cut.path.name}: only \d+ of its 12 frames could "
+                                        r"be read back \(the disk full, or a file size limit\?\)"):
+        cut.check()
 
 
 def test_start_and_first_errors_against_the_forward_kinematics():
