@@ -204,6 +204,10 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                                  f"(x_mm,y_mm,z_mm), but {trajectory.name} is planar")
     if not any(true_arm.reachable(p) for p in trajectory.points_mm):
         lo, hi = true_arm.reach_mm()
+        if cfg.true_links_mm is not None and any(model.reachable(p) for p in trajectory.points_mm):
+            field = "true_links_mm"  # the model reaches them: the simulated arm's lengths do not
+        elif cfg.links_mm is not None and not cfg.trajectory:
+            field = "links_mm"  # the arm file's own path, for lengths the user gave
         raise NothingInReach(field, f"none of the {len(trajectory.points_mm) // trajectory.laps}"
                           f" set points of {trajectory.name} is in reach of arm {true_arm.name} "
                           f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")

@@ -271,7 +271,7 @@ CASES = [
     # trajectories
     ("csv-bom-bad-value", "run", RUN + ["--trajectory", "{bom-bad.csv}"], "bom-bad.csv:2: field y_mm: not a number: 'twenty'"),
     ("csv-all-out-of-reach", "run", RUN + ["--trajectory", "{unreachable.csv}"], "unreachable.csv is in reach of arm two-link (0 to 200 mm from its shoulder): nothing to track"),
-    ("csv-all-out-of-reach-true-links", "run", RUN + ["--trajectory", "ellipse-t1", "--true-links", "10,10"], "--trajectory: none of the 180 set points of ellipse-t1 is in reach of arm two-link (0 to 20 mm"),
+    ("csv-all-out-of-reach-true-links", "run", RUN + ["--trajectory", "ellipse-t1", "--true-links", "10,10"], "--true-links: none of the 180 set points of ellipse-t1 is in reach of arm two-link (0 to 20 mm"),
     ("csv-5000-digits", "run", RUN + ["--trajectory", "{digits.csv}"], "digits.csv:2: field x_mm: must be finite, got 1111"),
     ("csv-binary", "run", RUN + ["--trajectory", "{binary.csv}"], "binary.csv:3:1: not UTF-8"),
     ("csv-dev-zero", "run", RUN + ["--trajectory", "/dev/zero"], "/dev/zero: trajectory CSV larger than"),
