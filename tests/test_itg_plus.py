@@ -70,6 +70,26 @@ def step(rb, arm, p, q, rng=None, sigma=0.0):
 
 
 # ----------------------------------------------------------------------------- LET
+@pytest.mark.parametrize("name", ["two-link", "three-link"])
+@pytest.mark.parametrize("S", [2.0, 20.0])
+def test_every_step_is_clipped_to_the_servo_limit(name, S):
+    """The two- and three-link files say every step is clipped to +-S (two-link: the th3 clip
+    of RULE 3 is 40.4 deg at S = 40, beyond this S). Random poses and set points, a third of
+    them square to the three-link arm's plane (RULES 2 and 3, whose shoulder step reached 12 S
+    near the shoulder's height before its clip): no joint steps more than S."""
+    arm = _SPECS[name]
+    rb = load_rules(ARMS[name], arm.n_joints, arm.links_mm, S=S, w=0.5)
+    rng = np.random.default_rng(2)
+    for k in range(3000):
+        q = rng.uniform(-180, 180, arm.n_joints)
+        d = reachable_target(arm, rng)
+        if k % 3 == 0 and not arm.planar:  # along the pitch axis, a few mm either side
+            a = np.array([np.sin(np.radians(q[0])), -np.cos(np.radians(q[0]))])
+            d[:2] = rng.uniform(20, 150) * a * rng.choice([-1, 1]) + rng.normal(0, 0.5, 2)
+        step = rb.step(d, observe(arm, q), q)
+        assert step.out_of_reach or np.abs(step.dq_deg).max() <= S + 1e-9, (q, d, step)
+
+
 def test_let_names_a_quantity_computed_once_before_the_rules():
     rb = RuleBase.from_text("LET C = xg * ye - yg * xe\nLET D = 2 * C\n"
                             "RULE 1: IF D > 0 THEN q1 += D\nRULE 2: IF 1 > 0 THEN q2 -= C",
