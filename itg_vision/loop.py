@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from .contracts import MARKERS, Controller, Markers, Step
+from .errors import UserError
 from .inputs import is_real, is_whole
 
 #: The marker whose lost look (the feedback then hands on its last estimate) the loop answers
@@ -386,6 +387,14 @@ class Session:
                              f"expected, got shape {dq.shape}")
         if self.max_step_deg is not None:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
+        with np.errstate(over="ignore"):
+            q = self.world.q_deg + dq
+        if not np.all(np.isfinite(q)):  # finite steps whose sum overflows (rules like q1 += q1)
+            j = int(np.flatnonzero(~np.isfinite(q))[0])
+            fired = f"; rules fired: {', '.join(map(str, step.fired))}" if step.fired else ""
+            raise UserError(f"set point {self.k + 1}: joint q{j + 1} would turn to {q[j]} deg (from "
+                            f"{self.world.q_deg[j]:.6g} by {dq[j]:.6g}{fired}): no joint angle is "
+                            "that; bound each step with --max-step")
         self.world.move(dq)
         self._aim = self.desired_mm.copy() if aim_mm is None else np.asarray(aim_mm, float).copy()
         self._fired += [r for r in step.fired if r not in self._fired]

@@ -553,3 +553,20 @@ def test_a_look_lost_after_a_set_point_out_of_reach_is_given_where_the_arm_staye
     assert np.allclose(lossy.records[2].estimate.gripper_mm, lossy.records[1].estimate.gripper_mm)
     assert np.array_equal(np.array([r.q_deg for r in lossy.records]),
                           np.array([r.q_deg for r in clean.records]))
+
+
+def test_finite_steps_that_overflow_a_joint_angle_are_one_line():
+    """Each step finite, their sum not: q1 += 1e308 twice (no servo limit) ended in World's
+    ValueError traceback, exit 1. Now a UserError naming the set point, the joint and the rules
+    that fired, before the arm moves."""
+    from itg_vision.rules import RuleBase
+
+    arm = ArmSpec.from_args("two-link")
+    rb = RuleBase.from_text("RULE 7: IF 1 > 0 THEN q1 += 1e308, q2 HOLD", 2, arm.links_mm)
+    with World(arm) as world:
+        with pytest.raises(UserError, match=r"^set point 2: joint q1 would turn to inf deg "
+                                            r"\(from 1e\+308 by 1e\+308; rules fired: 7\): no "
+                                            r"joint angle is that; bound each step with "
+                                            r"--max-step$"):
+            simulate(world, rb, TruthFeedback(), np.array([[100.0, 0.0, 0.0]] * 3))
+        assert np.all(np.isfinite(world.q_deg))
