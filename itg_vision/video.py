@@ -104,14 +104,28 @@ class VideoRecorder:
         self._writer.write(frame)
         self.frames += 1
 
-    def check(self) -> None:
-        """Read the finished video back: a `UserError` unless every frame written decodes (OpenCV's
-        writer says nothing of a write the system refused: a full disk, a file size limit)."""
-        if not self.frames:
-            return
+    def close(self, check: bool = False) -> None:
+        """Finish the file. ``check``: read it back first, a `UserError` unless every frame
+        written decodes (OpenCV's writer says nothing of a write the system refused: a full
+        disk, a file size limit); read where OpenCV wrote it, since its FFmpeg crashes the
+        process on a path whose bytes are not UTF-8."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+        try:
+            if check and self.frames:
+                self._read_back(self._written)
+            if self._stand_in is not None and self._written is not None and self._written.exists():
+                shutil.move(self._written, self.path)  # the video to its place
+        finally:
+            if self._stand_in is not None:  # the stand-in folder gone
+                shutil.rmtree(self._stand_in, ignore_errors=True)
+                self._stand_in = None
+
+    def _read_back(self, path: Path) -> None:
         read = 0
         with quiet_c_streams("stderr"):  # FFmpeg's own words on a cut file: said below
-            cap = cv2.VideoCapture(str(self.path))
+            cap = cv2.VideoCapture(str(path))
             try:
                 while read < self.frames and cap.grab():
                     read += 1
@@ -121,22 +135,8 @@ class VideoRecorder:
             raise UserError(f"video: {self.path.name}: only {read} of its {self.frames} frames "
                             "could be read back (the disk full, or a file size limit?)")
 
-    def close(self) -> None:
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
-        if self._stand_in is not None:  # the video to its place, the stand-in folder gone
-            try:
-                if self._written is not None and self._written.exists():
-                    shutil.move(self._written, self.path)
-            finally:
-                shutil.rmtree(self._stand_in, ignore_errors=True)
-                self._stand_in = None
-
     def __enter__(self) -> "VideoRecorder":
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
-        self.close()
-        if exc_type is None:
-            self.check()
+        self.close(check=exc_type is None)

@@ -1,12 +1,14 @@
 """`python -m itg_vision.run` end to end, and its bad inputs."""
 
 import json
+import os
+import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from conftest import roundoff
+from conftest import ROOT, roundoff
 
 from itg_vision.runner import RunConfig, execute, prepare
 
@@ -231,34 +233,53 @@ def test_run_video_writes_a_browser_playable_video(cli, tmp_path):
     assert ok and frame.shape[1] == 2 * 640
 
 
+_VIDEO_SCRIPT = """
+import sys
+from types import SimpleNamespace
+import numpy as np
+from itg_vision.camera import Rig, default_rig_path
+from itg_vision.errors import UserError
+from itg_vision.video import VideoRecorder
+rng = np.random.default_rng(0)
+views = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(2)]
+eye = SimpleNamespace(last_observation=SimpleNamespace(frames=lambda: views, detections={}),
+                      estimate_rig=Rig.from_yaml(default_rig_path("two-link")))
+try:
+    with VideoRecorder(sys.argv[1]) as rec:
+        for _ in range(12):
+            rec.frame(eye, np.zeros(3))
+except UserError as exc:
+    print(exc)
+"""
+
+
 def test_a_video_cut_short_is_an_error_not_a_result(tmp_path):
     """OpenCV's writer says nothing of writes the system refuses (a full disk, ulimit -f): a
     run kept a video of which 24 of 30 frames decoded and exited 0. The recorder now reads the
     finished video back: every frame written decodes, or a one-line UserError (which leaves
-    --out as it was). Here 12 frames of noise, whole and then cut to half their bytes."""
-    from types import SimpleNamespace
+    --out as it was). 12 frames of noise (each some 100 kB encoded), whole and under a 200 kB
+    file size limit; and under a name whose bytes are not UTF-8, where OpenCV's FFmpeg crashes
+    the process (the read-back reads the stand-in it wrote)."""
+    resource = pytest.importorskip("resource")
 
-    from itg_vision.camera import Rig, default_rig_path
-    from itg_vision.errors import UserError
-    from itg_vision.video import VideoRecorder
+    def video(path, limit=None):
+        def set_limit():
+            if limit:
+                resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    rig = Rig.from_yaml(default_rig_path("two-link"))
-    rng = np.random.default_rng(0)
-    views = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(2)]
-    eye = SimpleNamespace(last_observation=SimpleNamespace(frames=lambda: views, detections={}),
-                          estimate_rig=rig)
-    with VideoRecorder(tmp_path / "whole") as rec:  # closes and checks
-        for _ in range(12):
-            rec.frame(eye, np.zeros(3))
-    cut = VideoRecorder(tmp_path / "cut")
-    for _ in range(12):
-        cut.frame(eye, np.zeros(3))
-    cut.close()
-    data = cut.path.read_bytes()
-    cut.path.write_bytes(data[:len(data) // 2])
-    with pytest.raises(UserError, match=rf"video: {cut.path.name}: only \d+ of its 12 frames could "
-                                        r"be read back \(the disk full, or a file size limit\?\)"):
-        cut.check()
+        return subprocess.run([sys.executable, "-c", _VIDEO_SCRIPT, path], capture_output=True,
+                              preexec_fn=set_limit, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+    whole = video(str(tmp_path / "whole"))
+    assert whole.returncode == 0 and whole.stdout == b"", whole
+    (made,) = tmp_path.glob("whole.*")
+    assert made.stat().st_size > 200_000
+    cut = video(str(tmp_path / "cut"), 200_000)
+    assert cut.returncode == 0, cut
+    assert re.fullmatch(rb"video: cut\.\w+: only \d+ of its 12 frames could be read back "
+                        rb"\(the disk full, or a file size limit\?\)\n", cut.stdout), cut.stdout
+    odd = video(os.fsencode(tmp_path) + b"/v\xe9")
+    assert odd.returncode == 0 and odd.stdout == b"", odd
 
 
 def test_start_and_first_errors_against_the_forward_kinematics():
