@@ -68,6 +68,19 @@ def _prepare(base: RunConfig, exact: bool, **kw):
     return prep
 
 
+def _setup(base: RunConfig, with_f: bool = True, **kw) -> str:
+    """What the runs of a figure ran with, for its title (a second line): the rules, the
+    feedback, f (unless the figure varies it), the iterations and the servo limit."""
+    cfg = replace(base, **kw)
+    f = cfg.gain_deg_per_mm if cfg.gain_deg_per_mm is not None else PARAM_DEFAULTS["f"]
+    limit = ("no servo limit" if cfg.max_step_deg is None
+             else f"servo limit {cfg.max_step_deg:g} deg/iteration")
+    n = cfg.iterations
+    return ", ".join([f"the paper's rules, {cfg.feedback} feedback"]
+                     + ([f"f = {f:g} deg/mm"] if with_f else [])
+                     + [f"{n} iteration{'' if n == 1 else 's'} per set point, {limit}"])
+
+
 def _run(base: RunConfig, exact: bool = False, **kw):
     return execute(_prepare(base, exact, **kw))
 
@@ -110,12 +123,14 @@ def exp1(base, out) -> dict:
     trace, s, cd, control, after = _jump(base)
     e = trace.error_mm()
     n = len(e) // 2
-    plot.paths_figure([("experiment 1: ABCD, f = %.2f deg/mm" % base.gain_deg_per_mm, trace,
+    plot.paths_figure([("experiment 1: ABCD", trace,
                         [(n - 1, n, "B-C: the jump (no set point between)")])],
-                      "Fig. 4.1", out / "exp1_path.png")
+                      f"Fig. 4.1\n{_setup(base)}", out / "exp1_path.png")
     plot.lines_figure({"with the jump": (np.arange(n), cd), "control: B-C crossed by 100 set points": (np.arange(n), control)},
-                      "set point on C-D", "E_i (mm)", "experiment 1: E_i along C-D", out / "exp1_error.png",
-                      logy=True, marker="",
+                      "set point on C-D", "E_i (mm)", f"experiment 1: E_i along C-D\n{_setup(base)}",
+                      out / "exp1_error.png", logy=True, marker="",
+                      vlines=[(JUMP_FORGOTTEN_AGREE, f"agrees if forgotten within {JUMP_FORGOTTEN_AGREE}", "C2"),
+                              (JUMP_FORGOTTEN_PARTLY, f"partly within {JUMP_FORGOTTEN_PARTLY}", "C3")],
                       vspans=[(0, after, f"until forgotten ({after} set points): E_i more than 0.1 mm "
                                          "from the control's")])
     return {"corners_mm": [list(c) for c in traj.ABCD_MM],
@@ -133,14 +148,16 @@ def exp2(base, out) -> dict:
     e = trace.error_mm()
     n = trace.tracking_start  # where the second lap starts
     i0 = settle_index(e, 10.0)
-    plot.paths_figure([("experiment 2: ellipse T1, 180 points, 2 laps", trace)], "Fig. 4.2",
-                      out / "exp2_path.png")
+    plot.paths_figure([("experiment 2: ellipse T1, 180 points, 2 laps", trace)],
+                      f"Fig. 4.2\n{_setup(base)}", out / "exp2_path.png", laps=2)
     plot.lines_figure({"E_i": (np.arange(len(e)), e)}, "set point i (lap 2 from 180)", "E_i (mm)",
-                      f"experiment 2: E_i along T1, 2 laps (settled from set point {i0})",
+                      f"experiment 2: E_i along T1, 2 laps (settled from set point {i0})\n{_setup(base)}",
                       out / "exp2_error.png", logy=True, marker=None,
                       hlines=[(ACCEPTABLE_MM, f"settled E_max at most {ACCEPTABLE_MM:g} mm; settling: "
                                               "below it for 10 set points in a row", "C3"),
-                              (FOLLOWS_CLOSELY_MM, f"settled E_av at most {FOLLOWS_CLOSELY_MM:g} mm", "C2")],
+                              (FOLLOWS_CLOSELY_MM, f"settled E_av at most {FOLLOWS_CLOSELY_MM:g} mm", "C2")]
+                      + ([(float(np.mean(e[i0:])), f"settled E_av, measured: {np.mean(e[i0:]):.2f} mm",
+                           "C0")] if i0 < len(e) else []),
                       vspans=[(0, min(i0, len(e)) - 0.5, "start transient (before settling)")]
                       if i0 > 0 else [])
     return {"e_av_mm": float(np.mean(e[:n])), "e_max_mm": float(np.max(e[:n])),  # lap 1
@@ -163,7 +180,8 @@ def exp3(base, out) -> dict:
                              gain_deg_per_mm=f)[1]["e_av_mm"] for n in ns])
         slope = float(np.polyfit(np.log(ns), np.log(eav), 1)[0])
         res[f"{f:g}"] = {"e_av_mm": eav.tolist(), "loglog_slope": slope}
-        series[f"f = {f:g} deg/mm (slope {slope:.2f})"] = (ns, eav)
+        inside = SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]
+        series[f"f = {f:g} deg/mm: slope {slope:.2f} ({'in' if inside else 'outside'} the band)"] = (ns, eav)
     # references, not measurements: slopes -1 (the claim) and the band's edges, through the
     # geometric mean of the first gain's points
     e0 = np.asarray(res[f"{EXP3_GAINS[0]:g}"]["e_av_mm"])
@@ -172,8 +190,9 @@ def exp3(base, out) -> dict:
             f"{EXP3_GAINS[0]:g}": (ns, anchor_e * (ns / anchor_n) ** k)
             for k in (-1.0, SLOPE_RANGE[0], SLOPE_RANGE[1])}
     plot.lines_figure(series, "n_t (set points)", "E_av (mm)",
-                      f"Fig. 4.3: E_av against n_t (agrees: slopes in [{SLOPE_RANGE[0]:g}, "
-                      f"{SLOPE_RANGE[1]:g}])", out / "exp3_eav_vs_nt.png", logx=True, logy=True,
+                      f"Fig. 4.3: E_av against n_t (a gain agrees if its slope is in "
+                      f"[{SLOPE_RANGE[0]:g}, {SLOPE_RANGE[1]:g}])\n{_setup(base, with_f=False)}",
+                      out / "exp3_eav_vs_nt.png", logx=True, logy=True,
                       references=refs)
     return {"n_t": ns.tolist(), "by_gain_deg_per_mm": res}
 
@@ -206,7 +225,8 @@ def exp4(base, out) -> dict:
     res["paper_f_as_rad_per_mm_e_av_t1_mm"] = {
         str(k): _run(base, arm="two-link", trajectory="ellipse-t1", gain_deg_per_mm=PAPER_F_AS_DEG_PER_MM,
                      iterations=k)[1]["e_av_mm"] for k in (1, 10, 20)}
-    plot.lines_figure(series, "f (deg/mm)", "E_av (mm)", "Fig. 4.4: E_av against f",
+    plot.lines_figure(series, "f (deg/mm)", "E_av (mm)",
+                      f"Fig. 4.4: E_av against f\n{_setup(base, with_f=False)}",
                       out / "exp4_eav_vs_f.png", logx=True, logy=True,
                       hlines=[(GOOD_F_FACTOR * res[n]["min_e_av_mm"],
                                f"{n.replace('ellipse-', '').upper()}: {GOOD_F_FACTOR:g}x its minimum (good f below)",
@@ -263,10 +283,12 @@ def exp5(base, out) -> dict:
                         for a in (0, 180, 360)]}
     angle = "radial angle: the ellipse's parameter (deg)"
     plot.lines_figure(series_first, angle, "E_i (mm)",
-                      "Fig. 4.5: set point deviation, first lap (as the paper: from the start pose)",
+                      "Fig. 4.5: set point deviation, first lap (as the paper: from the start pose)"
+                      f"\n{_setup(base)}",
                       out / "exp5_first_lap.png", logy=True, marker=None, **marks)
     plot.lines_figure(series_second, angle, "E_i (mm)",
-                      "Fig. 4.5: set point deviation, second lap (settled)", out / "exp5_second_lap.png",
+                      f"Fig. 4.5: set point deviation, second lap (settled)\n{_setup(base)}",
+                      out / "exp5_second_lap.png",
                       logy=True, marker=None, **marks)
     return res
 
@@ -329,7 +351,10 @@ def exp6(base, out) -> dict:
     t_full, s_full = _run(base, arm="three-link", trajectory="line-ab")
     res["line-ab"] = {"n_out_of_reach": s_full["n_out_of_reach"], "n_flagged": s_full["n_flagged"],
                       "n_setpoints": s_full["n_setpoints"], "e_av_mm": s_full["e_av_mm"]}
-    panels = []
+    e_full = t_full.error_mm()
+    panels = [(f"the paper's line, its {int(t_full.in_reach.sum())} set points in reach (the "
+               f"verdict's): E_av {s_full['e_av_mm']:.1f} mm", np.where(t_full.in_reach, e_full, np.nan),
+               s_full["e_av_mm"])]
     for label, kw in (("as the paper (1 iteration, no rate limit)", {}),
                       ("servo limit 2 deg/iteration, 5 iterations", {"max_step_deg": 2.0, "iterations": 5})):
         trace, s = _run(base, arm="three-link", trajectory="line-ab-reach", **kw)
@@ -337,17 +362,21 @@ def exp6(base, out) -> dict:
         res[label] = {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"],
                       "e_av_second_half_mm": float(e[len(e) // 2:].mean()),
                       "e_max_second_half_mm": float(e[len(e) // 2:].max())}
-        panels.append((label, e))
-        plot.path_figure(trace, f"experiment 6, line-ab-reach, {label}: E_av {s['e_av_mm']:.2f} mm",
+        panels.append((f"line-ab-reach, {label}: E_av {s['e_av_mm']:.1f} mm", e, s["e_av_mm"]))
+        plot.path_figure(trace, f"experiment 6, line-ab-reach, {label}: E_av {s['e_av_mm']:.2f} mm"
+                                f"\n{_setup(base, **kw)}",
                          out / f"exp6_path_{'paper' if not kw else 'limited'}.png")
     plot.path_figure(t_full, f"experiment 6, the paper's line: {s_full['n_out_of_reach']} of "
-                             f"{s_full['n_setpoints']} set points out of reach", out / "exp6_line_ab.png")
-    plot.lines_figure({label: (np.arange(len(e)), e) for label, e in panels}, "set point i",
-                      "E_i (mm)", "experiment 6, line-ab-reach: E_i along the line",
+                             f"{s_full['n_setpoints']} set points out of reach; E_av over those in "
+                             f"reach {s_full['e_av_mm']:.1f} mm\n{_setup(base)}", out / "exp6_line_ab.png")
+    plot.lines_figure({label: (np.arange(len(e)), e) for label, e, _ in panels}, "set point i",
+                      "E_i (mm)", "experiment 6: E_i along the line; dotted, each run's E_av in its "
+                      f"colour\n{_setup(base)}, unless labelled",
                       out / "exp6_error.png", logy=True, marker=None,
-                      hlines=[(PAPER_EXP6_E_AV_MM, f"the paper's E_av, {PAPER_EXP6_E_AV_MM:g} mm", "C2"),
+                      hlines=[(PAPER_EXP6_E_AV_MM, f"the paper's E_av, {PAPER_EXP6_E_AV_MM:g} mm", "C7"),
                               (EXP6_FACTOR * PAPER_EXP6_E_AV_MM, f"agrees if E_av (the mean of E_i) "
-                               f"<= {EXP6_FACTOR:g} x that", "C3")])
+                               f"<= {EXP6_FACTOR:g} x that", "C3")]
+                      + [(eav, None, f"C{i}", ":") for i, (_, _, eav) in enumerate(panels)])
     res["start_tie"] = tie_experiment()
     return res
 
@@ -582,7 +611,7 @@ def report(r: dict, base: RunConfig) -> str:
              (("exp6_line_ab.png", "Experiment 6, the paper's line"),
               ("exp6_path_paper.png", "Experiment 6, reachable variant, as the paper"),
               ("exp6_path_limited.png", "Experiment 6, reachable variant, servo limit"),
-              ("exp6_error.png", "Experiment 6, reachable variant: E_i and the paper's 0.4 mm")))):
+              ("exp6_error.png", "Experiment 6: E_i on the paper's line and the reachable variant, each run's E_av, the paper's 0.4 mm")))):
         L += [f"### {title}: {v}", "", *(f"![{cap}]({name})" for name, cap in figs), ""]
     return "\n".join(L)
 

@@ -177,14 +177,22 @@ def _legend_notes(ax, below: bool, spread: bool, flag_label: str = "") -> None:
         ax.plot([], [], "o", ms=11, mfc="none", mec="C3", mew=1.3, label=flag_label)
 
 
+def _log_label(label: str, log: bool) -> str:
+    """An axis label that says its scale is logarithmic (ticks 5 and 10 alone read as linear)."""
+    return f"{label}, log scale" if log else label
+
+
 def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, logx=False,
-                 logy=False, marker=True, hlines=(), vspans=(), references=None) -> None:
+                 logy=False, marker=True, hlines=(), vlines=(), vspans=(), references=None) -> None:
     """Generic curves: ``series`` maps a label to (x, y) arrays, each with its own marker and
     line style (series lying on each other stay seen). With ``logy``, a value below
     :data:`FLOOR_MM` is drawn at the floor as an open downward triangle, not joined to the
     curve. ``hlines``: (y, label[, colour]) drawn dashed (a threshold); ``vspans``: (x0, x1,
     label) bands shaded (a tolerance; the label is shown once); ``references``: label -> (x, y)
-    curves that are not measurements (e.g. a slope), thin grey lines without markers.
+    curves that are not measurements (e.g. a slope), thin grey lines without markers;
+    ``vlines``: (x, label[, colour]) drawn dashed (a threshold along x); an hline's fourth
+    item is its line style (default dashed). Log axes say so in
+    their labels.
     ``marker=None`` (or False) draws the series without markers. A series given as (x, y, q1, q3) also
     draws its interquartile range (over seeds) as whiskers."""
     fig, ax = plt.subplots(figsize=(6, 3.8))
@@ -201,8 +209,11 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
         any_below |= bool(below.any())
     for j, (label, (x, y)) in enumerate((references or {}).items()):
         ax.plot(x, y, ls=_STYLES[1 + j % 3], color="0.45", lw=0.9, label=label)
-    for y, label, *color in hlines:
-        ax.axhline(y, color=color[0] if color else "k", ls="--", lw=0.9, label=label)
+    for y, label, *style in hlines:
+        ax.axhline(y, color=style[0] if style else "k", ls=style[1] if len(style) > 1 else "--",
+                   lw=0.9, label=label)
+    for x, label, *color in vlines:
+        ax.axvline(x, color=color[0] if color else "k", ls="--", lw=0.9, label=label)
     shown = set()
     for x0, x1, label in vspans:
         ax.axvspan(x0, x1, color="0.85", zorder=0, label=None if label in shown else label)
@@ -214,22 +225,25 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
     if logy:
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
+    ax.set_xlabel(_log_label(xlabel, logx))
+    ax.set_ylabel(_log_label(ylabel, logy))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside: curves stay seen
     ax.set_title(_shown(title), fontsize=9)
     _save(fig, path)
 
 
-def paths_figure(panels: list, title: str, path) -> None:
+def paths_figure(panels: list, title: str, path, *, laps: int = 1) -> None:
     """Several planar paths side by side: ``panels`` is a list of (subtitle, trace) or
     (subtitle, trace, jumps), ``jumps`` a list of (i, j, label): the desired path is not drawn
-    from set point i to j (no set point lies between them), a dashed line is, labelled."""
+    from set point i to j (no set point lies between them), a dashed line is, labelled. The
+    actual gripper is drawn a colour per lap (``laps`` equal laps), as in :func:`path_figure`."""
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 5), squeeze=False)
     for ax, (sub, trace, *jumps) in zip(axes[0], panels):
         d, g = np.asarray(trace.desired_mm), np.asarray(trace.gripper_mm)
-        ax.plot(g[:, 0], g[:, 1], ".", ms=4, zorder=2, label="actual")
+        for k, part in enumerate(lap_slices(len(g), laps)):
+            ax.plot(g[part, 0], g[part, 1], ".", ms=4, zorder=2, color=f"C{k % 10}",
+                    label=f"actual, lap {k + 1}" if laps > 1 else "actual")
         cuts = sorted(i for i, _, _ in (jumps[0] if jumps else ()))
         first = True
         for part in np.split(np.arange(len(d)), [i + 1 for i in cuts]):
@@ -289,7 +303,7 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
         plain_log_ticks(ax.yaxis)
         lo, hi = ax.get_ylim()
         ax.set_ylim(lo, hi * 3)  # room for the values written above the dots
-    ax.set_ylabel(ylabel)
+    ax.set_ylabel(_log_label(ylabel, logy))
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside: dots stay seen
     ax.set_title(_shown(title), fontsize=9)

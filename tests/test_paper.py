@@ -165,3 +165,14 @@ def test_peaks_are_ordered_largest_first_so_the_verdict_takes_the_largest():
     e[[10, 50, 80]] = 5.0, 9.0, 7.0
     assert paper._peaks(e).tolist() == [50, 80, 10]
     assert paper._peaks(e, k=1).tolist() == [50]
+
+
+def test_every_figure_title_says_what_ran():
+    """The paper's figures' titles were fixed strings: a run with --feedback vision drew titles
+    like the model run's, and most left out f. Each now carries the runs' set-up."""
+    assert paper._setup(RunConfig(feedback="model", gain_deg_per_mm=0.5)) == (
+        "the paper's rules, model feedback, f = 0.5 deg/mm, 1 iteration per set point, "
+        "no servo limit")
+    assert paper._setup(RunConfig(feedback="vision"), with_f=False, max_step_deg=2.0, iterations=5) == (
+        "the paper's rules, vision feedback, 5 iterations per set point, servo limit 2 "
+        "deg/iteration")

@@ -119,6 +119,33 @@ def test_paths_figure_draws_a_jump_dashed_and_leaves_it_out_of_the_desired_path(
     assert jump.get_linestyle() == "--" and list(jump.get_xdata()) == [10, 50]
 
 
+def test_paths_figure_colours_the_laps_apart(figures):
+    """Experiment 2's figure drew two laps as one series: a second lap's flail could not be
+    told from the first lap's start transient."""
+    a = np.linspace(0, 2 * np.pi, 6, endpoint=False)
+    lap = np.c_[100 + 50 * np.cos(a), 50 * np.sin(a), np.zeros(6)]
+    d = np.vstack([lap, lap])
+    plot.paths_figure([("t1", _trace(d, d + [0.5, 0, 0]))], "t", "x.png", laps=2)
+    by = {ln.get_label(): ln for ln in figures[0].axes[0].lines}
+    lap1, lap2 = by["actual, lap 1"], by["actual, lap 2"]
+    assert len(lap1.get_xdata()) == len(lap2.get_xdata()) == 6
+    assert lap1.get_color() != lap2.get_color()
+
+
+def test_log_axes_say_so_and_thresholds_can_be_drawn_along_x(figures):
+    """Ticks 5 and 10 alone read as a linear axis: a log axis's label says log scale. A
+    threshold in set points (experiment 1's 5 and 50) is a dashed vertical line."""
+    plot.lines_figure({"a": ([1, 2], [0.5, 60.0])}, "n", "E (mm)", "t", "x.png", logx=True,
+                      logy=True, vlines=[(1.5, "within 1.5", "C2")])
+    plot.grouped_dots_figure(["p"], {"s": [3.0]}, "E (mm)", "t", "y.png", logy=True)
+    plot.grouped_dots_figure(["p"], {"s": [3.0]}, "E (mm)", "t", "z.png")
+    ax = figures[0].axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("n, log scale", "E (mm), log scale")
+    v = next(ln for ln in ax.lines if ln.get_label() == "within 1.5")
+    assert list(v.get_xdata()) == [1.5, 1.5] and v.get_linestyle() == "--"
+    assert [f.axes[0].get_ylabel() for f in figures[1:]] == ["E (mm), log scale", "E (mm)"]
+
+
 def test_a_title_holding_bytes_that_are_not_utf8_is_drawn(figures):
     """A file name with a Latin-1 byte reaches the title as a lone surrogate, which matplotlib
     cannot draw: it becomes U+FFFD."""
