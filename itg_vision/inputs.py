@@ -47,7 +47,11 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
 def file_sha256(path: str | Path) -> str:
     """The SHA-256 of a file's bytes, as 64 hex digits: a calibrated rig's ``true_rig_sha256``,
     and, cut short, a run's input digests and a sweep's file hashes."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    h = hashlib.sha256()
+    with open(path, "rb") as f:  # in blocks: a long video is not read into memory whole
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def _a(what: str) -> str:

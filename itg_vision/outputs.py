@@ -524,13 +524,13 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         raise UserError(f"{option} {out}: cannot create a folder there ({exc.strerror or exc})") \
             from None
     try:
-        write_json(tmp / MANIFEST, manifest(command, key))  # marks the staging folder as ours
         try:
+            write_json(tmp / MANIFEST, manifest(command, key))  # marks the staging folder as ours
             yield tmp
+            entries = listing(tmp)
+            write_json(tmp / MANIFEST, manifest(command, key, entries, digests(tmp, entries)))
         except OSError as exc:
             raise _named_under(exc, tmp, out, option) from None
-        entries = listing(tmp)
-        write_json(tmp / MANIFEST, manifest(command, key, entries, digests(tmp, entries)))
         with _folder_lock(out.parent):
             check_out_dir(out, command, force=force, option=option, own=entries)  # changed?
             keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(
@@ -562,28 +562,32 @@ def _named_under(exc: OSError, tmp: Path, out: Path, option: str) -> OSError | U
 
 def _swap(out: Path, tmp: Path, keep: bool, command: str, option: str) -> Path | None:
     """Put the staging folder ``tmp`` in place of ``out``: the old ``out`` is renamed aside
-    first (kept as ``<name>.replaced-N`` if ``keep``, else to a name of ours the caller
-    removes), which it returns (None if there was none). If the system refuses a rename, the
-    old ``out`` is put back and the new results are kept as ``<name>.new-N`` beside it: a
-    `UserError` says so."""
+    first (kept as ``<name>.replaced-N`` if ``keep``, said once the swap is done, else to a name
+    of ours the caller removes), which it returns (None if there was none). Whatever stops it
+    between the two renames (Ctrl-C, a rename the system refuses), the old ``out`` is put back
+    first; a refused rename keeps the new results as ``<name>.new-N`` beside it and raises a
+    `UserError` saying so."""
     old = None
     try:
-        if keep:  # --force over what this command did not make (or a link): kept, renamed
-            old = keep_aside(out, f"{option} {out}: " + ("was a symbolic link" if out.is_symlink()
-                                                         else f"held what {command} did not write"))
-        elif out.exists() or out.is_symlink():
-            old = out.parent / f".{out.name}.old-{os.getpid()}"
+        if out.exists() or out.is_symlink():
+            old = (_replaced_name(out) if keep
+                   else out.parent / f".{out.name}.old-{os.getpid()}")
             os.replace(out, old)
         os.replace(tmp, out)
-    except OSError as exc:
+    except BaseException as exc:
         if old is not None and not (out.exists() or out.is_symlink()):
             os.replace(old, out)
+        if not isinstance(exc, OSError):
+            raise
         k = 1
         while (new := out.parent / f"{out.name}.new-{k}").exists() or new.is_symlink():
             k += 1
         os.replace(tmp, new)  # a whole result of ours, its manifest kept
         raise UserError(f"{option} {out}: could not be replaced ({exc.strerror or exc}); it is "
                         f"as it was, and the new results are in {new}") from None
+    if keep and old is not None:  # --force over what this command did not make (or a link)
+        why = "was a symbolic link" if old.is_symlink() else f"held what {command} did not write"
+        print(f"note: {option} {out}: {why}; kept as {old}", file=sys.stderr)
     return old
 
 
@@ -596,15 +600,21 @@ def _replaceable(out: Path, command: str, own: list[str]) -> bool:
     return True
 
 
-def keep_aside(path: Path, why: str) -> Path:
-    """Rename ``path`` (a file or a folder ``--force`` writes over) to ``<name>.replaced-N``
-    beside it, before a file's suffix, N the smallest free from 1; say so on stderr as
-    ``note: <why>; kept as <new name>``. Nothing the user made is deleted. Returns the new name."""
+def _replaced_name(path: Path) -> Path:
+    """``<name>.replaced-N`` beside ``path``, before a file's suffix, N the smallest free."""
     suffix = path.suffix if path.is_file() else ""
     stem = path.name[:-len(suffix)] if suffix else path.name
     k = 1
     while (kept := path.parent / f"{stem}.replaced-{k}{suffix}").exists() or kept.is_symlink():
         k += 1
+    return kept
+
+
+def keep_aside(path: Path, why: str) -> Path:
+    """Rename ``path`` (a file or a folder ``--force`` writes over) to ``<name>.replaced-N``
+    beside it, before a file's suffix, N the smallest free from 1; say so on stderr as
+    ``note: <why>; kept as <new name>``. Nothing the user made is deleted. Returns the new name."""
+    kept = _replaced_name(path)
     os.replace(path, kept)
     print(f"note: {why}; kept as {kept}", file=sys.stderr)
     return kept

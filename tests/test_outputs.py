@@ -177,6 +177,88 @@ def test_a_swap_the_system_refuses_keeps_both_results(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r", "r.new-1"]
 
 
+def test_ctrl_c_between_the_two_renames_puts_the_old_folder_back(tmp_path, monkeypatch):
+    """Ctrl-C after --out was renamed aside and before the new folder took its place: the old
+    folder is put back at once (it stayed missing until the next run, and a plain folder of the
+    user's, an empty --out, never came back), the interruption goes on, nothing is left."""
+    out = tmp_path / "empty"
+    out.mkdir()
+    real = os.replace
+
+    def interrupted(src, dst):
+        if Path(dst) == out and Path(src).name.startswith(".empty.staging-"):
+            raise KeyboardInterrupt  # as the new folder was to take the old one's place
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _make(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty"] and not any(out.iterdir())
+
+
+def test_a_refused_swap_over_a_forced_folder_says_no_false_note(tmp_path, monkeypatch, capsys):
+    """With --force over the user's folder, the folder is renamed aside before the swap: if the
+    swap is then refused, the folder goes back, and no note says it was kept elsewhere."""
+    out = tmp_path / "u"
+    out.mkdir()
+    (out / "mine.txt").write_text("mine")
+    real = os.replace
+
+    def busy(src, dst):
+        if Path(dst) == out and Path(src).name.startswith(".u.staging-"):
+            raise OSError(16, "Device or resource busy", str(src))
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", busy)
+    with pytest.raises(UserError, match=r"could not be replaced \(Device or resource busy\)"):
+        with outputs.staged_dir(out, "run", force=True) as tmp:
+            (tmp / "result.txt").write_text("new")
+    assert capsys.readouterr().err == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["u", "u.new-1"]
+    assert (out / "mine.txt").read_text() == "mine"
+
+
+def test_a_manifest_that_cannot_be_written_is_named_under_out(tmp_path, monkeypatch):
+    """The manifest, written last (with every file's digest), is as likely as any file to meet
+    a full disk: its failure named the staging folder, gone by then."""
+    out = tmp_path / "o"
+    real = outputs.write_json
+
+    def full(path, obj):
+        if isinstance(obj, dict) and "entries" in obj:
+            raise OSError(28, "No space left on device", str(path))
+        return real(path, obj)
+
+    monkeypatch.setattr(outputs, "write_json", full)
+    with pytest.raises(UserError) as exc:
+        _make(out)
+    assert str(exc.value) == (f"--out {out}: could not write {outputs.MANIFEST} there (No space "
+                              f"left on device); {out} was left as it was")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_commands_swapping_into_one_out_take_turns(tmp_path):
+    """While another command holds --out's parent (checking or swapping), a second one waits
+    for it, so that neither sees the other half-done (6 processes at a barrier: a rename of a
+    folder another had just moved, or a false refusal, 2 trials in 20). Here the test holds the
+    lock: the command must not finish in 2 s; released, it does."""
+    import threading
+
+    out = tmp_path / "o"
+    done = threading.Event()
+
+    def run():
+        _make(out)
+        done.set()
+
+    with outputs._folder_lock(tmp_path):
+        worker = threading.Thread(target=run)
+        worker.start()
+        assert not done.wait(2.0) and not out.exists()
+    worker.join(30)
+    assert done.is_set() and (out / "result.txt").read_text() == "new"
+
+
 def test_a_path_through_a_folder_not_yet_made_is_made(tmp_path, monkeypatch):
     """b/../c with b missing: mkdir -p makes it; the swap used to refuse it ("File exists")."""
     monkeypatch.chdir(tmp_path)
