@@ -17,6 +17,7 @@ drives the same session with a user's actions.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable
@@ -387,15 +388,16 @@ class Session:
                              f"expected, got shape {dq.shape}")
         if self.max_step_deg is not None:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
-        with np.errstate(over="ignore"):
-            q = self.world.q_deg + dq
-        if not np.all(np.isfinite(q)):  # finite steps whose sum overflows (rules like q1 += q1)
-            j = int(np.flatnonzero(~np.isfinite(q))[0])
+        # in Python floats: an overflow is inf without a warning (finite steps whose sum is not:
+        # rules like q1 += q1), and the check costs what set_q's own does
+        q = [a + b for a, b in zip(self.world.q_deg.tolist(), dq.tolist())]
+        if not all(map(math.isfinite, q)):
+            j = next(j for j, v in enumerate(q) if not math.isfinite(v))
             fired = f"; rules fired: {', '.join(map(str, step.fired))}" if step.fired else ""
             raise UserError(f"set point {self.k + 1}: joint q{j + 1} would turn to {q[j]} deg (from "
                             f"{self.world.q_deg[j]:.6g} by {dq[j]:.6g}{fired}): no joint angle is "
                             "that; bound each step with --max-step")
-        self.world.move(dq)
+        self.world.set_q(q)
         self._aim = self.desired_mm.copy() if aim_mm is None else np.asarray(aim_mm, float).copy()
         self._fired += [r for r in step.fired if r not in self._fired]
         self._oor |= bool(step.out_of_reach)

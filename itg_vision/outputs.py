@@ -474,23 +474,34 @@ def probe_folder(folder: str | Path, option: str = "--out") -> None:
 
 
 @contextmanager
-def _folder_lock(folder: Path):
-    """Hold an advisory lock on ``folder`` (``fcntl.flock`` on the folder itself: nothing is
-    written into it) while outputs beside each other are checked and swapped: two commands
-    swapping into the same ``--out`` at once take turns, each seeing the other's result whole.
-    No lock where there is no ``fcntl`` (Windows) or the folder cannot be opened."""
+def flocked(path: Path, *, wait: bool = True):
+    """Hold an advisory lock (``fcntl.flock``) on the file or folder ``path`` (nothing is written
+    into it); yields False only when ``wait`` is False and another holds it (else once held:
+    ``wait``, until the other lets go). No lock where there is no ``fcntl`` (Windows) or
+    ``path`` cannot be opened: True, as nobody can hold it either."""
     try:
         import fcntl
 
-        fd = os.open(folder, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY)
     except (ImportError, OSError):
-        yield
+        yield True
         return
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        yield True
     finally:
         os.close(fd)  # releases the lock
+
+
+def _folder_lock(folder: Path):
+    """``folder``'s lock (:func:`flocked`) while outputs in it are checked and swapped: two
+    commands swapping into the same ``--out`` at once take turns, each seeing the other's result
+    whole."""
+    return flocked(folder)
 
 
 @contextmanager
@@ -511,7 +522,7 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
     leaves ``out`` as it was and the new results beside it (``<name>.new-N``), said in one line.
     """
     path = check_path(out, option)
-    with _folder_lock(path.parent) if path.parent.is_dir() else contextlib.nullcontext():
+    with _folder_lock(path.parent):  # (no parent yet: nothing to lock, nobody swapping there)
         clean_stale(path)  # first: a killed swap's old folder comes back
         out = check_out_dir(out, command, force=force, option=option)
     created: list[Path] = []
@@ -570,7 +581,7 @@ def _swap(out: Path, tmp: Path, keep: bool, command: str, option: str) -> Path |
     old = None
     try:
         if out.exists() or out.is_symlink():
-            old = (_replaced_name(out) if keep
+            old = (_free_name(out, "replaced") if keep
                    else out.parent / f".{out.name}.old-{os.getpid()}")
             os.replace(out, old)
         os.replace(tmp, out)
@@ -579,9 +590,7 @@ def _swap(out: Path, tmp: Path, keep: bool, command: str, option: str) -> Path |
             os.replace(old, out)
         if not isinstance(exc, OSError):
             raise
-        k = 1
-        while (new := out.parent / f"{out.name}.new-{k}").exists() or new.is_symlink():
-            k += 1
+        new = _free_name(out, "new")
         os.replace(tmp, new)  # a whole result of ours, its manifest kept
         raise UserError(f"{option} {out}: could not be replaced ({exc.strerror or exc}); it is "
                         f"as it was, and the new results are in {new}") from None
@@ -600,21 +609,21 @@ def _replaceable(out: Path, command: str, own: list[str]) -> bool:
     return True
 
 
-def _replaced_name(path: Path) -> Path:
-    """``<name>.replaced-N`` beside ``path``, before a file's suffix, N the smallest free."""
+def _free_name(path: Path, tag: str) -> Path:
+    """``<name>.<tag>-N`` beside ``path``, before a file's suffix, N the smallest free from 1."""
     suffix = path.suffix if path.is_file() else ""
     stem = path.name[:-len(suffix)] if suffix else path.name
     k = 1
-    while (kept := path.parent / f"{stem}.replaced-{k}{suffix}").exists() or kept.is_symlink():
+    while (free := path.parent / f"{stem}.{tag}-{k}{suffix}").exists() or free.is_symlink():
         k += 1
-    return kept
+    return free
 
 
 def keep_aside(path: Path, why: str) -> Path:
     """Rename ``path`` (a file or a folder ``--force`` writes over) to ``<name>.replaced-N``
     beside it, before a file's suffix, N the smallest free from 1; say so on stderr as
     ``note: <why>; kept as <new name>``. Nothing the user made is deleted. Returns the new name."""
-    kept = _replaced_name(path)
+    kept = _free_name(path, "replaced")
     os.replace(path, kept)
     print(f"note: {why}; kept as {kept}", file=sys.stderr)
     return kept

@@ -42,6 +42,11 @@ FLAIL_MM = 20.0              # exp. 5: a set point of a flail
 EXP6_FACTOR = 2.0            # exp. 6: agrees if E_av within 2x of the paper's 0.4 mm, all in reach
 
 
+def jump_verdict(forgotten_after: int) -> str:
+    """Experiment 1's verdict from the set points until the jump is forgotten."""
+    return verdict(forgotten_after <= JUMP_FORGOTTEN_AGREE, forgotten_after <= JUMP_FORGOTTEN_PARTLY)
+
+
 def verdict(ok: bool, partly: bool = False) -> str:
     return "agrees" if ok else ("partly" if partly else "disagrees")
 
@@ -148,6 +153,8 @@ def exp2(base, out) -> dict:
     e = trace.error_mm()
     n = trace.tracking_start  # where the second lap starts
     i0 = settle_index(e, 10.0)
+    # a run that never settles has no settled part: nan, and its verdict disagrees
+    settled = e[i0:] if i0 < len(e) else np.array([np.nan])
     plot.paths_figure([("experiment 2: ellipse T1, 180 points, 2 laps", trace)],
                       f"Fig. 4.2\n{_setup(base)}", out / "exp2_path.png", laps=2)
     plot.lines_figure({"E_i": (np.arange(len(e)), e)}, "set point i (lap 2 from 180)", "E_i (mm)",
@@ -156,16 +163,14 @@ def exp2(base, out) -> dict:
                       hlines=[(ACCEPTABLE_MM, f"settled E_max at most {ACCEPTABLE_MM:g} mm; settling: "
                                               "below it for 10 set points in a row", "C3"),
                               (FOLLOWS_CLOSELY_MM, f"settled E_av at most {FOLLOWS_CLOSELY_MM:g} mm", "C2")]
-                      + ([(float(np.mean(e[i0:])), f"settled E_av, measured: {np.mean(e[i0:]):.2f} mm",
+                      + ([(float(settled.mean()), f"settled E_av, measured: {settled.mean():.2f} mm",
                            "C0")] if i0 < len(e) else []),
                       vspans=[(0, min(i0, len(e)) - 0.5, "start transient (before settling)")]
                       if i0 > 0 else [])
     return {"e_av_mm": float(np.mean(e[:n])), "e_max_mm": float(np.max(e[:n])),  # lap 1
             "second_lap_e_av_mm": float(np.mean(e[n:])), "second_lap_e_max_mm": float(np.max(e[n:])),
-            "settled_at": i0,
-            # a run that never settles has no settled part: nan, and its verdict disagrees
-            "e_av_after_settling_mm": float(np.mean(e[i0:])) if i0 < len(e) else float("nan"),
-            "e_max_after_settling_mm": float(np.max(e[i0:])) if i0 < len(e) else float("nan")}
+            "settled_at": i0, "e_av_after_settling_mm": float(settled.mean()),
+            "e_max_after_settling_mm": float(settled.max())}
 
 
 EXP3_GAINS = (0.1, 0.2, 0.5)
@@ -451,7 +456,7 @@ def report(r: dict, base: RunConfig) -> str:
         "| --- | --- | --- | --- | --- |",
     ]
     fa = e1["forgotten_after_setpoints"]
-    v1 = verdict(fa <= JUMP_FORGOTTEN_AGREE, fa <= JUMP_FORGOTTEN_PARTLY)
+    v1 = jump_verdict(fa)
     L.append(
         f"| 1 | the sudden 100 mm jump B-C does not affect tracking quality (Fig. 4.1) | corners A{tuple(e1['corners_mm'][0])}, "
         f"B{tuple(e1['corners_mm'][1])}, C{tuple(e1['corners_mm'][2])}, D{tuple(e1['corners_mm'][3])} mm are our choice (the paper "
@@ -582,11 +587,10 @@ def report(r: dict, base: RunConfig) -> str:
         r1, r2 = (row[n]["good_f_range_deg_per_mm"] for n in ("ellipse-t1", "ellipse-t2"))
         never = f"never (C-D's {row['cd_setpoints']})" if fa_t >= row["cd_setpoints"] else fa_t
         L.append(f"| {label} | {', '.join(map(str, row['first_rules']))} | {row['jump_e_mm']:.1f} | {never} | "
-                 f"{verdict(fa_t <= JUMP_FORGOTTEN_AGREE, fa_t <= JUMP_FORGOTTEN_PARTLY)} | "
+                 f"{jump_verdict(fa_t)} | "
                  f"{row['ellipse-t1']['best_f_deg_per_mm']:.2f} / {row['ellipse-t2']['best_f_deg_per_mm']:.2f} | "
                  f"{r1[0]:.2f}-{r1[1]:.2f} / {r2[0]:.2f}-{r2[1]:.2f} | {verdict(_overlap(r1, r2))} |")
-    v1_tie = {label: verdict(row["forgotten_after_setpoints"] <= JUMP_FORGOTTEN_AGREE,
-                             row["forgotten_after_setpoints"] <= JUMP_FORGOTTEN_PARTLY)
+    v1_tie = {label: jump_verdict(row["forgotten_after_setpoints"])
               for label, row in r["two_link_tie"].items()}
     L += ["", "The tie alone turns experiment 1's verdict: "
           + ", ".join(f"{v} ({k})" for k, v in v1_tie.items()) + "."

@@ -236,8 +236,8 @@ def read_csv(path: str | Path) -> Trajectory:
         raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got "
                         f"{clip(','.join(header), 60)!r}")
     values, linenos = [], []
-    for lineno, row in zip(starts[1:], rows[1:]):
-        if not any(cell.strip() for cell in row):
+    for lineno, row, empty in zip(starts[1:], rows[1:], blank[1:]):
+        if empty:
             continue
         if len(row) != len(header):
             raise UserError(f"{path}:{lineno}: expected {len(header)} fields, got {len(row)}")

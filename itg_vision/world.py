@@ -68,6 +68,7 @@ class World:
         self._joints = [names[n] for n in arm.joint_names]
         self._leds = {m: names[f"{m}_led"] for m in arm.marker_names}
         self._offset_rad = np.radians(np.asarray(arm.joint_offset_deg or (0.0,) * arm.n_joints))
+        self._offset_deg = np.degrees(self._offset_rad)  # what IK's radians give back, once
         self._ik_damping = [IK_JOINT_DAMPING] * len(self._joints)  # one per degree of freedom
         self.q_deg = np.zeros(arm.n_joints)
         self.set_q(arm.start_q_deg if q_deg is None else q_deg)
@@ -87,6 +88,7 @@ class World:
             p.resetJointState(self.body, j, float(qj), physicsClientId=self.client)
 
     def move(self, dq_deg: np.ndarray) -> None:
+        """Command the joints ``dq_deg`` (deg) from where they are."""
         self.set_q(self.q_deg + np.asarray(dq_deg, float))
 
     # ------------------------------------------------------------------ markers
@@ -129,7 +131,7 @@ class World:
         iterating from ``start_q_deg`` (default: the arm's present angles). Not a solution from
         far away: from the straight start pose (singular) a call does not get there."""
         args, kwargs = self.ik_arguments(target_mm, marker, start_q_deg)
-        return np.degrees(p.calculateInverseKinematics(*args, **kwargs)) - np.degrees(self._offset_rad)
+        return np.degrees(p.calculateInverseKinematics(*args, **kwargs)) - self._offset_deg
 
     # ------------------------------------------------------------------ extra bodies
     def add_mesh(self, path: str, scale: float = 1.0, rgba=(1, 1, 1, 1)) -> int:

@@ -103,19 +103,13 @@ def sweep_lock(out: Path):
     """Hold ``out``'s lock while a sweep writes there: a second sweep into the same folder at
     once (each appending every run to results.csv, each rewriting it at its end) is refused
     with one line. An advisory lock (``fcntl.flock``), released when the sweep ends however it
-    ends; where there is no ``fcntl`` (Windows) there is no lock."""
-    try:
-        import fcntl
-    except ImportError:
-        yield
-        return
+    ends; where there is no ``fcntl`` (Windows) there is no lock (:func:`outputs.flocked`)."""
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / LOCK, "a") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+    (out / LOCK).touch()
+    with outputs.flocked(out / LOCK, wait=False) as held:
+        if not held:
             raise UserError(f"--out {out}: another sweep is writing into it now; wait for it to "
-                            "end, or choose another --out") from None
+                            "end, or choose another --out")
         yield
 
 
