@@ -269,7 +269,29 @@ class _Parser:
     def error(self, msg: str, tok: Token | None = None) -> RuleSyntaxError:
         tok = tok or self.tok
         found = "end of file" if tok.kind == "end" else repr(clip(tok.text))
-        return RuleSyntaxError(f"{self.at(tok)}: {msg} (found {found})")
+        return RuleSyntaxError(f"{self.at(tok)}: {msg} (found {found}){self._slip(tok)}")
+
+    def _slip(self, tok: Token) -> str:
+        """The likely slip behind an error at ``tok``, as a hint ('' if none is clear): two
+        operands side by side (a product written without its *), two actions without the
+        ',' between them, or '=>', '=<' or a single '=' where a comparison belongs."""
+        k = self.t.index(tok) if tok in self.t else -1
+        before = self.t[k - 1] if k > 0 else None
+        after = self.t[k + 1] if 0 <= k < len(self.t) - 1 else None
+        if tok.text == "=" and after is not None and after.text in ("<", ">") \
+                and after.col == tok.col + 1 and after.line == tok.line:
+            return f": '={after.text}' is not an operator, '{after.text}=' is"
+        if tok.text == "=" and before is not None and before.kind in ("num", "name") \
+                and not re.fullmatch(r"q[1-9]", before.text):
+            return ": '=' is not a comparison, '==' is"
+        if re.fullmatch(r"q[1-9]", tok.text) and after is not None \
+                and after.text in ("+=", "-=", "=", "HOLD"):
+            return ": the next action needs a ',' before it"
+        operand_end = before is not None and (before.kind in ("num", "name")
+                                              or before.text == ")")
+        if operand_end and (tok.kind in ("num", "name") or tok.text in ("(", "|")):
+            return f": two operands side by side; a product needs its * ('{before.text} * ...')"
+        return ""
 
     def accept(self, kind: str, text: str | None = None) -> Token | None:
         tok = self.tok

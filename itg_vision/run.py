@@ -277,7 +277,8 @@ def main(argv: list[str] | None = None) -> int:
 def plot_title(s: dict) -> str:
     """The run's figures' title: what ran on which path, what it saw and under which limits
     (servo, iterations), then E_av (and 'DIVERGED'); on a second line what else set the
-    result: the rig, dropout, the simulated arm's differences from the model, the seed. Files
+    result: the rule base's f, S and w (S unless it is the servo limit), the memory K, the
+    preview, the rig, dropout, the simulated arm's differences from the model, the seed. Files
     are named by their name less folder and type; an ITG run names its rule base."""
     who = _less_type(Path(s["rules"]).name) if s["controller"] == "itg" else s["controller"]
     seen = s["feedback"]
@@ -296,6 +297,15 @@ def plot_title(s: dict) -> str:
             f"{'; ' + limits if limits else ''}): E_av {e_av:.2f} mm"
             + (", DIVERGED" if s.get("diverged") else ""))
     more = []
+    units = {"gain_deg_per_mm": ("f", "deg/mm"), "step_deg": ("S", "deg"),
+             "tolerance_mm": ("w", "mm")}
+    from_ = s.get("controller_params_from", {})
+    more += [f"{units[k][0]} {v:g} {units[k][1]}" for k, v in s.get("controller_params", {}).items()
+             if k in units and from_.get(k) != "the servo limit"]  # (that S: in the first line)
+    if s.get("correction", 1) != 1:
+        more.append(f"memory K {s['correction']:g}")
+    if s.get("preview"):
+        more.append("preview")
     if s.get("estimate_rig"):
         est, ren = (_less_type(Path(s[k]).name) for k in ("estimate_rig", "render_rig"))
         more.append(f"rig {est}" if est == ren else f"rig {est} (renders {ren})")
@@ -334,6 +344,8 @@ def summary_table(s: dict, out: Path) -> str:
                 f"{k} {v}" + (f" ({s['controller_params_from'][k]})"
                               if k in s.get("controller_params_from", {}) else "")
                 for k, v in s["controller_params"].items()) or "none"),
+            *([("memory: correction K (1: none)", f"{s['correction']:g}")]
+              if s.get("correction", 1) != 1 else []),
             *([("preview: aims moved / largest move", "{moved} / {largest_move_mm:.3f} mm".format(
                 **s["preview"]))] if s.get("preview") else []),
             *([("aims flagged out of reach, asked again with the set point",

@@ -274,20 +274,21 @@ def read_csv(path: str | Path) -> Trajectory:
                       file=Path(path).resolve())
 
 
-#: A path all of whose set points lie within this fraction of the arm's outer reach of one
-#: another is likely written in other units (metres under an ``x_mm`` header): :func:`span_note`.
+#: A path all of whose set points lie within this fraction of the arm's outer reach of its
+#: base is likely written in other units (metres under an ``x_mm`` header): :func:`span_note`.
 SMALL_SPAN_FRACTION = 0.01
 
 
 def span_note(trajectory: Trajectory, reach_mm: float) -> str | None:
-    """A one-line note when ``trajectory`` spans less than :data:`SMALL_SPAN_FRACTION` of
-    ``reach_mm`` (its set points' bounding box's diagonal, mm), else None: such a path is run
-    as written, but a file in metres reads as a path 1000 times too small."""
+    """A one-line note when every set point of ``trajectory`` lies within
+    :data:`SMALL_SPAN_FRACTION` of ``reach_mm`` of the base (the world origin), else None: such
+    a path is run as written, but a file in metres reads as a path 1000 times too small. (A
+    small path elsewhere, or one set point held, is in millimetres: no note.)"""
     p = np.asarray(trajectory.points_mm, float)
-    span = float(np.linalg.norm(np.ptp(p, axis=0)))
-    if span >= SMALL_SPAN_FRACTION * reach_mm:
+    far = float(np.max(np.linalg.norm(p, axis=1)))
+    if far >= SMALL_SPAN_FRACTION * reach_mm:
         return None
-    return (f"note: trajectory {trajectory.name} spans {span:.3g} mm, under "
+    return (f"note: trajectory {trajectory.name} lies within {far:.3g} mm of the base, under "
             f"{100 * SMALL_SPAN_FRACTION:g} % of the arm's {reach_mm:g} mm reach: its "
             "coordinates are read as millimetres, not metres")
 

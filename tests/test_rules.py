@@ -54,6 +54,16 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q1 = q2", ":1:30", "only 'q1 = q1'"),
     ("RULE 1: IF xd > xg THEN q1 += 1, q1 -= 2", ":1:34", "q1 has two actions in one rule"),
     ("RULE 1: IF xd > xg THEN q2 HOLD, q1 += 1, q2 += 1", ":1:43", "q2 has two actions"),
+    # the likely slip, said after the error: a product without its *, '=>' for '>=', a single
+    # '=' for '==', two actions without their ','
+    ("RULE 1: IF xd > xg THEN q1 -= f |xd - xg|", ":1:33:", "(found '|'): two operands side by "
+     "side; a product needs its * ('f * ...')"),
+    ("LET a = 2 xg\nRULE 1: IF xd > a THEN q1 += S", ":1:11:", "a product needs its * ('2 * "),
+    ("RULE 1: IF (xd => xg) THEN q1 += S", ":1:16:", "(found '='): '=>' is not an operator, '>=' is"),
+    ("RULE 1: IF xd =< xg THEN q1 += S", ":1:15:", "'=<' is not an operator, '<=' is"),
+    ("RULE 1: IF xd = xg THEN q1 += S", ":1:15:", "(found '='): '=' is not a comparison, '==' is"),
+    ("RULE 1: IF xd > xg THEN q1 += S q2 HOLD", ":1:33:", "(found 'q2'): the next action needs a "
+     "',' before it"),
 ])
 def test_syntax_and_name_errors_name_file_line_column(text, where, what):
     with pytest.raises(UserError) as exc:

@@ -177,21 +177,25 @@ def test_bad_files_name_file_and_line(main_in_process, tmp_path):
 
 
 def test_a_path_in_metres_is_run_and_noted(main_in_process, tmp_path):
-    """A circle of radius 40 mm about (60, 0) written in metres spans 0.113 mm, under 1 % of
-    the two-link arm's 200 mm reach: it runs (every set point is in reach: the arm's inner
-    radius is 0) and a note says its numbers are read as millimetres. Written in millimetres
-    it runs without the note."""
+    """A circle of radius 40 mm about (60, 0) written in metres lies within 0.1 mm of the
+    base, under 1 % of the two-link arm's 200 mm reach: it runs (every set point is in reach:
+    the arm's inner radius is 0) and a note says its numbers are read as millimetres. Written
+    in millimetres it runs without the note; so does one set point held at (60, 0) mm, or a
+    1 mm circle there (small, but not near the base: not metres)."""
     a = np.radians(np.arange(0, 360, 10))
-    for scale, noted in ((1e-3, True), (1.0, False)):
-        path = tmp_path / f"circle-{scale:g}.csv"
+    for scale, radius, noted in ((1e-3, 40, True), (1.0, 40, False), (1.0, 0, False),
+                                 (1.0, 0.5, False)):
+        path = tmp_path / f"circle-{scale:g}-{radius:g}.csv"
         path.write_text("x_mm,y_mm\n" + "".join(
-            f"{scale * (60 + 40 * np.cos(t)):.6g},{scale * 40 * np.sin(t):.6g}\n" for t in a))
+            f"{scale * (60 + radius * np.cos(t)):.6g},{scale * radius * np.sin(t):.6g}\n"
+            for t in a))
         res = main_in_process("itg_vision.run", "--feedback", "model", "--trajectory", path,
-                              "--out", tmp_path / f"o{scale:g}", "--quiet")
+                              "--out", tmp_path / f"o{scale:g}-{radius:g}", "--quiet")
         assert res.returncode == 0, res.stderr
-        note = (f"note: trajectory {path} spans 0.113 mm, under 1 % of the arm's 200 mm reach: "
-                "its coordinates are read as millimetres, not metres")
+        note = (f"note: trajectory {path} lies within 0.1 mm of the base, under 1 % of the "
+                "arm's 200 mm reach: its coordinates are read as millimetres, not metres")
         assert (note in res.stderr) == noted, res.stderr
+        assert ("note: trajectory" in res.stderr) == noted, res.stderr
 
 
 @pytest.mark.slow
@@ -327,6 +331,16 @@ def test_figure_titles_name_the_rule_base_the_path_and_what_the_eye_saw():
     plain = {**more, "feedback": "model", "feedback_params": {}, "estimate_rig": None,
              "true_links_mm": [100.0, 100.0], "joint_offset_deg": [0.0, 0.0], "diverged": False}
     assert "\n" not in plot_title(plain)
+    # a sweep of one rule file's f or w, or of the memory, gives figures told apart by their
+    # titles; S said as the servo limit is not said twice
+    tuned = {**plain, "controller_params": {"gain_deg_per_mm": 0.3, "step_deg": 20.0,
+                                            "tolerance_mm": 1.0},
+             "controller_params_from": {"gain_deg_per_mm": "given", "step_deg": "the servo limit",
+                                        "tolerance_mm": "default"},
+             "correction": 0.5, "preview": {"moved": 2}}
+    assert plot_title(tuned).split("\n")[1] == "f 0.3 deg/mm, w 1 mm, memory K 0.5, preview"
+    fixed_s = {**tuned, "controller_params_from": {"step_deg": "default"}}
+    assert plot_title(fixed_s).split("\n")[1].startswith("f 0.3 deg/mm, S 20 deg, w 1 mm")
 
 
 def test_open_loop_ik_records_the_nominal_lengths_it_uses_not_the_measured_ones():
