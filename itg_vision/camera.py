@@ -457,6 +457,12 @@ def load_true_rig(rig: Rig, rig_path) -> Rig:
     without a word). A rig without ``true_rig_sha256`` (older calibrations) is not checked.
     """
     path = resolve_relative(rig.true_rig, Path(rig_path))
+    if not path.exists() and not Path(rig.true_rig).is_absolute():  # (moved from beside it?)
+        beside = os.path.normpath(Path(rig_path).parent / rig.true_rig)
+        raise UserError(f"{rig_path}: true_rig: {rig.true_rig}: no such file, read from this "
+                        f"file's folder ({beside}) or the current one; a calibration moved away "
+                        "from its rig needs its true_rig edited, or re-run calibrate with --out "
+                        "where it is to stay")
     try:
         truth = Rig.from_yaml(path)
     except UserError as exc:  # name the calibrated rig and its field, then the problem

@@ -198,7 +198,7 @@ CASES = [
     ("gain-with-ik", "run", RUN + ["--controller", "ik", "--gain", "0.3"], "--gain: the ik controller takes no f"),
     ("step-unused", "run", RUN + ["--step", "3"], "table2.rules never uses S"),
     ("step-is-the-servo-limit", "run", RUN + ["--rules", "itg-plus-two-link", "--max-step", "10", "--step", "3"], "itg-plus-two-link.rules: S is the servo limit (10 deg per iteration): set the servo limit instead (max_step_deg; run's --max-step)"),
-    ("rig-true-rig-missing", "run", ["--quiet", "--rig", "{lost-true-rig.yaml}"], "lost-true-rig.yaml: true_rig: nosuch.yaml: cannot read rig file (No such file or directory)"),
+    ("rig-true-rig-missing", "run", ["--quiet", "--rig", "{lost-true-rig.yaml}"], "lost-true-rig.yaml: true_rig: nosuch.yaml: no such file, read from this file's folder ("),
     ("rules-elbow-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{elbow.rules}"], "elbow.rules:2:12: 're2' reads the elbow LED, but a one-link arm has no elbow"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves or holds q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
