@@ -129,8 +129,10 @@ def summary_table(r: dict, tail=()) -> str:
     led = r["led_triangulation"]
     u = r["views_used"]
     rows.insert(1, ("views used", *(str(u[n]) for n in names)))
+    both = r["views_found"].get("both")  # (not in calibrations made before it was recorded)
     pair = [("stereo views used / shown", f"{u['stereo']} / {r['views_shown']}"
-             + (f" (dropped {r['views_dropped']})" if r["views_dropped"] else "")),
+             + (f" (found by both cameras in {both})" if both is not None else "")
+             + (f", outlier views dropped {r['views_dropped']}" if r["views_dropped"] else "")),
             ("board tilt span (deg)", "{:.0f} x {:.0f}".format(*r["tilt_span_deg"])),
             ("stereo RMS (px)", f"{r['stereo_rms_px']:.3f}"),
             ("baseline error (mm)", f"{e['baseline_mm']:+.3f}"),

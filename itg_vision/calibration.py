@@ -100,6 +100,7 @@ class StereoCalibration:
     tilt_span_deg: tuple[float, float]
     n_found: tuple[int, int] = (0, 0)
     intrinsics_std_px: tuple[np.ndarray, np.ndarray] | None = None
+    n_found_both: int = 0  # views in which both cameras found the board (before dropping)
 
 
 def tilt_spans_deg(rvecs) -> tuple[float, float]:
@@ -173,6 +174,7 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
             r = _mono([obj_board] * len(used), [views.corners[k][i] for k in used], sizes[i],
                       flags)
         res.append((used, r))
+    n_found_both = len(both)
     both = [k for k in both if k not in dropped]
     if len(both) < min_views:
         raise UserError(f"{where}only {len(both)} views with the board in both cameras are left after "
@@ -194,7 +196,7 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
     return StereoCalibration((K1, K2), (d1.ravel(), d2.ravel()), R, T.ravel(),
                              (float(rms1), float(rms2)), float(srms), (pv1, pv2),
                              (u1, u2), both, sorted(dropped), std_rel, spans,
-                             (len(seen[0]), len(seen[1])), (sd1[:4], sd2[:4]))
+                             (len(seen[0]), len(seen[1])), (sd1[:4], sd2[:4]), n_found_both)
 
 
 def rig_in_camera1_frame(true_rig: Rig, cal: StereoCalibration, name: str) -> Rig:
@@ -548,7 +550,8 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         "seed": seed,
         "sensor_noise_sigma_gray": [c1.noise_sigma_gray, c2.noise_sigma_gray],
         "views_shown": views,
-        "views_found": {c1.name: cal.n_found[0], c2.name: cal.n_found[1]},
+        "views_found": {c1.name: cal.n_found[0], c2.name: cal.n_found[1],
+                        "both": cal.n_found_both},
         "views_used": {c1.name: len(cal.used[0]), c2.name: len(cal.used[1]),
                        "stereo": len(cal.stereo_views)},
         "views_dropped": list(cal.dropped),

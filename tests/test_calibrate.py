@@ -275,6 +275,24 @@ def test_summary_table_lists_the_figures(planar_result):
         assert word in text
 
 
+@pytest.mark.slow
+def test_the_views_shown_found_dropped_and_used_add_up(planar_result):
+    """The stereo views used are those both cameras found the board in, less the outliers
+    dropped; the table says both counts (it listed the outliers only, so that 54 of 60 with
+    two dropped left four views unexplained)."""
+    res = planar_result[1]
+    r, st = res.record, res.stereo
+    assert set(st.stereo_views) == set(st.used[0]) & set(st.used[1])  # each camera's, kept
+    assert not set(st.stereo_views) & set(st.dropped)
+    # the views both found: the ones used, and some of the dropped (others one camera alone found)
+    assert r["views_found"]["both"] == st.n_found_both
+    assert len(st.stereo_views) <= st.n_found_both <= len(st.stereo_views) + len(st.dropped)
+    assert st.n_found_both <= min(st.n_found) <= max(st.n_found) <= r["views_shown"]
+    line = next(x for x in summary_table(r).splitlines() if x.startswith("stereo views used"))
+    assert f"{len(st.stereo_views)} / {r['views_shown']} (found by both cameras in " \
+           f"{st.n_found_both})" in line
+
+
 def test_summary_table_names_the_measured_links():
     """Three-link: the fits measure L2 and L3 (L1 is the base height, not seen); the table
     names them, and reads an older file without the names as before."""
