@@ -201,7 +201,7 @@ def lines_figure(series: dict, xlabel: str, ylabel: str, title: str, path, *, lo
         x = np.asarray(x, float)
         y, below = _floored(y, logy)
         mk = _MARKERS[i % len(_MARKERS)] if marker else None
-        line, = ax.plot(x, np.where(below, np.nan, y), marker=mk, ms=4, lw=1.2,
+        line, = ax.plot(x, np.where(below, np.nan, y), marker=mk, ms=4, lw=1.2, color=f"C{i % 10}",
                         ls=_STYLES[(i // 10) % len(_STYLES)] if len(series) > 10 else "-",
                         mfc="none" if i % 2 else None, label=label)
         _floor_and_spread(ax, x, y, below, spread, line.get_color(), logy)
@@ -263,14 +263,15 @@ def paths_figure(panels: list, title: str, path, *, laps: int = 1) -> None:
 
 def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str, path, *,
                         logy=False, spread: dict | None = None, flagged: dict | None = None,
-                        flag_label: str = "") -> None:
+                        flag_label: str = "", empty_label: str = "no value") -> None:
     """A dot chart: ``values`` maps a series label to one value per category (NaN: no dot), the
     series side by side in each category, each with its own marker, and the value written
     beside it. Dots, not bars: on a log axis a bar's length would mean nothing. With
     ``logy``, a value below :data:`FLOOR_MM` is drawn at the floor as an open downward
     triangle. ``spread`` maps a series label to (q1s, q3s), whiskers per category (the
     interquartile range over seeds). ``flagged`` maps a series label to booleans per category: those dots are ringed
-    in red and ``flag_label`` says why (e.g. a run diverged)."""
+    in red and ``flag_label`` says why (e.g. a run diverged). A category no series has a value
+    in is written ``empty_label`` (e.g. no run finished), not left blank."""
     n = max(1, len(values))
     width = 0.8 / n
     x = np.arange(len(categories))
@@ -280,7 +281,8 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
         xs = x + (i - (n - 1) / 2) * width
         ys, below = _floored(ys, logy)
         dots, = ax.plot(np.where(below, np.nan, xs), ys, _MARKERS[i % len(_MARKERS)], ms=5,
-                        ls="none", label=label)
+                        ls="none", label=label, color=f"C{i % 10}")  # (a ring drawn below
+        # takes no colour from the cycle: the series' colours stay apart)
         _floor_and_spread(ax, xs, ys, below, (spread or {}).get(label), dots.get_color(), logy)
         any_below |= bool(below.any())
         for xv, yv, b in zip(xs, ys, below):
@@ -294,6 +296,10 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
             ax.plot(xs[hit], ys[hit], "o", ms=11, mfc="none", mec="C3", mew=1.3)
     for k in range(1, len(categories)):  # where one category ends
         ax.axvline(k - 0.5, color="0.85", lw=0.8, zorder=0)
+    for k in range(len(categories)):  # a category without a value says so, not left blank
+        if not any(np.isfinite(float(ys[k])) for ys in values.values()):
+            ax.text(k, 0.5, empty_label, transform=ax.get_xaxis_transform(), rotation=90,
+                    ha="center", va="center", fontsize=7, color="0.4")
     _legend_notes(ax, any_below, bool(spread), flag_label if any_flag else "")
     ax.set_xticks(x)
     ax.set_xticklabels(categories, rotation=35, ha="right", fontsize=8)

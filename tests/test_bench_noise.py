@@ -1093,6 +1093,34 @@ def test_the_divergence_line_is_drawn_on_the_tracking_median_plots_only():
     assert not drawn["track_max_vs_sigma-ellipse-t1.png"]["hlines"]
 
 
+def test_a_condition_without_a_finished_run_draws_no_one_point_curve_and_says_so():
+    """links+5% with no finished run (none started): its curve against the model error would
+    be the clean run's point alone on a made-up axis, and its column in the dot chart was
+    blank, unlabelled. No curve is drawn; the dot chart writes 'no run finished' there."""
+    from types import SimpleNamespace
+
+    from itg_vision.bench.report import _plots, summarize
+
+    conds, ctrls = ["clean", "noise-1px", "links+5%"], ["itg-vision", "ik"]
+    rows = [{"trajectory": "ellipse-t1", "condition": c, "controller": k, "seed": "0",
+             "diverged": "0", "no_start": "",
+             **{m: "1.0" for m in ("e_av_mm", "e_max_mm", "track_median_mm", "track_mean_mm",
+                                   "track_p95_mm", "track_max_mm")}}
+            for k in ctrls for c in conds[:2]]
+    specs = build_sweep(quick=True, conditions=tuple(conds), controllers=tuple(ctrls))
+    lines, dots = {}, {}
+    fake = SimpleNamespace(
+        lines_figure=lambda series, xl, yl, title, path, **kw: lines.__setitem__(path.name, series),
+        grouped_dots_figure=lambda cats, values, yl, title, path, **kw: dots.__setitem__(
+            path.name, (cats, values, kw)))
+    _plots(Path("o"), summarize(rows), ["ellipse-t1"], conds, ctrls, fake, ("e_av",), specs)
+    assert "e_av_vs_sigma-ellipse-t1.png" in lines  # clean and 1 px: a curve of two points
+    assert "e_av_vs_model_error-ellipse-t1.png" not in lines
+    cats, values, kw = dots["e_av_by_condition-ellipse-t1.png"]
+    assert cats == conds and all(np.isnan(values[k][2]) for k in ctrls)
+    assert kw["empty_label"] == "no run finished"
+
+
 def test_a_report_of_files_with_spaces_links_its_plots_and_quotes_its_command(tmp_path):
     """A path of one's own named with a space: report.md's plot links are URLs (a space ends
     a Markdown link's destination, so the image did not show) and its command line reruns the

@@ -49,6 +49,25 @@ def test_dots_on_a_log_axis_write_their_values_and_mark_the_floor_and_the_flagge
     assert len(ax.collections) == 2  # the whiskers (interquartile ranges) of both series
 
 
+def test_eight_series_keep_eight_colours_and_an_empty_category_says_so(figures):
+    """Each red ring of a flagged series took the next colour of the cycle, so that with
+    three flagged among 8 controllers the eighth took the first's blue; a category without a
+    value was a blank column."""
+    names = [f"k{i}" for i in range(8)]
+    values = {k: [1.0 + i, float("nan")] for i, k in enumerate(names)}
+    flagged = {k: [i < 3, False] for i, k in enumerate(names)}  # three rings: 11 colours drawn
+    plot.grouped_dots_figure(["clean", "links+5%"], values, "E (mm)", "t", "x.png", logy=True,
+                             flagged=flagged, flag_label="diverged", empty_label="no run finished")
+    plot.lines_figure({k: ([0, 1], [1.0 + i, 2.0 + i]) for i, k in enumerate(names)}, "s",
+                      "E (mm)", "t", "y.png", hlines=[(5.0, "limit")])
+    for fig in figures:
+        ax = fig.axes[0]
+        colours = {ln.get_label(): ln.get_color() for ln in ax.lines if ln.get_label() in names}
+        assert len(set(colours.values())) == 8, colours
+    texts = [t.get_text() for t in figures[0].axes[0].texts]
+    assert texts.count("no run finished") == 1
+
+
 def test_a_curve_is_not_joined_to_a_value_drawn_at_the_floor(figures):
     plot.lines_figure({"ik": ([0, 1, 2], [1e-6, 0.3, 2.0]), "x": ([0, 1, 2], [0.2, 0.3, 0.4])},
                       "s", "E (mm)", "t", "x.png", logy=True)

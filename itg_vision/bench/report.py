@@ -425,8 +425,8 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
                 label = PLOT_METRICS[metric]
                 series = {k: curve(t, k, pairs, metric) for k in ctrls}
                 series = {k: v for k, v in series.items() if v[0]}
-                if not series:  # no run of these conditions finished: nothing to draw
-                    continue
+                if max((len(v[0]) for v in series.values()), default=0) < 2:
+                    continue  # no run of its conditions but one finished: no curve to draw
                 gone = sorted({k for k in ctrls for _, c in pairs if diverged(t, c, k)})
                 path = out / f"{metric}_vs_{name}-{t}.png"
                 plot.lines_figure(series, xlabel, f"{label} (mm), median over seeds",
@@ -448,6 +448,7 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
                 logy=True, spread={k: ([v[1] for v in vs], [v[2] for v in vs])
                                    for k, vs in cells.items()},
                 flagged={k: [diverged(t, c, k) for c in conds] for k in ctrls},
-                flag_label=f"a run diverged (tracking median > {DIVERGED_MM:g} mm)")
+                flag_label=f"a run diverged (tracking median > {DIVERGED_MM:g} mm)",
+                empty_label="no run finished")
             made.append(path)
     return made
