@@ -342,6 +342,18 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
                     f"choose another {option}, or add --force to replace it")
 
 
+def refuse_inputs_inside(out: str | Path, inputs: dict, option: str = "--out") -> None:
+    """Refuse (`UserError`, one line) an input file that lies inside ``out``: the command
+    replaces ``out`` whole (``--force`` keeps it aside as ``<name>.replaced-N``), so the input
+    would be moved away and the record would name a path that is gone. ``inputs`` maps the
+    option that named each file to its path (None or empty: none)."""
+    where = Path(out).resolve()
+    for label, path in inputs.items():
+        if path and where in Path(path).resolve().parents:
+            raise UserError(f"{label} {path} lies inside {option} {out}, which this command "
+                            f"replaces whole: move it out of {out}, or give another {option}")
+
+
 def _pid_alive(pid: int) -> bool:
     """Whether process ``pid`` may still run (its staging folder is then not stale). On Windows
     ``os.kill(pid, 0)`` would send CTRL_C_EVENT, not probe: every process counts as alive there,

@@ -175,15 +175,32 @@ def default_out(args: argparse.Namespace, prep) -> Path:
     return Path("runs") / name
 
 
-def run_key(prep) -> dict:
-    """What identifies a run's result: its settings and the content of its input files."""
+#: The option that names each input file of a run (run_key's names).
+_INPUT_OPTIONS = {"rules": "--rules", "estimate_rig": "--rig", "render_rig": "--rig's true_rig",
+                  "trajectory": "--trajectory", "arm": "--arm"}
+
+
+def _input_paths(prep) -> dict[str, str]:
+    """A run's input files by run_key's names: the rule base, the rigs, a trajectory file, the
+    arm file (a shipped arm's too: it may be edited)."""
     files = {}
     for key in ("rules", "estimate_rig", "render_rig"):
         if key in prep.info:
             files[key] = prep.info[key]
     if prep.trajectory.file is not None:
         files["trajectory"] = str(prep.trajectory.file)
-    files["arm"] = str(prep.model.source)  # the file read, a shipped arm's too: it may be edited
+    files["arm"] = str(prep.model.source)
+    return files
+
+
+def input_files(prep) -> dict[str, str]:
+    """A run's input files by the option that named them (:func:`outputs.refuse_inputs_inside`)."""
+    return {_INPUT_OPTIONS[k]: p for k, p in _input_paths(prep).items() if Path(p).is_file()}
+
+
+def run_key(prep) -> dict:
+    """What identifies a run's result: its settings and the content of its input files."""
+    files = _input_paths(prep)
     digests = {}
     for key, path in files.items():
         try:
@@ -245,6 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             out = default_out(args, prep)
             _check_default_out(out, key, args.force)
+        outputs.refuse_inputs_inside(out, input_files(prep))
         with outputs.staged_dir(out, "run", force=args.force, key=key) as tmp:
             bar = progress(len(prep.trajectory), f"run {out.name}", quiet=args.quiet, unit="pt")
             recorder = nullcontext()

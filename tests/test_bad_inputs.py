@@ -155,6 +155,8 @@ def make_inputs(tmp):
                                           (ARMS_DIR / "two-link.yaml").read_text()))
     text("lost-true-rig.yaml", (ARMS_DIR.parent.parent / "cameras" / "planar.yaml").read_text()
          + "true_rig: nosuch.yaml\n")
+    (tmp / "held").mkdir()  # an output folder of one's own, an input kept in it
+    text("held/rig.yaml", (ARMS_DIR.parent.parent / "cameras" / "planar.yaml").read_text())
     two_link = (ARMS_DIR / "two-link.yaml").read_text()
     for name, line, bad in ARM_EDITS:
         body, n = re.subn(line, lambda m: bad, two_link, flags=re.M)
@@ -315,6 +317,7 @@ CASES = [
     ("speed-frames-161", "bench", ["speed", "--frames", "161"], "--frames: must be at most 160 (the set points of ellipse-t1 after the first 20), got 161"),
     ("speed-frames-type", "bench", ["speed", "--frames", "x"], "argument --frames: expected a whole number, got 'x'"),
     ("speed-passes-0", "bench", ["speed", "--passes", "0"], "argument --passes: must be >= 1, got 0"),
+    ("accuracy-rig-inside-out", "bench", ["accuracy", "--rig", "{held/rig.yaml}", "--out", "{tmp}/held", "--force", "--poses", "5"], "/held/rig.yaml lies inside --out "),
     ("accuracy-seed-negative", "bench", ["accuracy", "--seed", "-1", "--poses", "5"], "--seed: must be >= 0, got -1"),
     ("accuracy-poses-3", "bench", ["accuracy", "--poses", "3"], "--poses: must be in 5..100000, got 3"),
     ("accuracy-unknown-option", "bench", ["accuracy", "--bogus"], "unrecognized arguments: --bogus"),

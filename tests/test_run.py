@@ -176,6 +176,34 @@ def test_bad_files_name_file_and_line(main_in_process, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("option, name", [("--rules", "mine.rules"), ("--trajectory", "p.csv"),
+                                          ("--rig", "rig.yaml")])
+def test_an_input_inside_out_is_refused_before_anything_moves(main_in_process, tmp_path, option,
+                                                             name):
+    """--out replaces its folder whole (--force keeps the old one as OUT.replaced-N): a rule
+    file kept in it was moved away, and summary.json named a path that was gone, so the same
+    command then failed with 'rule file not found'. Refused in one line; nothing moves."""
+    from itg_vision.rules import resolve_rules_path
+
+    out = tmp_path / "thesis"
+    out.mkdir()
+    source = {"--rules": resolve_rules_path("table2"), "--rig": ROOT / "cameras" / "planar.yaml",
+              "--trajectory": None}[option]
+    text = source.read_text() if source else "x_mm,y_mm\n120,40\n100,80\n60,60\n"
+    (out / name).write_text(text)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    args = ["--feedback", "vision" if option == "--rig" else "model", option, out / name]
+    args += [] if option == "--trajectory" else ["--points", "10"]  # (a named path's)
+    for force in ((), ("--force",)):
+        res = main_in_process("itg_vision.run", *args, "--out", out, "--quiet", *force)
+        assert res.returncode == 2
+        assert res.stderr.strip() == (f"error: {option} {out / name} lies inside --out {out}, "
+                                      f"which this command replaces whole: move it out of {out}, "
+                                      "or give another --out"), res.stderr
+        assert sorted(p.name for p in tmp_path.iterdir()) == before
+        assert (out / name).read_text() == text
+
+
 def test_a_path_in_metres_is_run_and_noted(main_in_process, tmp_path):
     """A circle of radius 40 mm about (60, 0) written in metres lies within 0.1 mm of the
     base, under 1 % of the two-link arm's 200 mm reach: it runs (every set point is in reach:
