@@ -4,7 +4,7 @@ The environment runs the same :class:`itg_vision.loop.Session` as ``python -m it
 one arm, one rig, one trajectory and one feedback source, built from a
 :class:`itg_vision.runner.RunConfig` (validated as the command line validates it). Each
 ``step`` is one iteration: the action (joint increments in degrees) is clipped to the servo
-limit and applied, the reward is minus E_i (mm) after the move, and the next observation is
+limit (``info["clipped"]`` says when) and applied, the reward is minus E_i (mm) after the move, and the next observation is
 what the feedback measures. The episode ends with the trajectory.
 
 Observation (a dict of float64 arrays, mm): ``desired_mm`` (the current set point),
@@ -74,7 +74,8 @@ class TrackingEnv(gym.Env):
     ----------
     config : a :class:`itg_vision.runner.RunConfig`; or its fields as keyword arguments
         (``arm``, ``trajectory``, ``feedback``, ``rig``, ``iterations``, ``max_step_deg``, ``laps``,
-        ``noise_px``, ``true_links_mm``, ...). Its ``controller`` and rule settings are not used:
+        ``noise_px``, ``true_links_mm``, ...). Its ``controller`` is not used, and settings
+        that shape a controller (``rules``, f, S, w, ``correction``, ``preview``) are refused:
         you are the controller.
     images : add both camera images to the observation (``feedback="vision"`` only).
     """
@@ -86,9 +87,11 @@ class TrackingEnv(gym.Env):
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
-        for name, default in (("correction", 1.0), ("preview", False)):
-            if getattr(cfg, name) != default:
-                raise ConfigError(name, "aims a controller; in the environment you are the "
+        for name, default in (("correction", 1.0), ("preview", False), ("rules", None),
+                              ("gain_deg_per_mm", None), ("step_deg", None),
+                              ("tolerance_mm", None)):
+            if getattr(cfg, name) != default:  # (accepted and unused, it read as in use)
+                raise ConfigError(name, "sets a controller; in the environment you are the "
                                         "controller")
         if cfg.max_step_deg is None:
             cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
@@ -168,7 +171,8 @@ class TrackingEnv(gym.Env):
         markers = self._feedback.observe(self._world) if terminated else self._session.observe()
         obs = self._observation(markers)
         info = {"e_mm": e, "k": k, "q_deg": self._world.q_deg.copy(),
-                "missed": tuple(markers.missed)}
+                "missed": tuple(markers.missed),
+                "clipped": bool(np.any(np.abs(dq) > self.config.max_step_deg))}
         if terminated:
             info["metrics"] = self._session.trace.metrics()
         return obs, -e, terminated, False, info

@@ -58,6 +58,8 @@ def test_actions_are_clipped_to_the_servo_limit_and_reward_is_minus_e_i():
     _, reward, _, _, info = env.step(np.array([50.0, -50.0]))
     assert np.allclose(info["q_deg"] - q0, [2.0, -2.0], rtol=0, atol=roundoff(180))  # every controller's limit
     assert reward == pytest.approx(-info["e_mm"]) and info["e_mm"] > 0
+    assert info["clipped"]  # said, not silent
+    assert not env.step(np.array([2.0, -1.5]))[4]["clipped"]  # at the limit: applied whole
     env.close()
 
 
@@ -123,11 +125,15 @@ def test_images_on_request_are_the_frames_the_estimate_came_from():
     env.close()
 
 
-@pytest.mark.parametrize("aim", [{"correction": 0.5}, {"preview": True}])
-def test_env_refuses_an_aim_it_would_not_apply(aim):
+@pytest.mark.parametrize("aim", [{"correction": 0.5}, {"preview": True},
+                                 {"rules": "itg-plus-two-link"}, {"gain_deg_per_mm": 0.3},
+                                 {"step_deg": 2.0}, {"tolerance_mm": 1.0}])
+def test_env_refuses_a_controller_setting_it_would_not_apply(aim):
+    """A rule base or its f, S, w given to the environment was accepted and never used (it
+    read as in use); the memory and the preview aim a controller the environment lacks."""
     from itg_vision.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=f"{next(iter(aim))}: aims a controller; in the "
+    with pytest.raises(ConfigError, match=f"{next(iter(aim))}: sets a controller; in the "
                                           "environment you are the controller"):
         TrackingEnv(feedback="truth", max_step_deg=20, **aim)
 
@@ -182,9 +188,9 @@ def test_reset_without_a_seed_runs_the_next_episode_of_a_reproducible_sequence()
     assert all(not np.array_equal(x, y) for x in a[:3] for y in b)
 
 
-def test_controller_and_rule_settings_are_not_checked_the_env_has_no_controller():
-    # table2 uses no S and ik takes no gain: a controller would refuse these; the env ignores them
-    env = TrackingEnv(feedback="truth", points=5, step_deg=2.0, controller="ik", gain_deg_per_mm=5.0)
+def test_the_controller_field_is_not_used_the_env_has_no_controller():
+    # ik would be given the nominal lengths; the env measures them whatever the config names
+    env = TrackingEnv(feedback="truth", points=5, controller="ik")
     obs, info = env.reset(seed=0)
     assert info["geometry"].source.startswith("measured")  # a model-free user learns the lengths
     env.close()
