@@ -570,3 +570,37 @@ def test_finite_steps_that_overflow_a_joint_angle_are_one_line():
                                             r"--max-step$"):
             simulate(world, rb, TruthFeedback(), np.array([[100.0, 0.0, 0.0]] * 3))
         assert np.all(np.isfinite(world.q_deg))
+
+
+class _Hold:
+    """Holds every joint: E_i is where each set point was put."""
+
+    uses_encoders = False
+
+    def step(self, desired_mm, markers, q_deg):
+        return Step(np.zeros(2))
+
+
+def _held_metrics(e_mm, tracking_start):
+    """The two-link gripper held at (0, 200) mm, set points e mm below it: E_i = e."""
+    e = np.asarray(e_mm, float)
+    points = np.c_[np.zeros(len(e)), 200.0 - e, np.zeros(len(e))]
+    with World(ArmSpec.from_args("two-link")) as world:
+        return simulate(world, _Hold(), TruthFeedback(), points,
+                        tracking_start=tracking_start).metrics()
+
+
+def test_diverged_is_the_tracking_median_above_the_line_not_the_mean():
+    """E_i 1, 2, 3, 50, 100: median 3, mean 31.2 (above 20): a run with a tail, not a
+    divergence (18 stored sweep rows are such); 1, 30, 30, 30, 1: median 30, diverged."""
+    assert _held_metrics([1, 2, 3, 50, 100], 0)["diverged"] is False
+    assert _held_metrics([1, 30, 30, 30, 1], 0)["diverged"] is True
+
+
+def test_e_max_is_over_the_whole_run_and_the_tracking_max_over_its_phase():
+    """E_max includes the start's transient (the paper's E_max: experiment 6 quotes it as
+    the start's); the tracking max does not."""
+    m = _held_metrics([100, 1, 2, 3, 4], 3)
+    tol = PYBULLET_RTOL * 200  # PyBullet's float32 link frames, at 200 mm from the base
+    assert m["e_max_mm"] == pytest.approx(100, abs=tol)
+    assert m["track_max_mm"] == pytest.approx(4, abs=tol)

@@ -176,3 +176,52 @@ def test_every_figure_title_says_what_ran():
     assert paper._setup(RunConfig(feedback="vision"), with_f=False, max_step_deg=2.0, iterations=5) == (
         "the paper's rules, vision feedback, 5 iterations per set point, servo limit 2 "
         "deg/iteration")
+
+
+def test_a_peak_is_a_local_maximum():
+    e = np.array([0, 5, 4.9, 0, 3, 0, 2, 0.0])
+    assert sorted(paper._peaks(e)) == [1, 4, 6]  # 4.9 beside 5 is no peak
+
+
+def test_settling_needs_ten_set_points_in_a_row():
+    e = np.r_[np.full(5, 5.0), np.ones(9), 5.0, np.ones(10)]
+    assert settle_index(e, 2.0) == 15  # nine below, then one above: not settled there
+
+
+@pytest.mark.slow
+def test_experiment_3_and_4_figures_from_their_saved_arrays(paper_run):
+    """The slopes of log E_av against log n_t (experiment 3) and the good-f ranges (E_av
+    within 1.5x of its least, experiment 4), recomputed by numpy from the arrays results.json
+    saves beside them (the verdicts are taken on these)."""
+    _, r = paper_run
+    for name in ("ellipse-t1", "ellipse-t2"):
+        g = r["exp4"][name]
+        fs, eav = np.array(g["f_deg_per_mm"]), np.array(g["e_av_mm"])
+        good = fs[eav <= 1.5 * eav.min()]
+        assert g["good_f_range_deg_per_mm"] == [good.min(), good.max()]
+    ns = np.array(r["exp3"]["n_t"])
+    for v in r["exp3"]["by_gain_deg_per_mm"].values():
+        assert v["loglog_slope"] == pytest.approx(
+            np.polyfit(np.log(ns), np.log(v["e_av_mm"]), 1)[0], rel=1e-9)
+
+
+@pytest.mark.slow
+def test_experiment_1_is_the_tie_studys_floating_point_run(paper_run):
+    """The report says so ('the table above is that run'): run on the model exactly as
+    rounded, the jump and its verdict would be another run's."""
+    _, r = paper_run
+    fp = r["two_link_tie"]["floating point"]
+    assert (r["exp1"]["jump_e_mm"], r["exp1"]["forgotten_after_setpoints"]) == \
+        (fp["jump_e_mm"], fp["forgotten_after_setpoints"])
+
+
+@pytest.mark.slow
+def test_experiment_6s_second_half_is_the_mean_of_its_second_half(paper_run):
+    from itg_vision.runner import RunConfig
+
+    _, r = paper_run
+    trace, _ = paper._run(RunConfig(feedback="model"), arm="three-link",
+                          trajectory="line-ab-reach", max_step_deg=2.0, iterations=5)
+    e = trace.error_mm()
+    res = r["exp6"]["servo limit 2 deg/iteration, 5 iterations"]
+    assert res["e_av_second_half_mm"] == pytest.approx(float(np.mean(e[len(e) // 2:])))
