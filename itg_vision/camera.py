@@ -538,6 +538,19 @@ def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
     return Camera.from_arrays(name, (W, H), K, dist, R, t, sigma, exposure)
 
 
+def plumb_bob(x, y, dist) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's lens model (plumb_bob: k1, k2, p1, p2, k3) on normalized image coordinates
+    ``x, y`` (arrays): the distorted (xd, yd). What ``cv2.projectPoints`` computes (tested
+    equal), in numpy because its Python binding also computes every point's Jacobian: 8x the
+    time on :func:`_distortion_check`'s 216,000 rays (89 against 11 ms a camera)."""
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return xd, yd
+
+
 def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
                       n_steps: int = 3000) -> tuple[str, int]:
     """Whether plumb_bob distortion ``dist`` can be simulated on this image: ('', margin_px)
@@ -549,17 +562,13 @@ def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
     image's half-diagonal. ``margin_px``: how far beyond the frame the pinhole rendering must
     reach (about what :func:`itg_vision.imaging.render_plan` adds on each side).
     """
-    k1, k2, p1, p2, k3 = (float(v) for v in dist)
     corners = np.array([[-0.5 - cx, -0.5 - cy], [W - 0.5 - cx, -0.5 - cy],
                         [-0.5 - cx, H - 0.5 - cy], [W - 0.5 - cx, H - 0.5 - cy]]) / [fx, fy]
     t = np.linspace(0.0, 3.0 * float(np.max(np.hypot(*corners.T))), n_steps)[:, None]
     a = np.linspace(0.0, 2 * np.pi, n_angles, endpoint=False)[None, :]
     x, y = t * np.cos(a), t * np.sin(a)
     with np.errstate(all="ignore"):
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xd, yd = plumb_bob(x, y, dist)
         u, v = fx * xd + cx, fy * yd + cy
         along = xd * np.cos(a) + yd * np.sin(a)
     outside = ~((u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5))

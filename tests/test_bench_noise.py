@@ -530,6 +530,27 @@ def test_perturbed_rig_is_off_by_exactly_one_degree_and_five_mm(tmp_path):
     assert a.cameras == b.cameras and perturb_rig(true, 2).cameras != a.cameras
 
 
+def test_perturbed_rig_draws_its_turn_and_shift_from_the_documented_stream():
+    """The stream is numpy's default_rng([seed, 0x5EED]), an axis then a direction, as
+    camera.perturbed's docstring says: the published rig-perturbed rows are reproducible from
+    that sentence alone."""
+    import cv2
+
+    from itg_vision.camera import Rig
+    from itg_vision.runner import CAMERAS_DIR
+
+    true = Rig.from_yaml(CAMERAS_DIR / "planar.yaml")
+    rng = np.random.default_rng([3, 0x5EED])
+    axis, d = rng.normal(size=3), rng.normal(size=3)
+    dR = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(RIG_ANGLE_DEG))[0]
+    shift = RIG_SHIFT_MM * d / np.linalg.norm(d)
+    pivot = np.mean([c.position_mm for c in true.cameras], axis=0)
+    for c0, c1 in zip(true.cameras, perturb_rig(true, seed=3).cameras):
+        assert np.allclose(c1.R.T @ c0.R, dR, rtol=0, atol=roundoff(3))  # R' = R dR^T
+        assert np.allclose(c1.position_mm, pivot + dR @ (c0.position_mm - pivot) + shift,
+                           rtol=0, atol=roundoff(1000))
+
+
 # ---------------------------------------------------------------------------- the claims
 def test_jacobian_tracker_converges_from_measured_positions_alone():
     """Truth feedback (measured marker positions, no model): a constant reachable set point."""

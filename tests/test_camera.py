@@ -191,6 +191,58 @@ def test_rotation_deg_form_equals_look_at_form(rig, tmp_path):
     assert np.allclose(other.t_mm, cam.t_mm, rtol=0, atol=roundoff(1000))  # ~700 mm
 
 
+def test_a_rig_files_camera_matrix_is_the_cameras_and_projects_as_opencv_does(tmp_path):
+    """fy unlike fx (660 against 600; the shipped right camera's differ by 2 px): the camera
+    holds the file's matrix, and a point projects where cv2.projectPoints puts it with the
+    file's K and distortion."""
+    doc = yaml.safe_load(PLANAR.read_text())
+    K = np.array([[600.0, 0, 319.5], [0, 660.0, 241.0], [0, 0, 1]])
+    doc["cameras"][0]["camera_matrix"]["data"] = K.ravel().tolist()
+    path = tmp_path / "fy.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    cam = Rig.from_yaml(path).cameras[0]
+    assert np.array_equal(cam.K, K)
+    X = _points(np.random.default_rng(5), 20)
+    dist = np.array(doc["cameras"][0]["distortion_coefficients"]["data"])
+    expected = cv2.projectPoints(X, cv2.Rodrigues(cam.R)[0], cam.t_mm, K, dist)[0].reshape(-1, 2)
+    assert np.allclose(cam.project(X), expected, rtol=0, atol=roundoff(1000))
+
+
+def test_plumb_bob_is_opencvs_lens_model():
+    """The distortion check's lens model, in numpy, against cv2.projectPoints (K = I) for
+    random normalized points and lenses, each coefficient alone and all together."""
+    from itg_vision.camera import plumb_bob
+
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(-1.2, 1.2, (500, 2))
+    lenses = [np.eye(5)[i] * c for i in range(5) for c in (-0.3, 0.2)]
+    lenses += [rng.normal(0, [0.3, 0.2, 0.02, 0.02, 0.2]) for _ in range(10)]
+    for dist in lenses:
+        expected = cv2.projectPoints(np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3),
+                                     np.eye(3), dist)[0].reshape(-1, 2)
+        got = np.stack(plumb_bob(xy[:, 0], xy[:, 1], dist), axis=1)
+        assert np.allclose(got, expected, rtol=0, atol=roundoff(10)), dist
+
+
+def test_a_look_at_pose_without_up_has_the_world_z_up(tmp_path):
+    """'up' may be left out: the world's z is then up in the image, so a point 100 mm above
+    the looked-at point images above the principal point (v < cy), and the pose is the one
+    written with up [0, 0, 1]."""
+    doc = yaml.safe_load(THREE.read_text())
+    pose = {"position_mm": [0.0, -600.0, 150.0], "look_at_mm": [0.0, 0.0, 150.0]}
+    doc["cameras"][0]["pose"] = pose
+    path = tmp_path / "no-up.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    cam = Rig.from_yaml(path).cameras[0]
+    doc["cameras"][0]["pose"] = {**pose, "up": [0.0, 0.0, 1.0]}
+    path.write_text(yaml.safe_dump(doc))
+    assert np.array_equal(cam.R, Rig.from_yaml(path).cameras[0].R)
+    u, v = cam.project(np.array([[0.0, 0.0, 250.0]]), distort=False)[0]
+    # closed form: straight above, 600 mm away, 100 mm up: fy * 100 / 600 px above cy
+    assert u == pytest.approx(cam.cx, abs=roundoff(1000))
+    assert v == pytest.approx(cam.cy - cam.fy * 100 / 600, abs=roundoff(1000))
+
+
 def _set(doc, keys, value):
     d = doc
     for k in keys[:-1]:

@@ -271,6 +271,56 @@ def test_a_non_finite_step_from_finite_inputs_stops_the_run_naming_rule_and_valu
     assert "\n" not in msg
 
 
+def test_a_non_finite_step_is_judged_by_its_own_joints_inputs():
+    """One rule, two actions: q1's step reads the missing elbow (NaN: moves nothing), q2's
+    divides by zero from finite inputs: the run stops naming q2 and its inputs, not q1's; the
+    message quotes the rule's own line, not the next."""
+    rb = RuleBase.from_text("RULE 1: IF 1 > 0 THEN q1 += xe, q2 += 1 / (xd - xg)\n"
+                            "RULE 2: IF xd < 0 THEN q2 += 1", 2, TWO, source="my.rules")
+    with pytest.raises(UserError) as exc:
+        rb.step(np.array([50.0, 0, 0]), markers([50.0, 0, 0]), [0, 0])  # no elbow
+    msg = str(exc.value)
+    assert msg.startswith("my.rules:1: RULE 1 gives q2 a step of inf deg (xd = 50, xg = 50)")
+    assert "'RULE 1: IF 1 > 0 THEN q1 += xe, q2 += 1 / (xd - xg)'" in msg
+
+
+@pytest.mark.parametrize("n, j", [(n, j) for n in (1, 2, 3) for j in range(1, n + 1)])
+def test_a_rule_base_reading_any_joint_angle_is_given_the_encoders(n, j):
+    """Reading q_j alone (the last joint too) makes the rule base ask for the encoders, and
+    its rule fires on them."""
+    holds = "".join(f", q{i} HOLD" for i in range(1, n + 1) if i != j)
+    rb = RuleBase.from_text(f"RULE 1: IF q{j} > 10 THEN q{j} -= 1{holds}", n, (100.0,) * n)
+    assert rb.uses_encoders
+    step = rb.step(np.array([50.0, 0, 0]), markers([50.0, 0, 0], [25.0, 0, 0]), [20.0] * n)
+    assert step.fired == (1,) and step.dq_deg[j - 1] == -1
+
+
+def test_keywords_are_read_in_any_case():
+    upper = "RULE 1: IF xd > xg AND NOT yd < 0 THEN q1 += S, q2 HOLD\nRULE 2: IF xd < xg THEN q1 -= S"
+    lower = "rule 1: if xd > xg and not yd < 0 then q1 += S, q2 hold\nRule 2: If xd < xg Then q1 -= S"
+    a, b = (RuleBase.from_text(t, 2, TWO, S=2.0) for t in (lower, upper))
+    for xd, yd in ((50.0, 5.0), (50.0, -5.0), (-50.0, 5.0)):
+        sa, sb = (rb.step(np.array([xd, yd, 0]), markers([0.0, 0, 0], [25.0, 0, 0]), [0, 0])
+                  for rb in (a, b))
+        assert sa.fired == sb.fired and sa.dq_deg.tolist() == sb.dq_deg.tolist()
+    assert [r.number for r in a.rules] == [1, 2]
+
+
+def test_l_is_the_first_link():
+    rb = RuleBase.from_text("RULE 1: IF xd > xg THEN q1 += L, q2 += L2", 2, (107.0, 94.0))
+    step = rb.step(np.array([50.0, 0, 0]), markers([0.0, 0, 0], [25.0, 0, 0]), [0, 0])
+    assert step.dq_deg.tolist() == [107.0, 94.0]
+
+
+def test_parameters_from_code_are_checked_as_documented():
+    """f and S must be > 0, w >= 0: w = 0 (no dead band) is a rule base's to use."""
+    text = "RULE 1: IF xd > xg + w THEN q1 += f * S, q2 HOLD"
+    for bad in ({"f": 0.0}, {"S": 0.0}, {"w": -0.1}):
+        with pytest.raises(ValueError, match=f"{next(iter(bad))} must be a finite number"):
+            RuleBase.from_text(text, 2, TWO, **bad)
+    assert RuleBase.from_text(text, 2, TWO, f=0.5, S=2.0, w=0.0).w == 0.0
+
+
 def test_a_step_computed_from_a_missing_marker_moves_nothing():
     rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += xe / 0", 2, TWO)
     step = rb.step(np.array([5.0, 0, 0]), markers([0, 0, 0]), [0, 0])  # no elbow: NaN
