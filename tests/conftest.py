@@ -24,6 +24,19 @@ def roundoff(scale, ulps=16):
     return ulps * np.finfo(float).eps * scale
 
 
+def flat_disc(centre, radius, size=(21, 21), s=16):
+    """A white RGB image (``size`` rows, columns) with a flat red disc of ``radius`` px about
+    ``centre`` (u, v; pixel centres at integers), anti-aliased: drawn at ``s`` x and area-
+    averaged, so each pixel holds its coverage to 1 / s^2 and half a grey level."""
+    h, w = size
+    jj, ii = np.mgrid[0:h * s, 0:w * s]
+    u, v = centre
+    inside = (ii - ((u + 0.5) * s - 0.5)) ** 2 + (jj - ((v + 0.5) * s - 0.5)) ** 2 <= (radius * s) ** 2
+    big = np.full((h * s, w * s, 3), 255.0)
+    big[inside] = (255, 0, 0)
+    return big.reshape(h, s, w, s, 3).mean(axis=(1, 3)).round().astype(np.uint8)
+
+
 def affine_eye(scale=1.0, shift_mm=(0.0, 0.0, 0.0)):
     """A feedback that sees the simulator's LEDs through a wrong world frame, x -> scale x +
     shift: a stereo baseline calibrated too short or long scales the world it triangulates

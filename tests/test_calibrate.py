@@ -624,3 +624,31 @@ def test_calibrate_runs_opencv_on_one_thread_and_restores_it(monkeypatch):
         assert seen == [1] and cv2.getNumThreads() == 2
     finally:
         cv2.setNumThreads(before)
+
+
+
+def test_board_poses_spanning_less_than_forty_degrees_about_an_axis_are_refused():
+    """calibration.MIN_TILT_SPAN_DEG, 40 deg (measured 22-31 deg with --tilt 0, degenerate):
+    exact projections (0.05 px noise) of views tilted over 60 deg about the board's x axis
+    and 30 deg about its y axis are refused, naming the 30 deg span."""
+    from itg_vision import calibration as cal
+    from itg_vision import board as brd
+    from itg_vision.errors import UserError
+
+    rig, board = Rig.from_yaml(PLANAR), brd.Board()
+    rng = np.random.default_rng(0)
+    front = brd.sample_board_poses(rig, board, 1, rng, target_mm=[0, 0, 0], tilt_deg=0,
+                                   spin_deg=0)[0]
+    centre = front.points(board.centre_mm())
+    tilts = [(a, 0.0) for a in np.linspace(-30, 30, 6)] + [(0.0, b) for b in
+                                                          np.linspace(-15, 15, 6)]
+    poses, corners = [], []
+    for a, b in tilts:
+        R = front.R @ cv2.Rodrigues(np.radians([a, b, 0.0]))[0]
+        pose = brd.BoardPose(R, centre - R @ board.centre_mm())
+        uv = [c.project(pose.points(board.object_points())) for c in rig.cameras]
+        poses.append(pose)
+        corners.append(tuple((x + rng.normal(0, 0.05, x.shape)).astype(np.float32)
+                             .reshape(-1, 1, 2) for x in uv))
+    with pytest.raises(UserError, match=r"tilt spans only 60 x 30 deg"):
+        cal.calibrate_views(brd.Views(poses, corners), board, tuple(c.size for c in rig.cameras))

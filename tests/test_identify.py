@@ -218,3 +218,91 @@ def test_the_start_up_measures_an_arm_that_starts_leaned():
         np.testing.assert_array_equal(world.q_deg, arm.start_q_deg)
     assert np.hypot(*geometry.base_axis_mm) < 1.0
     np.testing.assert_allclose(geometry.links_mm, arm.links_mm, rtol=0, atol=1.0)
+
+
+# --------------------------------------------------- the start-up's fits against closed forms
+import cv2  # noqa: E402
+
+from itg_vision.camera import Rig  # noqa: E402
+from itg_vision.feedback import VisionFeedback  # noqa: E402
+from conftest import ROOT  # noqa: E402
+
+PLANAR = ROOT / "cameras" / "planar.yaml"
+
+
+def test_base_axis_circles_are_fitted_in_horizontal_planes():
+    """LEDs on a vertical axis through (37, -21) mm whose measured heights wander along the
+    arc (0.45 mm, as identify.base_axis's docstring measured): the points still lie on
+    vertical cylinders about the axis, so horizontal-plane circle fits find it exactly (to
+    round-off); a freely fitted plane tilts and moves the centre."""
+    from itg_vision.identify import base_axis
+
+    a = np.radians(np.arange(-60.0, 61.0, 12.0))
+    ring = lambda r, z: np.column_stack([37 + r * np.cos(a), -21 + r * np.sin(a),
+                                         z + 0.45 * np.sin(a)])
+    point, direction, _ = base_axis([ring(12.0, 200.0), ring(12.0, 300.0)])
+    np.testing.assert_allclose(point[:2], (37.0, -21.0), rtol=0, atol=1e-9)
+
+
+def test_the_shoulder_is_where_a_tilted_base_axis_crosses_the_shoulder_height():
+    """An eye whose frame is turned 1 deg about x (a rig tilted after calibration): the eye
+    sees the base axis tilted. The start-up's shoulder is that axis at the shoulder's height:
+    the true shoulder (0, 0, L1) seen through the same turn, to the circle centre's own offset
+    (the LED stand-off h = 12 mm along the pitch axis moves the elbow circle's height, and so
+    the crossing, by at most h sin(1 deg) tan(1 deg), 4e-3 mm); 0.02 mm bounds it. Taking the
+    mean of the circles' centres (43 mm above the shoulder) is off by 0.75 mm."""
+    from itg_vision.contracts import Markers
+    from itg_vision.identify import measure_geometry
+
+    R = cv2.Rodrigues(np.radians([1.0, 0.0, 0.0]))[0]
+
+    class Tilted(TruthFeedback):
+        def observe(self, world):
+            m = super().observe(world)
+            return Markers(R @ m.gripper_mm, R @ m.elbow_mm, m.missed)
+
+    arm = ArmSpec.from_args("three-link")
+    with World(arm) as world:
+        g = measure_geometry(world, Tilted(), arm)
+    S = R @ np.array([0.0, 0.0, arm.links_mm[0]])
+    # the measured L1 is the height of the elbow circle's centre, not S's: compare on the axis
+    expected_xy = S[:2] + (g.shoulder_mm[2] - S[2]) * (R[:2, 2] / R[2, 2])
+    np.testing.assert_allclose(g.shoulder_mm[:2], expected_xy, rtol=0, atol=0.02)
+
+
+def test_the_start_up_survives_a_dropout_of_thirty_percent():
+    """--dropout 0.3 drops each marker's look with probability 0.3, so a look sees both LEDs
+    with p = 0.49. The start-up needs SAMPLES_PER_POSE (5) good looks within
+    MAX_TRIES_PER_POSE; with the documented 50 tries the chance of fewer than 5 successes is
+    P(Bin(50, 0.49) <= 4) ~ 1e-9 (closed form below), so each of 5 seeds measures the arm."""
+    from math import comb
+
+    from itg_vision.identify import SAMPLES_PER_POSE, measure_geometry
+
+    p = 0.7**2
+    fail = sum(comb(50, k) * p**k * (1 - p) ** (50 - k) for k in range(SAMPLES_PER_POSE))
+    assert fail < 1e-8
+    arm = ArmSpec.from_args("two-link")
+    rig = Rig.from_yaml(PLANAR)
+    for seed in range(5):
+        fb = VisionFeedback(rig, rig, arm, dropout=0.3)
+        fb.reset(seed)
+        with World(arm) as world:
+            g = measure_geometry(world, fb, arm)
+        np.testing.assert_allclose(g.links_mm, arm.links_mm, rtol=0, atol=0.5)
+
+
+def test_circle_residual_counts_the_distance_out_of_the_plane():
+    """fit_circle's rms_mm is the RMS distance of the points from the fitted circle (the
+    geometry's residual_mm in summary.json). Points on a circle of radius 50 about the z axis,
+    displaced alternately +-0.3 mm along z and fitted in the horizontal plane through their
+    mean: the circle is exact in-plane, so every point is 0.3 mm from it (closed form)."""
+    from itg_vision.identify import fit_circle
+
+    a = np.radians(np.arange(0.0, 360.0, 30.0))
+    dz = 0.3 * np.where(np.arange(len(a)) % 2 == 0, 1.0, -1.0)
+    P = np.column_stack([50 * np.cos(a), 50 * np.sin(a), 100.0 + dz])
+    centre, _, radius, rms = fit_circle(P, (0.0, 0.0, 1.0))
+    np.testing.assert_allclose(centre, (0.0, 0.0, 100.0), rtol=0, atol=1e-9)
+    assert radius == pytest.approx(50.0, abs=1e-9)
+    assert rms == pytest.approx(0.3, abs=1e-9)

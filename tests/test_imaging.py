@@ -91,3 +91,38 @@ def test_capture_shape_and_background():
     assert img.shape == (480, 640, 3) and img.dtype == np.uint8
     assert np.median(img) > 150  # light background everywhere, corners included
     assert img[:5, :5].mean() > 150 and img[-5:, -5:].mean() > 150
+
+
+# ---------------------------------------------------- the windows' sensor noise (closed form)
+from itg_vision.arm import ArmSpec  # noqa: E402
+from itg_vision.imaging import FLAT_LIGHT, capture_window  # noqa: E402
+from itg_vision.world import World  # noqa: E402
+
+PLANAR = ROOT / "cameras" / "planar.yaml"
+
+
+def test_window_pixels_carry_the_cameras_sensor_noise():
+    """capture_window with the run's generator against the same window without one. The
+    background renders at 255, so the sensor's N(0, sigma^2) grey-level noise, rounded and
+    clipped at 255, leaves a pixel below 255 with probability Phi(-0.5 / sigma) (0.40 at the
+    rig's 2 grey levels) and moves it by sum_{k<=-1} k P(round(n) = k) on average (closed
+    forms of the camera's noise model). 60 x 60 x 3 samples: the fraction's standard error is
+    0.005; bounds 0.03 and 0.05 grey levels."""
+    from statistics import NormalDist
+
+    rig = Rig.from_yaml(PLANAR)
+    cam = rig.cameras[0]
+    sigma = cam.noise_sigma_gray
+    assert sigma > 0
+    with World(ArmSpec.from_args("two-link")) as world:
+        box = (20, 20, 80, 80)  # a corner of the frame: background only
+        noisy = capture_window(world, cam, np.random.default_rng(0), box, supersample=3,
+                               lighting=FLAT_LIGHT)
+        clean = capture_window(world, cam, None, box, supersample=3, lighting=FLAT_LIGHT)
+    assert np.all(clean.image == 255)
+    d = noisy.image.astype(float) - 255.0
+    N = NormalDist(0.0, sigma)
+    frac = N.cdf(-0.5)
+    mean = sum(k * (N.cdf(k + 0.5) - N.cdf(k - 0.5)) for k in range(-int(10 * sigma) - 1, 0))
+    assert abs(np.mean(d < 0) - frac) < 0.03, (np.mean(d < 0), frac)
+    assert abs(d.mean() - mean) < 0.05, (d.mean(), mean)
