@@ -82,3 +82,30 @@ def test_a_board_showing_its_back_is_not_visible():
     back = brd.BoardPose(R, centre - R @ board.centre_mm())
     assert np.allclose(back.points(board.centre_mm()), centre, rtol=0, atol=roundoff(1000))  # ~700 mm away
     assert not brd.board_visible(cam, board, back)
+
+
+@pytest.mark.parametrize("turn_deg", [0, 30, 90, 180, 250])
+def test_corners_in_any_order_opencv_returns_are_put_in_the_boards(turn_deg):
+    """The board's texture warped into an image by a known similarity (turned, scaled,
+    moved: seen from the front): its corners' true image positions are the warp of the object
+    points. Given them in the board's order, turned by 180 degrees (reversed) or mirrored
+    (each row reversed), as OpenCV may return them, canonical_order gives the board's order."""
+    import cv2
+
+    b = brd.Board()
+    tex = b.texture()
+    x0, y0, _, _ = b.extent_mm()
+    scale = 0.6 * 640 / tex.shape[1]
+    a = np.radians(turn_deg)
+    R = scale * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    centre_tex = np.array(tex.shape[1::-1]) / 2
+    H = np.eye(3)
+    H[:2, :2], H[:2, 2] = R, np.array([320.0, 240.0]) - R @ centre_tex
+    image = cv2.warpPerspective(tex, H, (640, 480), flags=cv2.INTER_AREA, borderValue=255)
+    obj = b.object_points()[:, :2]
+    tex_px = (obj - [x0, y0]) * b.px_per_mm  # (pixel centres: the texture's own rule aside)
+    truth = (tex_px @ R.T + H[:2, 2]).astype(np.float32)
+    grid = truth.reshape(b.rows, b.cols, 2)
+    for given in (grid, grid[::-1, ::-1], grid[:, ::-1], grid[::-1, :]):
+        got = brd.canonical_order(given.reshape(-1, 1, 2), image, b).reshape(-1, 2)
+        np.testing.assert_array_equal(got, truth)
