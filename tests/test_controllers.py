@@ -433,3 +433,95 @@ def test_pitch_axis_keeps_the_previous_sign_where_the_leds_line_misses_the_stand
     kept = pitch_axis(m["gripper"], e, arm.led_standoff_mm, previous=true)
     tilt = np.arctan2(6.0, 25.0)
     assert kept @ true == pytest.approx(np.cos(tilt), abs=0.01)
+
+
+# -------------------------------------- reach edges, the pitch axis, a start without stand-off
+from itg_vision.arm import REACH_TOL_MM  # noqa: E402
+from itg_vision.contracts import Markers  # noqa: E402
+from itg_vision.controllers import pitch_axis  # noqa: E402
+
+
+def test_the_one_link_led_reaches_its_circle_only():
+    """Forward kinematics: the one-link LED lies at distance L from the base at every angle, so
+    a point at L / 2 is out of reach (other tests try just outside the circle only)."""
+    arm = ArmSpec.from_args("one-link")
+    L = arm.links_mm[0]
+    for q in (-170.0, 0.0, 33.0, 90.0):
+        assert np.hypot(*forward_kinematics(arm, [q])["gripper"][:2]) == pytest.approx(L)
+    assert arm.reach_mm() == (L, L)
+    assert not arm.reachable(np.array([L / 2, 0.0, 0.0]))
+    assert not arm.reachable(np.array([0.0, L - 2 * REACH_TOL_MM, 0.0]))
+
+
+def test_two_link_ik_solves_a_point_just_inside_the_inner_radius_of_unequal_links():
+    """Links 100 / 60: the inner reach is 40 mm; a point 0.3 mm inside counts in reach (the
+    metrics' tolerance), so IK must return the nearest reachable point, on the same ray, as it
+    does at the outer radius (by forward kinematics)."""
+    arm = ArmSpec.from_args("two-link", (100.0, 60.0))
+    x, y = 39.7 * math.cos(0.7), 39.7 * math.sin(0.7)
+    assert arm.reachable(np.array([x, y, 0.0]))
+    sols = two_link_ik(x, y, 100.0, 60.0, REACH_TOL_MM)
+    assert sols
+    for q in sols:
+        g = forward_kinematics(arm, q)["gripper"]
+        assert np.hypot(g[0] - x, g[1] - y) == pytest.approx(0.3, abs=1e-6)
+
+
+def test_three_link_ik_solves_a_point_just_inside_the_led_cylinder():
+    """The LED sits h beside the arm's plane, so it cannot come nearer than h to the base axis;
+    a point 0.3 mm inside counts in reach, and IK must put the LED within 0.3 mm of it (forward
+    kinematics)."""
+    arm = ArmSpec.from_args("three-link")
+    h = arm.led_standoff_mm
+    target = np.array([(h - 0.3) * math.cos(1.0), (h - 0.3) * math.sin(1.0), 250.0])
+    assert arm.reachable(target)
+    sols = three_link_ik(target, arm.links_mm, h, REACH_TOL_MM)
+    assert sols
+    for q in sols:
+        g = forward_kinematics(arm, q)["gripper"]
+        assert np.linalg.norm(g - target) <= 0.3 + 1e-6
+
+
+def test_a_near_vertical_forearm_takes_its_axis_from_the_elbow_not_the_gripper():
+    """Forearm 85 deg up (8.7 mm across, under the 20 mm documented threshold): the axis comes
+    from the elbow LED and the stand-off, so a gripper LED seen 2 mm off sideways (vision-sized)
+    leaves it on the true axis (sin q1, -cos q1, 0) of forward kinematics; read from the forearm
+    it would be atan(2 / 8.7) = 13 deg off."""
+    arm = ArmSpec.from_args("three-link")
+    q = np.array([30.0, 80.0, 5.0])
+    m = forward_kinematics(arm, q)
+    q1 = math.radians(q[0])
+    true = np.array([math.sin(q1), -math.cos(q1), 0.0])
+    u = m["gripper"][:2] - m["elbow"][:2]
+    assert 8 < np.hypot(*u) < 9.5
+    side = np.array([-u[1], u[0], 0.0]) / np.hypot(*u)
+    a = pitch_axis(m["gripper"] + 2.0 * side, m["elbow"], arm.led_standoff_mm, previous=true)
+    assert a @ true > math.cos(math.radians(1.0))
+
+
+def test_a_three_link_arm_without_stand_off_starts_with_the_simulators_jacobian():
+    """led_standoff_mm: 0 (an arm file may give it): at the straight-up start both LEDs lie on
+    the base axis, and the axis is the start's q1 = 0 one, (0, -1, 0) by forward kinematics's
+    convention. The tracker's Jacobian there against the simulator's central differences
+    (the 1 % bound of the other Jacobian tests). With the wrong default sign the run diverged (model feedback,
+    line-ab-reach: tracking median 0.0 -> 177 mm)."""
+    arm = dataclasses.replace(ArmSpec.from_args("three-link"), led_standoff_mm=0.0)
+    with World(arm) as world:
+        geometry = measure_geometry(world, TruthFeedback(), arm)
+        tracker = JacobianTracker(geometry, False, 3)
+        q = arm.start_q_deg
+        world.set_q(q)
+        m = world.true_markers()
+        tracker.step(m["gripper"] + 1.0, Markers(m["gripper"], m["elbow"]), None)
+        J = tracker.jacobian(m["gripper"], m["elbow"], tracker.axis)
+        cols = []
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = 0.01
+            world.set_q(q + d)
+            plus = world.true_markers()["gripper"]
+            world.set_q(q - d)
+            minus = world.true_markers()["gripper"]
+            cols.append((plus - minus) / math.radians(0.02))
+        J_fd = np.column_stack(cols)
+    assert np.linalg.norm(J - J_fd) <= 0.01 * np.linalg.norm(J_fd), (J, J_fd)

@@ -268,3 +268,21 @@ def test_preview_in_the_loop_on_a_line_past_the_base(tmp_path, iterations, corre
     if iterations == 1 and correction == 1.0:
         assert e_on.max() <= plan_info["largest_move_mm"] + 0.5
         assert e_on.max() < e_off.max()
+
+
+
+def test_the_plan_runs_on_the_readmes_quarter_degree_grid():
+    """README: dynamic programming on a 0.25 deg grid. The suite's brute force imports the
+    grid from the module, so a coarser grid passed (0.5 deg: the lemniscate's largest move, which
+    a run's summary records to 4 decimals, 1.2627 -> 1.2597 mm); here the bound is recomputed on a literal
+    0.25 deg grid: the least largest distance of a set point from a line through the base whose
+    direction turns at most 20 deg per set point (bisection, as the other preview tests' reference)."""
+    from pathlib import Path
+
+    from itg_vision import trajectory as T
+
+    root = Path(T.__file__).resolve().parents[1]
+    pts = T.load(str(root / "data" / "trajectories" / "lemniscate.csv")).points_mm
+    p = plan(pts, 20.0)
+    ref = least_bound_by_bisection(pts, 20.0, grid_deg=0.25)
+    assert p.largest_move_mm == pytest.approx(ref, abs=1e-6)

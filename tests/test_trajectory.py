@@ -188,3 +188,117 @@ def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
     for name in ("abcd", "line-ab", "line-ab-reach"):
         assert not T.load(name).closed, name
     assert T.load("ellipse-t1").closed
+
+
+# ------------------------------------------ the named paths against the README, closed paths
+from itg_vision.arm import forward_kinematics  # noqa: E402
+from itg_vision.errors import ConfigError  # noqa: E402
+
+
+@pytest.mark.parametrize("name, centre, axes", [("ellipse-t1", (20.0, -30.0), (130.0, 80.0)),
+                                                ("ellipse-t2", (-30.0, 40.0), (125.0, 100.0))])
+def test_named_ellipse_point_k_is_the_papers_parametric_point_at_2k_deg(name, centre, axes):
+    """README: centre, axes, -45 deg orientation, 180 set points 2 deg apart in the ellipse's
+    parameter angle theta, from theta = 0. Point k, by hand: c + R(-45 deg) (a cos theta_k,
+    b sin theta_k), theta_k = 2k deg. The ellipse test above checks the points lie on the ellipse, not
+    where on it nor in which direction: reversing it (ITG, model feedback: T1 E_av 6.976 ->
+    11.5 mm, the README's published 6.976) or starting it at the other end of the major axis
+    passed."""
+    t = T.named(name)
+    a, b = axes[0] / 2, axes[1] / 2
+    th = np.radians(2.0 * np.arange(180))
+    phi = math.radians(-45.0)
+    u, v = a * np.cos(th), b * np.sin(th)
+    expect = np.c_[centre[0] + math.cos(phi) * u - math.sin(phi) * v,
+                   centre[1] + math.sin(phi) * u + math.cos(phi) * v]
+    np.testing.assert_allclose(t.points_mm[:, :2], expect, rtol=0, atol=1e-9)
+    assert t.param_deg[0] == 0.0
+    # first point by hand, T1: (20 + 65 cos 45, -30 - 65 sin 45)
+    if name == "ellipse-t1":
+        np.testing.assert_allclose(t.points_mm[0, :2], [20 + 65 / math.sqrt(2),
+                                                        -30 - 65 / math.sqrt(2)], atol=1e-9)
+
+
+def test_abcd_runs_a_to_b_then_c_to_d_at_the_papers_corners():
+    """README: A(-60, 120) to B(60, 120), a 100 mm jump to C(60, 20), then to D(-60, 20). The
+    other tests check the jump's length and the steps only: the corners shifted 10 mm (ITG, model
+    feedback: tracking max 21.7 -> 23.9 mm) or the path mirrored (21.7 -> 70.0 mm) passed."""
+    p = T.named("abcd").points_mm
+    np.testing.assert_allclose(p[[0, 99, 100, 199], :2],
+                               [[-60, 120], [60, 120], [60, 20], [-60, 20]], atol=1e-9)
+
+
+def test_line_ab_reach_ends_are_the_readmes_a_and_b_primed():
+    """README: A'(21, 12.6, 150.4) to B'(105, 84, 226), the paper's A, B scaled by 0.42 about
+    the shoulder (0, 0, 100); with other links, about the shoulder at height L1."""
+    t = T.named("line-ab-reach")
+    np.testing.assert_allclose(t.points_mm[0], [21.0, 12.6, 150.4], atol=1e-9)
+    np.testing.assert_allclose(t.points_mm[-1], [105.0, 84.0, 226.0], atol=1e-9)
+
+
+def test_arc_runs_clockwise_from_plus_y_over_270_deg():
+    """The one-link arc: 270 deg of the circle of radius L from +y clockwise, ending at -x:
+    by hand, first (0, L), last (-L, 0), the second at 90 - 270 / (n - 1) deg."""
+    L = 100.0
+    t = T.named("arc")
+    n = len(t)
+    np.testing.assert_allclose(t.points_mm[0, :2], [0.0, L], atol=1e-9)
+    np.testing.assert_allclose(t.points_mm[-1, :2], [-L, 0.0], atol=1e-9)
+    a1 = math.radians(90.0 - 270.0 / (n - 1))
+    np.testing.assert_allclose(t.points_mm[1, :2], [L * math.cos(a1), L * math.sin(a1)], atol=1e-9)
+
+
+def _square_short_of_closing(gap_steps):
+    """A 40 mm square perimeter walked in 1 mm steps from (0, 0), stopping gap_steps short."""
+    pts = [(float(i), 0.0) for i in range(10)] + [(10.0, float(i)) for i in range(10)] + \
+          [(10.0 - i, 10.0) for i in range(10)] + [(0.0, 10.0 - i) for i in range(10)]
+    return np.array(pts[:len(pts) - gap_steps + 1])
+
+
+def test_closed_means_the_closing_step_is_at_most_one_and_a_half_steps():
+    """README / is_closed: closed when the step back to the start is at most 1.5 times the
+    median step, or within a factor 1.5 of the first or last step. Every step 1 mm: a 1 mm
+    gap closes, a 2 mm gap does not (by hand)."""
+    assert T.is_closed(_square_short_of_closing(1))
+    assert not T.is_closed(_square_short_of_closing(2))
+
+
+def test_three_points_are_never_a_closed_path():
+    tri = np.array([[0.0, 0.0], [10.0, 0.0], [5.0, 8.66]])
+    assert not T.is_closed(tri)
+
+
+def test_an_open_csv_path_is_not_closed_and_runs_once(tmp_path):
+    """A straight line in a file: its end is 4 steps from its start, so not closed, and
+    --laps 2 is refused (helix.csv, open, gets 1 lap in the benchmarks by this flag)."""
+    f = tmp_path / "line.csv"
+    f.write_text("x_mm,y_mm\n100,0\n110,0\n120,0\n130,0\n140,0\n")
+    t = T.read_csv(f)
+    assert not t.closed
+    with pytest.raises(ConfigError):
+        t.repeated(2)
+    root = Path(T.__file__).resolve().parents[1]
+    assert not T.load(str(root / "data" / "trajectories" / "helix.csv")).closed
+
+
+def test_equal_times_do_not_decrease(tmp_path):
+    """README: t_s 'must not decrease': a repeated time (a dwell) is read."""
+    f = tmp_path / "t.csv"
+    f.write_text("x_mm,y_mm,t_s\n100,0,0\n110,0,0\n120,0,1\n")
+    assert T.read_csv(f).t_s.tolist() == [0, 0, 1]
+
+
+def test_laps_of_a_path_without_its_start_repeated_go_on_by_the_median_step(tmp_path):
+    f = tmp_path / "sq.csv"
+    f.write_text("x_mm,y_mm,t_s\n50,10,0\n100,10,1\n100,60,2\n50,60,5\n")
+    two = T.read_csv(f).repeated(2)
+    assert two.t_s.tolist() == [0, 1, 2, 5, 6, 7, 8, 11]  # period 5 + median step 1, by hand
+
+
+def test_the_arc_lies_on_the_one_link_leds_circle_of_any_length():
+    """--links 140 on the one-link arm: the arc is placed on its reach (forward kinematics:
+    the LED's circle of radius 140)."""
+    arm = ArmSpec.from_args("one-link", (140.0,))
+    t = T.named("arc", arm=arm)
+    r = np.hypot(*forward_kinematics(arm, [12.0])["gripper"][:2])
+    np.testing.assert_allclose(np.hypot(t.points_mm[:, 0], t.points_mm[:, 1]), r, atol=1e-9)

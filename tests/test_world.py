@@ -8,9 +8,19 @@ from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.world import World
 
 
-@pytest.mark.parametrize("name", ["one-link", "two-link", "three-link"])
-def test_marker_positions_match_the_kinematic_model(name):
-    arm = ArmSpec.from_args(name)
+#: Link lengths all different, so a test can tell which link a formula uses (the shipped arms'
+#: links are all 100 mm: L1, L2, L3 swapped anywhere passed every other test).
+UNEQUAL = {"two-link": (120.0, 70.0), "three-link": (130.0, 90.0, 70.0)}
+
+
+@pytest.mark.parametrize("name, links", [("one-link", None), ("two-link", None),
+                                         ("three-link", None), *UNEQUAL.items()])
+def test_marker_positions_match_the_kinematic_model(name, links):
+    """PyBullet's LEDs (the URDF read back) against the model's equations, the shipped arms
+    and arms whose every link has its own length; the reach of the unequal ones by hand."""
+    arm = ArmSpec.from_args(name, links)
+    if links is not None:  # in the plane of the last two links
+        assert arm.reach_mm() == (abs(links[-2] - links[-1]), links[-2] + links[-1])
     rng = np.random.default_rng(7)
     with World(arm) as world:
         for _ in range(25):
@@ -90,3 +100,43 @@ def test_pybullet_ik_solves_each_set_point_of_the_speed_benchmark():
                   for g, q in zip(goals, solved[-1:] + solved[:-1])]
     miss = np.linalg.norm(np.array(landed) - np.array(goals), axis=1)
     assert miss.max() < 0.1, (np.median(miss), miss.max())
+
+
+# ------------------------------------------------------------ unequal links, the shoulder
+from itg_vision import trajectory as T  # noqa: E402
+from itg_vision.controllers import two_link_ik  # noqa: E402
+
+
+def test_the_three_link_shoulder_is_where_pybullet_puts_joint_q2():
+    """ArmSpec.shoulder_mm (line-ab-reach's centre, the nominal geometry's shoulder) against
+    the URDF read back by PyBullet: the origin of joint q2's child frame, with unequal links
+    (the shipped 100/100/100 arm cannot tell L1 from L2)."""
+    import pybullet as p
+
+    arm = ArmSpec.from_args("three-link", (130.0, 90.0, 70.0))
+    with World(arm) as w:
+        q2 = w._joints[1]
+        pos = np.array(p.getLinkState(w.body, q2, physicsClientId=w.client)[4]) * 1e3
+    np.testing.assert_allclose(arm.shoulder_mm(), pos, atol=1e-3)
+    # and line-ab-reach about it: A' = s + 0.42 (A - s), by hand with s = (0, 0, 130)
+    t = T.named("line-ab-reach", arm=arm)
+    np.testing.assert_allclose(t.points_mm[0], [21.0, 12.6, 130 + 0.42 * 90], atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["two-link", "three-link"])
+def test_ik_of_unequal_links_puts_the_simulators_led_on_the_point(name):
+    """Closed-form IK against the simulator: every branch it returns, set in PyBullet, puts
+    the gripper LED on the point."""
+    from itg_vision.controllers import InverseKinematics
+
+    arm = ArmSpec.from_args(name, UNEQUAL[name])
+    q_true = np.array([35.0, 50.0]) if arm.planar else np.array([35.0, 40.0, -60.0])
+    with World(arm) as world:
+        world.set_q(q_true)
+        target = world.true_markers()["gripper"]
+        sol = InverseKinematics(arm).solve(target, np.zeros(arm.n_joints))
+        assert sol is not None
+        world.set_q(sol)
+        got = world.true_markers()["gripper"]
+    dim = 2 if arm.planar else 3
+    np.testing.assert_allclose(got[:dim], target[:dim], rtol=0, atol=1e-3)
