@@ -104,7 +104,6 @@ def test_pybullet_ik_solves_each_set_point_of_the_speed_benchmark():
 
 # ------------------------------------------------------------ unequal links, the shoulder
 from itg_vision import trajectory as T  # noqa: E402
-from itg_vision.controllers import two_link_ik  # noqa: E402
 
 
 def test_the_three_link_shoulder_is_where_pybullet_puts_joint_q2():
