@@ -111,6 +111,32 @@ def _synthetic_views(rig, board, tilts_deg, noise_px, seed=0):
     return brd.Views(poses, corners)
 
 
+def test_every_led_a_joint_moves_is_fitted_about_one_axis(monkeypatch):
+    """A joint's sweep moves its LEDs on circles about one axis: they are fitted about the
+    axis all their points give (coaxial_normal), so each LED's circle has that same axis
+    (fitted alone, the short circle's plane tilts with its own noise). Synthetic LEDs about a known axis,
+    tilted 3 deg, radii 100 and 30 mm, 0.05 mm noise (the eye's), stand in for the
+    triangulated ones."""
+    rng = np.random.default_rng(2)
+    axis = cv2.Rodrigues(np.radians([3.0, -2.0, 0.0]))[0] @ [0.0, 0.0, 1.0]
+    e1 = np.cross(axis, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    angles = np.radians(np.linspace(-120, 120, 25))
+    radius = {"gripper": 100.0, "elbow": 30.0}
+    centre = np.array([10.0, -20.0, 600.0])
+    points = {n: [centre + 12 * axis + r * (np.cos(a) * e1 + np.sin(a) * e2)
+                  + rng.normal(0, 0.05, 3) for a in angles] for n, r in radius.items()}
+    monkeypatch.setattr(cal, "triangulate_leds",  # a shot's "images": its index here
+                        lambda rig, arm, i: {n: p[i] for n, p in points.items()})
+    shots = [(np.array([np.degrees(a), 0.0]), i, None) for i, a in enumerate(angles)]
+    fits = cal._joint_fits(None, ArmSpec.from_args("two-link"), 0, shots, ("gripper", "elbow"))
+    a_g, a_e = fits["gripper"]["axis"], fits["elbow"]["axis"]
+    assert abs(a_g @ a_e) == pytest.approx(1.0, abs=roundoff(1))
+    # the truth to the noise's reach (0.05 mm over a 200 mm chord: ~0.01 deg; bound 0.05 deg)
+    assert np.degrees(np.arccos(min(1.0, abs(a_g @ axis)))) < 0.05
+
+
 def test_poses_tilted_about_one_axis_only_are_refused():
     """Zhang's method needs board planes turned about two axes. Twelve views tilted over 60 deg
     about the board's x axis alone (0.05 px corner noise, the detector's order) are refused by
