@@ -56,7 +56,7 @@ import numpy as np
 from .loop import Session
 from .contracts import Step
 from .errors import ConfigError
-from .runner import RunConfig, prepare, start_up_geometry
+from .runner import RunConfig, given_rule_params, prepare, start_up_geometry
 from .world import World
 
 #: Servo limit (deg per iteration) when the configuration sets none: an action space needs bounds.
@@ -87,12 +87,11 @@ class TrackingEnv(gym.Env):
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
-        for name, default in (("correction", 1.0), ("preview", False), ("rules", None),
-                              ("gain_deg_per_mm", None), ("step_deg", None),
-                              ("tolerance_mm", None)):
-            if getattr(cfg, name) != default:  # (accepted and unused, it read as in use)
-                raise ConfigError(name, "sets a controller; in the environment you are the "
-                                        "controller")
+        set_ = [n for n, default in (("correction", 1.0), ("preview", False), ("rules", None))
+                if getattr(cfg, n) != default] + list(given_rule_params(cfg))
+        if set_:  # (a rule setting was accepted and unused: it read as in use)
+            raise ConfigError(set_[0], "sets a controller; in the environment you are the "
+                                       "controller")
         if cfg.max_step_deg is None:
             cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
         if images:

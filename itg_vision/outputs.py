@@ -276,7 +276,8 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
 
 
 def check_out_dir(out: str | Path, command: str, *, force: bool = False,
-                  option: str = "--out", own: list[str] | None = None) -> Path:
+                  option: str = "--out", own: list[str] | None = None,
+                  inputs: dict | None = None) -> Path:
     """Check that ``command`` may replace ``out`` with a new output folder; raise `UserError`
     (one line naming ``option``) if not. Writes nothing.
 
@@ -288,8 +289,17 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
     A manifest written before manifests listed their entries proves nothing about the rest of
     the folder: such a folder is refused (``force`` replaces it). The file managers' own
     files (:data:`OS_METADATA`) are nobody's results and never count.
+
+    ``inputs`` maps the option that named each of the command's input files to its path (None
+    or empty: none): one inside ``out`` is refused even with ``force``, which would move it
+    aside with the folder, leaving the record naming a path that is gone.
     """
     path = check_path(out, option)
+    where = path.resolve()
+    for label, file in (inputs or {}).items():
+        if file and where in Path(file).resolve().parents:
+            raise UserError(f"{label} {file} lies inside {option} {out}, which this command "
+                            f"replaces whole: move it out of {out}, or give another {option}")
     if not (path.exists() or path.is_symlink()):
         return path
     if path.is_symlink():  # the user's link: replacing it would delete it (never its target)
@@ -340,18 +350,6 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
     n = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
     raise UserError(f"{option} {out}: is a folder that {command} did not make ({n}: {shown}); "
                     f"choose another {option}, or add --force to replace it")
-
-
-def refuse_inputs_inside(out: str | Path, inputs: dict, option: str = "--out") -> None:
-    """Refuse (`UserError`, one line) an input file that lies inside ``out``: the command
-    replaces ``out`` whole (``--force`` keeps it aside as ``<name>.replaced-N``), so the input
-    would be moved away and the record would name a path that is gone. ``inputs`` maps the
-    option that named each file to its path (None or empty: none)."""
-    where = Path(out).resolve()
-    for label, path in inputs.items():
-        if path and where in Path(path).resolve().parents:
-            raise UserError(f"{label} {path} lies inside {option} {out}, which this command "
-                            f"replaces whole: move it out of {out}, or give another {option}")
 
 
 def _pid_alive(pid: int) -> bool:
@@ -509,16 +507,9 @@ def flocked(path: Path, *, wait: bool = True):
         os.close(fd)  # releases the lock
 
 
-def _folder_lock(folder: Path):
-    """``folder``'s lock (:func:`flocked`) while outputs in it are checked and swapped: two
-    commands swapping into the same ``--out`` at once take turns, each seeing the other's result
-    whole."""
-    return flocked(folder)
-
-
 @contextmanager
 def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = False,
-               key=None, option: str = "--out"):
+               key=None, option: str = "--out", inputs: dict | None = None):
     """Yield a fresh staging folder; on success it replaces ``out`` whole, on error it goes.
 
     ``out`` is checked first (:func:`check_out_dir`: only a folder ``command`` made that holds
@@ -527,16 +518,16 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
     which lists, once the command has written its results, every entry it wrote and each file's
     SHA-256: a later run of the same command may replace those, and nothing else. Readers of
     ``out`` see either the old results or the new ones, never a mix; commands swapping into
-    the same ``out`` at once take turns (:func:`_folder_lock`). Whatever goes wrong before the
+    the same ``out`` at once take turns (:func:`flocked` on its parent folder). Whatever goes wrong before the
     swap (a bad input, an error, a full disk, Ctrl-C, a file the user put into ``out``
     meanwhile) leaves ``out`` as it was and no staging folder behind, and a file that could not
     be written is named under ``out``, not under the staging folder. A swap the system refuses
     leaves ``out`` as it was and the new results beside it (``<name>.new-N``), said in one line.
     """
     path = check_path(out, option)
-    with _folder_lock(path.parent):  # (no parent yet: nothing to lock, nobody swapping there)
+    with flocked(path.parent):  # (no parent yet: nothing to lock, nobody swapping there)
         clean_stale(path)  # first: a killed swap's old folder comes back
-        out = check_out_dir(out, command, force=force, option=option)
+        out = check_out_dir(out, command, force=force, option=option, inputs=inputs)
     created: list[Path] = []
     try:
         created = _make_parents(out.parent)
@@ -554,7 +545,7 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
             write_json(tmp / MANIFEST, manifest(command, key, entries, digests(tmp, entries)))
         except OSError as exc:
             raise _named_under(exc, tmp, out, option) from None
-        with _folder_lock(out.parent):
+        with flocked(out.parent):
             check_out_dir(out, command, force=force, option=option, own=entries)  # changed?
             keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(
                 out, command, entries))

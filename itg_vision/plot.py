@@ -281,8 +281,8 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
         xs = x + (i - (n - 1) / 2) * width
         ys, below = _floored(ys, logy)
         dots, = ax.plot(np.where(below, np.nan, xs), ys, _MARKERS[i % len(_MARKERS)], ms=5,
-                        ls="none", label=label, color=f"C{i % 10}")  # (a ring drawn below
-        # takes no colour from the cycle: the series' colours stay apart)
+                        ls="none", label=label, color=f"C{i % 10}")  # its own (not the cycle's:
+        # a ring drawn below takes the cycle's next)
         _floor_and_spread(ax, xs, ys, below, (spread or {}).get(label), dots.get_color(), logy)
         any_below |= bool(below.any())
         for xv, yv, b in zip(xs, ys, below):

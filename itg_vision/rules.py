@@ -89,6 +89,8 @@ ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
 PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
 #: The other way: RunConfig field -> the rules' name.
 PARAM_OF_FIELD = {field_: name for name, field_ in PARAM_FIELDS.items()}
+#: Each parameter's unit, as a user reads it.
+PARAM_UNITS = {"f": "deg/mm", "S": "deg", "w": "mm"}
 #: Their defaults (deg/mm, deg, mm), the same from code, from ``run`` and from ``paper``: the
 #: paper's gain read in deg/mm, a 2 deg fixed step, a 0.5 mm tolerance.
 PARAM_DEFAULTS = {"f": 0.5, "S": 2.0, "w": 0.5}
@@ -96,6 +98,8 @@ PARAM_NAMES = ("f", "S", "w")
 #: The declaration that a rule base's S is the loop's servo limit (a line of its own).
 SERVO_STEP = re.compile(r"^[ \t]*#![ \t]*S is the servo limit[ \t]*$", re.M)  # indented too
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
+#: A joint's name, q1..q9: what an action sets.
+JOINT_NAME = re.compile(r"q[1-9]")
 #: Deepest condition or expression accepted (levels of nesting and of operators).
 MAX_DEPTH = 50
 #: Longest rule accepted (tokens: numbers, names, operators, keywords).
@@ -275,16 +279,16 @@ class _Parser:
         """The likely slip behind an error at ``tok``, as a hint ('' if none is clear): two
         operands side by side (a product written without its *), two actions without the
         ',' between them, or '=>', '=<' or a single '=' where a comparison belongs."""
-        k = self.t.index(tok) if tok in self.t else -1
+        k = next((i for i, t in enumerate(self.t) if t is tok), -1)
         before = self.t[k - 1] if k > 0 else None
         after = self.t[k + 1] if 0 <= k < len(self.t) - 1 else None
         if tok.text == "=" and after is not None and after.text in ("<", ">") \
                 and after.col == tok.col + 1 and after.line == tok.line:
             return f": '={after.text}' is not an operator, '{after.text}=' is"
         if tok.text == "=" and before is not None and before.kind in ("num", "name") \
-                and not re.fullmatch(r"q[1-9]", before.text):
+                and not JOINT_NAME.fullmatch(before.text):
             return ": '=' is not a comparison, '==' is"
-        if re.fullmatch(r"q[1-9]", tok.text) and after is not None \
+        if JOINT_NAME.fullmatch(tok.text) and after is not None \
                 and after.text in ("+=", "-=", "=", "HOLD"):
             return ": the next action needs a ',' before it"
         operand_end = before is not None and (before.kind in ("num", "name")
@@ -364,7 +368,7 @@ class _Parser:
         tok = self.tok
         if self.accept("kw", "OUT_OF_REACH"):
             return Action("out", where=(tok.line, tok.col))
-        if tok.kind != "name" or not re.fullmatch(r"q[1-9]", tok.text):
+        if tok.kind != "name" or not JOINT_NAME.fullmatch(tok.text):
             raise self.error("expected an action: qN += step, qN -= step, qN HOLD or OUT_OF_REACH")
         self.i += 1
         joint = int(tok.text[1:])

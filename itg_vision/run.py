@@ -28,6 +28,7 @@ from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
 from .options import OPTIONS, RULE_OPTIONS, add_rule_options
+from .rules import PARAM_OF_FIELD, PARAM_UNITS
 from .shipped import rule_names
 from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
 
@@ -194,7 +195,8 @@ def _input_paths(prep) -> dict[str, str]:
 
 
 def input_files(prep) -> dict[str, str]:
-    """A run's input files by the option that named them (:func:`outputs.refuse_inputs_inside`)."""
+    """A run's input files by the option that named them (:func:`outputs.check_out_dir`'s
+    ``inputs``)."""
     return {_INPUT_OPTIONS[k]: p for k, p in _input_paths(prep).items() if Path(p).is_file()}
 
 
@@ -262,8 +264,8 @@ def main(argv: list[str] | None = None) -> int:
         else:
             out = default_out(args, prep)
             _check_default_out(out, key, args.force)
-        outputs.refuse_inputs_inside(out, input_files(prep))
-        with outputs.staged_dir(out, "run", force=args.force, key=key) as tmp:
+        with outputs.staged_dir(out, "run", force=args.force, key=key,
+                                inputs=input_files(prep)) as tmp:
             bar = progress(len(prep.trajectory), f"run {out.name}", quiet=args.quiet, unit="pt")
             recorder = nullcontext()
             if args.video:
@@ -315,11 +317,10 @@ def plot_title(s: dict) -> str:
             f"{'; ' + limits if limits else ''}): E_av {e_av:.2f} mm"
             + (", DIVERGED" if s.get("diverged") else ""))
     more = []
-    units = {"gain_deg_per_mm": ("f", "deg/mm"), "step_deg": ("S", "deg"),
-             "tolerance_mm": ("w", "mm")}
     from_ = s.get("controller_params_from", {})
-    more += [f"{units[k][0]} {v:g} {units[k][1]}" for k, v in s.get("controller_params", {}).items()
-             if k in units and from_.get(k) != "the servo limit"]  # (that S: in the first line)
+    more += [f"{PARAM_OF_FIELD[k]} {v:g} {PARAM_UNITS[PARAM_OF_FIELD[k]]}"
+             for k, v in s.get("controller_params", {}).items()
+             if k in PARAM_OF_FIELD and from_.get(k) != "the servo limit"]  # (that S: line 1)
     if s.get("correction", 1) != 1:
         more.append(f"memory K {s['correction']:g}")
     if s.get("preview"):

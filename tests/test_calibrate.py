@@ -653,38 +653,19 @@ def test_calibrate_runs_opencv_on_one_thread_and_restores_it(monkeypatch):
 
 
 
-def _tilted_views(rig, board, tilts, sigma_px, rng):
-    """Exact projections of the board turned by (a, b) deg about its x and y axes from a
-    front-on pose at the workspace centre, each corner moved by N(0, sigma_px^2) noise."""
-    from itg_vision import board as brd
-
-    front = brd.sample_board_poses(rig, board, 1, rng, target_mm=[0, 0, 0], tilt_deg=0,
-                                   spin_deg=0)[0]
-    centre = front.points(board.centre_mm())
-    poses, corners = [], []
-    for a, b in tilts:
-        R = front.R @ cv2.Rodrigues(np.radians([a, b, 0.0]))[0]
-        pose = brd.BoardPose(R, centre - R @ board.centre_mm())
-        uv = [c.project(pose.points(board.object_points())) for c in rig.cameras]
-        poses.append(pose)
-        corners.append(tuple((x + rng.normal(0, sigma_px, x.shape)).astype(np.float32)
-                             .reshape(-1, 1, 2) for x in uv))
-    return brd.Views(poses, corners)
-
-
 @pytest.mark.parametrize("sigma_px, refused", [(0.05, False), (1.0, True)])
 def test_views_that_leave_the_focal_length_uncertain_by_over_one_percent_are_refused(
         sigma_px, refused):
-    """calibration.MAX_FOCAL_STD, 1 %: twelve views tilted over 60 deg about both axes (the
-    tilt gate passes) with corners off by sigma px. OpenCV's own standard deviation of fx
-    grows as sigma (measured 0.14 % at 0.05 px, 2.8 % at 1 px): the first is calibrated, the
-    second refused in one line naming the focal std."""
+    """calibration.MAX_FOCAL_STD, 1 %: twelve views tilted over 50 deg about both axes (the
+    tilt gate passes; the whole board in both cameras) with corners off by sigma px. OpenCV's
+    own standard deviation of fx grows as sigma (measured 0.17 % at 0.05 px, 3.5 % at 1 px):
+    the first is calibrated, the second refused in one line naming the focal std."""
     from itg_vision import board as brd
 
     rig, board = Rig.from_yaml(PLANAR), brd.Board()
-    tilts = [(a, 0.0) for a in np.linspace(-30, 30, 6)] + [(0.0, b) for b in
-                                                          np.linspace(-30, 30, 6)]
-    views = _tilted_views(rig, board, tilts, sigma_px, np.random.default_rng(0))
+    tilts = [(a, 0.0) for a in np.linspace(-25, 25, 6)] + [(0.0, b) for b in
+                                                          np.linspace(-25, 25, 6)]
+    views = _synthetic_views(rig, board, tilts, sigma_px)
     sizes = tuple(c.size for c in rig.cameras)
     if refused:
         with pytest.raises(UserError, match=r"degenerate board poses: .* focal std [1-9]"):
@@ -705,6 +686,6 @@ def test_board_poses_spanning_less_than_forty_degrees_about_an_axis_are_refused(
     rig, board = Rig.from_yaml(PLANAR), brd.Board()
     tilts = [(a, 0.0) for a in np.linspace(-30, 30, 6)] + [(0.0, b) for b in
                                                           np.linspace(-15, 15, 6)]
-    views = _tilted_views(rig, board, tilts, 0.05, np.random.default_rng(0))
+    views = _synthetic_views(rig, board, tilts, 0.05)
     with pytest.raises(UserError, match=r"tilt spans only 60 x 30 deg"):
         cal.calibrate_views(views, board, tuple(c.size for c in rig.cameras))

@@ -251,7 +251,7 @@ def test_commands_swapping_into_one_out_take_turns(tmp_path):
         _make(out)
         done.set()
 
-    with outputs._folder_lock(tmp_path):
+    with outputs.flocked(tmp_path):
         worker = threading.Thread(target=run)
         worker.start()
         assert not done.wait(2.0) and not out.exists()

@@ -161,8 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         arm = ArmSpec.from_args(args.arm)
         rig = Rig.from_yaml(resolve_rig(args.rig or arm.defaults["rig"]))
         if args.out is not None:  # refuse a bad --out before the renders, not after
-            outputs.check_out_dir(args.out, COMMAND, force=args.force)
-            outputs.refuse_inputs_inside(args.out, {"--arm": arm.source, "--rig": rig.source})
+            outputs.check_out_dir(args.out, COMMAND, force=args.force,
+                                  inputs={"--arm": arm.source, "--rig": rig.source})
         say = outputs.Transcript()
         say(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
             "zero added noise")
