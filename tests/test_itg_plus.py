@@ -421,6 +421,25 @@ def test_near_the_base_the_step_never_ends_farther_and_beats_the_dls_step():
     assert np.median(excess) < np.median(excess_dls), (np.median(excess), np.median(excess_dls))
 
 
+def test_near_the_base_a_set_point_25_to_100_mm_away_is_never_left_farther():
+    """Gripper within 25 mm of the base and the set point 25-100 mm from the base in any
+    direction, a jump rather than a path passing by (RULES 3-7 as above, or RULE 2's damped step
+    alone): no step of 5000 ends farther from the set point than it started. (100-200 mm away
+    some do: the README's limit.)"""
+    arm = ArmSpec.from_args("two-link")
+    rb = itg_plus(arm)
+    rng = np.random.default_rng(11)
+    farther = []
+    for q, _ in zip(_near_base_poses(arm, rng), range(5000)):
+        a = rng.uniform(-np.pi, np.pi)
+        p = np.array([*(rng.uniform(25.0, 100.0) * np.array([np.cos(a), np.sin(a)])), 0.0])
+        before = distance(arm, p, q)
+        got = rb.step(p, observe(arm, q), q)
+        if distance(arm, p, q + got.dq_deg) > before:
+            farther.append((q, p, got.fired))
+    assert not farther, farther[:3]
+
+
 @pytest.mark.parametrize("controller", ["itg-plus", "dls"])
 def test_under_estimate_noise_one_step_lands_the_estimate_error_away(controller):
     """Why 1 px of centroid noise costs ITG+ and the DLS tracker the same millimetres: a one-step
