@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
-from conftest import roundoff
+from conftest import PYBULLET_RTOL, roundoff
 from gymnasium.utils.env_checker import check_env
 
 from itg_vision import TrackingEnv
+from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.controllers import JacobianTracker
 from itg_vision.runner import RunConfig, execute, prepare
 
@@ -282,3 +283,31 @@ def test_the_library_names_its_fields_not_the_command_lines_options(field, value
         TrackingEnv(**{field: value})
     assert caught.value.field == field and str(caught.value).startswith(said)
     assert "--" not in str(caught.value)
+
+
+def test_the_action_space_is_the_servo_limit_both_ways():
+    """Every action in the space is applied whole, the most negative one included."""
+    env = TrackingEnv(feedback="truth", points=5, max_step_deg=3.0)
+    try:
+        _, info0 = env.reset(seed=0)
+        assert env.action_space.contains(np.array([-3.0, -3.0], dtype=env.action_space.dtype))
+        _, _, _, _, info = env.step(env.action_space.low)
+        assert not info["clipped"]
+        np.testing.assert_allclose(info["q_deg"] - info0["q_deg"], [-3.0, -3.0], rtol=0,
+                                   atol=roundoff(180))
+    finally:
+        env.close()
+
+
+def test_the_env_simulates_the_true_arm_not_the_model():
+    """true_links_mm 110/110: straight up (q 90, 0 deg) the gripper stands 220 mm above the
+    base, where ideal sensors see it; the model's 100/100 would put it at 200."""
+    env = TrackingEnv(feedback="truth", points=5, true_links_mm=(110.0, 110.0))
+    try:
+        obs, info = env.reset(seed=0)
+        true = forward_kinematics(ArmSpec.from_args("two-link", (110.0, 110.0)),
+                                  info["q_deg"])["gripper"]
+        np.testing.assert_allclose(obs["gripper_mm"], true, rtol=PYBULLET_RTOL, atol=roundoff(220))
+        assert obs["gripper_mm"][1] == pytest.approx(220.0, abs=1e-3)
+    finally:
+        env.close()

@@ -1,6 +1,7 @@
 """The loop: the servo limit, the set-point bookkeeping, and the trace's records."""
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -8,10 +9,11 @@ from conftest import PYBULLET_RTOL, roundoff
 
 from itg_vision.arm import REACH_TOL_MM, ArmSpec, forward_kinematics
 from itg_vision.feedback import TruthFeedback
-from itg_vision.loop import Trace, simulate
+from itg_vision.loop import Session, Trace, simulate
 from itg_vision.contracts import Controller, Markers, Step
 from itg_vision.errors import UserError
 from itg_vision.runner import RunConfig, execute, prepare
+from itg_vision.trajectory import named
 from itg_vision.world import World
 
 
@@ -604,3 +606,86 @@ def test_e_max_is_over_the_whole_run_and_the_tracking_max_over_its_phase():
     tol = PYBULLET_RTOL * 200  # PyBullet's float32 link frames, at 200 mm from the base
     assert m["e_max_mm"] == pytest.approx(100, abs=tol)
     assert m["track_max_mm"] == pytest.approx(4, abs=tol)
+
+
+# ------------------------------------------------- each set point's own records, units, E_i
+class _Counting(Constant):
+    """Call i fires rule i and flags out of reach where ``flag(i)`` says; it may take
+    ``sleep_s`` to decide."""
+
+    def __init__(self, dq, flag=lambda i: False, sleep_s=0.0):
+        super().__init__(dq)
+        self.flag, self.sleep_s, self.calls = flag, sleep_s, 0
+
+    def step(self, desired_mm, markers, q_deg):
+        i, self.calls = self.calls, self.calls + 1
+        time.sleep(self.sleep_s)
+        return Step(self.dq.copy(), (i,), bool(self.flag(i)))
+
+
+def test_apply_returns_e_i_after_the_move_from_the_forward_kinematics():
+    """Session.apply's E_i (the env's reward) is the distance from the set point to the
+    gripper after the step: the forward kinematics of the start (90, 0) deg plus the step."""
+    arm = ArmSpec.from_args("two-link")
+    pts = np.array([[120.0, 80.0, 0.0], [100.0, 90.0, 0.0]])
+    with World(arm) as world:
+        s = Session(world, TruthFeedback(), pts)
+        s.observe()
+        e = s.apply(Step(np.array([-30.0, 20.0]), (), False))
+    g = forward_kinematics(arm, [60.0, 20.0])["gripper"]
+    assert e == pytest.approx(np.hypot(*(pts[0, :2] - g[:2])), rel=0, abs=PYBULLET_RTOL * 200)
+
+
+def test_ideal_sensors_have_no_estimation_error_for_either_marker():
+    arm = ArmSpec.from_args("two-link")
+    with World(arm) as world:
+        trace = simulate(world, Constant([1.0, -1.0]), TruthFeedback(),
+                         named("ellipse-t1", 10).points_mm)
+    m = trace.metrics()
+    assert m["est_gripper_rms_mm"] == 0.0 and m["est_elbow_rms_mm"] == 0.0
+
+
+def test_trace_rows_joint_columns_are_degrees_that_put_the_gripper_where_the_after_columns_say():
+    """The forward kinematics of each row's q1_deg, q2_deg (written to 4 decimals: 5e-5 deg,
+    2e-4 mm at 200 mm) gives that row's xg_after_mm, yg_after_mm."""
+    trace, _ = execute(prepare(RunConfig(feedback="model", points=20)))
+    cols, rows = trace.rows()
+    arm = ArmSpec.from_args("two-link")
+    for r in rows:
+        q = [float(r[cols.index(c)]) for c in ("q1_deg", "q2_deg")]
+        g = [float(r[cols.index(c)]) for c in ("xg_after_mm", "yg_after_mm")]
+        np.testing.assert_allclose(forward_kinematics(arm, q)["gripper"][:2], g, rtol=0, atol=1e-3)
+
+
+def test_each_set_point_records_the_rules_and_flags_of_its_own_iterations():
+    """Two iterations per set point: call i fires rule i, so set point k fired (2k, 2k+1); the
+    controller flags out of reach at call 0 only, the first iteration of set point 0."""
+    arm = ArmSpec.from_args("two-link")
+    pts = np.array([[0.0, 190.0, 0.0], [0.0, 180.0, 0.0], [0.0, 170.0, 0.0]])
+    with World(arm) as world:
+        trace = simulate(world, _Counting([0.0, 0.0], flag=lambda i: i == 0), TruthFeedback(),
+                         pts, iterations=2)
+    assert trace.fired == [(0, 1), (2, 3), (4, 5)]
+    assert trace.out_of_reach.tolist() == [True, False, False]
+    assert trace.metrics()["n_flagged"] == 1
+
+
+def test_a_set_point_flagged_at_full_correction_is_asked_once_and_not_called_an_aim():
+    """Without --correction the aim is the set point: a flagged decision is not asked again."""
+    arm = ArmSpec.from_args("two-link")
+    pts = np.array([[0.0, 190.0, 0.0], [0.0, 400.0, 0.0], [0.0, 180.0, 0.0]])
+    ctl = _Counting([0.0, 0.0], flag=lambda i: i == 1)
+    with World(arm) as world:
+        trace = simulate(world, ctl, TruthFeedback(), pts)
+    assert ctl.calls == 3
+    assert trace.metrics()["n_aim_out_of_reach"] == 0
+    assert trace.records[1].flags == ("out_of_reach",)
+
+
+def test_the_rules_stage_is_timed_in_milliseconds():
+    """A decision that sleeps 5 ms is timed at >= 5 (ms), not 0.005."""
+    arm = ArmSpec.from_args("two-link")
+    with World(arm) as world:
+        trace = simulate(world, _Counting([0.0, 0.0], sleep_s=0.005), TruthFeedback(),
+                         np.zeros((3, 3)))
+    assert trace.metrics()["timing_ms"]["rules"] >= 5.0

@@ -149,6 +149,15 @@ def test_sensor_noise_raises_the_exposure_an_led_needs():
     check_visible(_moved(rig, 0, exposure=0.3, noise_sigma_gray=10.0), arm, pts)
 
 
+def test_no_exposure_lifts_an_led_above_255_grey_levels():
+    """8-bit pixels saturate: exposure 2 makes an LED 255 grey levels bright, not 510, so noise
+    whose 3 sigma puts the detector's need above 255 is refused however long the exposure."""
+    rig, arm, pts = _two_link()
+    sigma = (255.0 - MIN_SCORE) / 3.0 + 1.0
+    with pytest.raises(UserError, match=r"exposure 2 makes an LED at most 255 grey levels"):
+        check_visible(_moved(rig, 0, exposure=2.0, noise_sigma_gray=sigma), arm, pts)
+
+
 def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
     """At set point (0, 150) mm the two-link arm's elbow LED is at (66.1, 75) or (-66.1, 75)
     (the two IK branches): one of them must be in view, not both. A camera 600 mm above the LED
