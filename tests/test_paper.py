@@ -2,13 +2,16 @@
 
 import copy
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from itg_vision import outputs, paper
+from itg_vision import plot as _plot
 from itg_vision.paper import settle_index
-from itg_vision.runner import RunConfig
+from itg_vision.runner import RunConfig, execute, prepare
+from itg_vision.trajectory import named
 
 
 def test_settle_index():
@@ -74,7 +77,17 @@ def test_verdicts_follow_their_numbers(paper_run):
         v["loglog_slope"] = -1.0
     text = paper.report(good, base)
     assert _row(text, 6).endswith("| agrees as given |")
+    assert "average error about 0.4 mm" in _row(text, 6)  # the paper's number, threshold 2x it
+    far = copy.deepcopy(good)
+    far["exp6"]["line-ab"]["e_av_mm"] = 0.9
+    assert _row(paper.report(far, base), 6).endswith("| disagrees as given |")
+    far["exp6"]["line-ab"].update(e_av_mm=0.5, n_out_of_reach=1)  # one point out of reach turns it
+    assert _row(paper.report(far, base), 6).endswith("| disagrees as given |")
     assert _row(text, "5b").endswith("| agrees |")
+    peaks = copy.deepcopy(good)
+    for v in peaks["exp5"].values():  # 5a reads each settled lap's largest peak, listed first
+        v["second_lap_peaks_deg"] = [0.0, 90.0, 270.0]
+    assert _row(paper.report(peaks, base), "5a").endswith("| agrees |")
     assert "disagrees" not in _row(text, 3) and _row(text, 3).endswith("it holds for every f |")
     # experiment 2 judges both laps: a flail on the second (as measured) disagrees; without it,
     # the first lap's settled figures decide
@@ -176,6 +189,7 @@ def test_every_figure_title_says_what_ran():
     assert paper._setup(RunConfig(feedback="vision"), with_f=False, max_step_deg=2.0, iterations=5) == (
         "the paper's rules, vision feedback, 5 iterations per set point, servo limit 2 "
         "deg/iteration")
+    assert "f = 0.3 deg/mm" in paper._setup(RunConfig(feedback="model", gain_deg_per_mm=0.3))
 
 
 def test_a_peak_is_a_local_maximum():
@@ -225,3 +239,185 @@ def test_experiment_6s_second_half_is_the_mean_of_its_second_half(paper_run):
     e = trace.error_mm()
     res = r["exp6"]["servo limit 2 deg/iteration, 5 iterations"]
     assert res["e_av_second_half_mm"] == pytest.approx(float(np.mean(e[len(e) // 2:])))
+
+
+# ------------------------------------------ each experiment runs what its report says
+@pytest.fixture
+def no_figures(monkeypatch):
+    """The experiments' figures are not drawn (their content is tested in test_plot)."""
+    for name in ("lines_figure", "paths_figure", "path_figure"):
+        monkeypatch.setattr(_plot, name, lambda *a, **k: None)
+
+
+def test_the_papers_f_read_as_rad_per_mm_is_0_0573_deg_per_mm():
+    """The paper's f = 0.001, read as rad/mm, is 0.001 x 180 / pi deg/mm (a radians() in its
+    place gave 1.7e-5 and E_av 233 mm)."""
+    assert paper.PAPER_F_AS_DEG_PER_MM == pytest.approx(0.001 * 180.0 / np.pi, rel=1e-12)
+
+
+def test_experiment_1s_control_crosses_b_c_with_100_evenly_spaced_set_points(monkeypatch):
+    """Experiment 1's control run is the path with 100 evenly spaced set points put between B
+    and C, as the report states."""
+    seen = []
+    real = paper._simulate_points
+    monkeypatch.setattr(paper, "_simulate_points",
+                        lambda base, pts, exact=False, **kw: seen.append(pts) or real(base, pts, exact, **kw))
+    trace, _, cd, control, _ = paper._jump(RunConfig(feedback="model"))
+    d = trace.desired_mm
+    n = len(d) // 2
+    (pts,) = seen
+    assert len(pts) == len(d) + 100 and len(control) == len(cd) == n
+    np.testing.assert_array_equal(pts[:n], d[:n])
+    np.testing.assert_array_equal(pts[n + 100:], d[n:])
+    steps = np.linalg.norm(np.diff(pts[n - 1:n + 101], axis=0), axis=1)  # B, 100 points, C
+    np.testing.assert_allclose(steps, np.linalg.norm(d[n] - d[n - 1]) / 101, rtol=1e-9)
+
+
+def test_experiment_2_reports_the_papers_lap_and_settles_at_10_mm(tmp_path, no_figures):
+    """Experiment 2's E_av and E_max are the paper's one lap; it settles at the first of ten set
+    points in a row under 10 mm, counted by hand on two laps."""
+    base = RunConfig(feedback="model")
+    r = paper.exp2(base, tmp_path)
+    one_lap, s1 = execute(prepare(RunConfig(feedback="model", arm="two-link",
+                                            trajectory="ellipse-t1")))
+    assert r["e_av_mm"] == pytest.approx(s1["e_av_mm"], rel=1e-12)  # the paper's one lap
+    assert r["e_max_mm"] == pytest.approx(s1["e_max_mm"], rel=1e-12)
+    two, _ = execute(prepare(RunConfig(feedback="model", arm="two-link", trajectory="ellipse-t1",
+                                       laps=2)))
+    e = two.error_mm()
+    first = next(i for i in range(len(e) - 9) if all(e[i:i + 10] < 10.0))  # by hand
+    assert r["settled_at"] == first
+    assert r["e_av_after_settling_mm"] == pytest.approx(e[first:].mean(), rel=1e-12)
+
+
+def test_experiment_3_runs_t1_for_n_t_100_to_1000_at_each_gain(monkeypatch, tmp_path, no_figures):
+    """With E_av = 1000 / n_t (a stand-in run, exactly inversely proportional) every slope is
+    -1; the runs asked for are T1 on the two-link arm at n_t = 100, 200, ..., 1000 per gain."""
+    asked = []
+
+    def fake_run(base, exact=False, **kw):
+        asked.append(kw)
+        return None, {"e_av_mm": 1000.0 / kw["points"]}
+
+    monkeypatch.setattr(paper, "_run", fake_run)
+    r = paper.exp3(RunConfig(feedback="model"), tmp_path)
+    assert r["n_t"] == list(range(100, 1001, 100))
+    for f, v in r["by_gain_deg_per_mm"].items():
+        assert v["loglog_slope"] == pytest.approx(-1.0, abs=1e-9), f
+    assert {(k["arm"], k["trajectory"]) for k in asked} == {("two-link", "ellipse-t1")}
+    assert sorted((k["gain_deg_per_mm"], k["points"]) for k in asked) == sorted(
+        (f, n) for f in paper.EXP3_GAINS for n in range(100, 1001, 100))
+
+
+def test_experiment_4s_grid_of_f_is_log_spaced_from_0_02_to_1_2():
+    """Experiment 4's 19 values of f are log-spaced from 0.02 to 1.2 deg/mm, as its figure's log
+    axis draws them (rounded to 4 decimals)."""
+    fs = paper.EXP4_GAINS
+    assert (fs[0], fs[-1], len(fs)) == (0.02, 1.2, 19)
+    ratios = fs[1:] / fs[:-1]
+    np.testing.assert_allclose(ratios, (1.2 / 0.02) ** (1 / 18), rtol=2e-3)  # 4 decimals kept
+
+
+def test_experiment_4_runs_the_papers_f_with_1_10_and_20_iterations(monkeypatch, tmp_path, no_figures):
+    """Experiment 4 runs the paper's f (0.001 read as rad/mm) on T1 with 1, 10 and 20 iterations
+    per set point, each reported under its own count."""
+    asked = []
+
+    def fake_run(base, exact=False, **kw):
+        asked.append(kw)
+        return None, {"e_av_mm": float(kw.get("iterations", 1))}
+
+    monkeypatch.setattr(paper, "_run", fake_run)
+    monkeypatch.setattr(paper, "_gain_sweep", lambda base, name, exact=False: {"min_e_av_mm": 1.0, "e_av_mm": [1.0] * len(paper.EXP4_GAINS)})
+    r = paper.exp4(RunConfig(feedback="model"), tmp_path)
+    assert r["paper_f_as_rad_per_mm_e_av_t1_mm"] == {"1": 1.0, "10": 10.0, "20": 20.0}
+    assert all(k["gain_deg_per_mm"] == pytest.approx(0.001 * 180 / np.pi) and
+               k["trajectory"] == "ellipse-t1" for k in asked)
+
+
+def test_experiment_5s_onsets_poses_and_peaks_counted_by_hand(tmp_path, no_figures):
+    """Experiment 5 at the n_t of Fig. 4.5 (180, 360, 720): flail onsets (E_i crossing FLAIL_MM
+    upwards in the settled lap), those from a pose with both levers inverted, the inverted share
+    and the first lap's largest error's angle, each counted by hand on the same runs."""
+    base = RunConfig(feedback="model")
+    r = paper.exp5(base, tmp_path)
+    assert sorted(r) == [180, 360, 720]  # Fig. 4.5's n_t
+    for n in (180, 360, 720):
+        trace, t1 = paper._two_laps(base, n)
+        e = trace.error_mm()
+        g, el = trace.gripper_mm, trace.elbow_mm
+        # both levers inverted: |x_g| > |y_g| (q1 moves the gripper mostly in y) and the
+        # forearm nearer vertical than horizontal (q2 moves it mostly in x)
+        inv = [abs(g[i, 0]) > abs(g[i, 1]) and abs(g[i, 1] - el[i, 1]) > abs(g[i, 0] - el[i, 0])
+               for i in range(len(e))]
+        onsets = [i for i in range(n, 2 * n) if e[i] > paper.FLAIL_MM and e[i - 1] <= paper.FLAIL_MM]
+        v = r[n]
+        assert v["flail_onsets"] == len(onsets)
+        assert v["flail_onsets_from_inverted_pose"] == sum(inv[i - 1] for i in onsets)
+        assert v["inverted_share_of_settled_lap"] == pytest.approx(np.mean(inv[n:]))
+        assert v["first_lap_max_at_deg"] == t1.param_deg[max(range(n), key=lambda i: e[i])]
+
+
+def test_a_flail_onset_is_credited_to_the_pose_one_set_point_before(monkeypatch, tmp_path, no_figures):
+    """A stand-in run: E_i jumps above FLAIL_MM at set point n + 10 of the settled lap; the
+    pose one set point before (n + 9) has both levers inverted (gripper on the x axis, the
+    forearm vertical), the pose at the onset does not: one onset, from an inverted pose."""
+    from itg_vision import trajectory as traj
+
+    def fake_two_laps(base, n, rules=None):
+        e = np.zeros(2 * n)
+        e[n + 10:n + 12] = 50.0
+        g = np.tile([0.0, 200.0, 0.0], (2 * n, 1))
+        el = np.tile([0.0, 100.0, 0.0], (2 * n, 1))
+        g[n + 9], el[n + 9] = [200.0, 0.0, 0.0], [190.0, 100.0, 0.0]
+        tr = SimpleNamespace(error_mm=lambda: e, gripper_mm=g, elbow_mm=el)
+        return tr, traj.named("ellipse-t1", n)
+
+    monkeypatch.setattr(paper, "_two_laps", fake_two_laps)
+    r = paper.exp5(RunConfig(feedback="model"), tmp_path)
+    for n, v in r.items():
+        assert (v["flail_onsets"], v["flail_onsets_from_inverted_pose"]) == (1, 1), n
+        assert v["inverted_share_of_settled_lap"] == pytest.approx(1 / n)
+
+
+def test_the_two_link_tie_study_runs_on_model_feedback_whatever_the_runs_feedback(monkeypatch):
+    """The two-link tie study runs on model feedback, as its report states, whatever feedback
+    the other experiments were given."""
+    seen = []
+
+    def fake_jump(base, exact=False):
+        seen.append(base.feedback)
+        return SimpleNamespace(fired=[(4,)]), None, np.zeros(3), np.zeros(3), 0
+
+    def fake_sweep(base, name, exact=False):
+        seen.append(base.feedback)
+        return {"best_f_deg_per_mm": 0.5, "good_f_range_deg_per_mm": [0.4, 0.6]}
+
+    monkeypatch.setattr(paper, "_jump", fake_jump)
+    monkeypatch.setattr(paper, "_gain_sweep", fake_sweep)
+    paper.two_link_tie(RunConfig(feedback="truth"))
+    assert seen and set(seen) == {"model"}
+
+
+def test_raw_point_runs_are_seeded_by_the_base_seed():
+    """Experiment 1's control and experiment 5 run raw points: under vision (sensor noise) the same seed gives the same errors, bit for bit."""
+    base = RunConfig(feedback="vision", seed=3)
+    pts = named("ellipse-t1", 8).points_mm
+    a = paper._simulate_points(base, pts).error_mm()
+    b = paper._simulate_points(base, pts).error_mm()
+    np.testing.assert_array_equal(a, b)
+
+
+def test_the_tie_experiment_runs_the_links_it_reports(monkeypatch):
+    """Each row of the three-link tie table is run on the links it reports."""
+    ran = []
+    real = paper.simulate
+
+    def spy(world, *a, **k):
+        ran.append(tuple(world.arm.links_mm))
+        return real(world, *a, **k)
+
+    monkeypatch.setattr(paper, "simulate", spy)
+    rows = paper.tie_experiment()
+    assert ran == [tuple(r["links_mm"]) for r in rows]
+    assert set(ran) == set(paper.TIE_LINKS_MM)
