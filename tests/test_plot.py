@@ -20,13 +20,16 @@ def figures(monkeypatch):
     return made
 
 
-def _trace(desired, actual, *, planar=True, missed=(), tracking_start=0):
+def _trace(desired, actual, *, planar=True, missed=(), tracking_start=0, gone=(), flagged=()):
+    """A trace whose set points ``gone`` the arm cannot reach and ``flagged`` the controller
+    flagged out of reach (``missed``: the gripper's marker missed there)."""
     t = Trace(planar=planar, n_joints=2, tracking_start=tracking_start)
     for i, (d, g) in enumerate(zip(desired, actual)):
         d, g = np.asarray(d, float), np.asarray(g, float)
         t.record(SetPointRecord(d, d, Markers(g, g), {"gripper": g, "elbow": g},
-                                {"gripper": g, "elbow": g}, np.zeros(2), (), 
-                                ("missed:gripper",) if i in missed else (), False, True))
+                                {"gripper": g, "elbow": g}, np.zeros(2), (),
+                                ("missed:gripper",) if i in missed else (),
+                                i in flagged or i in gone, i not in gone))
     return t
 
 
@@ -171,3 +174,77 @@ def test_a_title_holding_bytes_that_are_not_utf8_is_drawn(figures):
     d = np.c_[np.arange(3.0), np.zeros(3), np.zeros(3)]
     plot.path_figure(_trace(d, d), "two-link traj\udce9 (table2)", "x.png")
     assert figures[0].axes[0].get_title() == "two-link traj\ufffd (table2)"
+
+
+# ------------------------------------------------- what each figure draws, in mm
+def test_a_planar_path_draws_gripper_desired_and_reach_marks_where_they_are_in_mm(figures):
+    """The gripper's laps, the desired path, an unreachable set point (x) and a flagged but
+    reachable one (+) are drawn at their own millimetres, the last lap keeping the odd point."""
+    n = 7  # odd: two laps of 3 and 4 set points
+    d = np.c_[np.linspace(50, 110, n), np.linspace(10, 40, n), np.zeros(n)]
+    g = d + [3.0, -2.0, 0.0]
+    plot_trace = _trace(d, g, gone=(1,), flagged=(4,))
+    plot.path_figure(plot_trace, "t", "x.png", laps=2)
+    ax = figures[0].axes[0]
+    by = {ln.get_label(): ln for ln in ax.lines}
+    lap1, lap2 = by["actual gripper, lap 1"], by["actual gripper, lap 2"]
+    np.testing.assert_array_equal(np.r_[lap1.get_xdata(), lap2.get_xdata()], g[:, 0])
+    np.testing.assert_array_equal(np.r_[lap1.get_ydata(), lap2.get_ydata()], g[:, 1])
+    np.testing.assert_array_equal(by["desired"].get_xydata(), d[:, :2])
+    out, flag = by["out of reach"], by["flagged out of reach, reachable"]
+    assert out.get_marker() == "x" and out.get_xydata().tolist() == [d[1, :2].tolist()]
+    assert flag.get_marker() == "+" and flag.get_xydata().tolist() == [d[4, :2].tolist()]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (mm)", "y (mm)")
+
+
+def test_a_3d_path_labels_every_axis_in_mm(figures):
+    """x, y and z are all in mm."""
+    d = np.c_[np.linspace(50, 100, 5), np.linspace(0, 20, 5), np.linspace(200, 300, 5)]
+    plot.path_figure(_trace(d, d, planar=False), "t", "x.png")
+    ax = figures[0].axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("x (mm)", "y (mm)", "z (mm)")
+
+
+def test_the_error_figure_draws_e_i_in_mm_its_marks_and_the_tracking_phases_numbers(figures):
+    """E_i in mm, a gap at an unreachable set point, missed markers at their E_i, the tracking
+    phase's line between its first set point and the one before, its p95 in the legend (numpy's,
+    on the set points in reach), log above 0.01 mm."""
+    d = np.c_[np.arange(12.0), np.zeros(12), np.zeros(12)]
+    off = np.r_[0.005, 0.02, 0.1, 0.5, 1, 2, 3, 4, 5, 6, 50, 7]
+    g = d + np.c_[np.zeros(12), off, np.zeros(12)]
+    t = _trace(d, g, gone=(10,), missed=(3, 7), tracking_start=6)
+    plot.error_figure(t, "t", "x.png")
+    ax = figures[0].axes[0]
+    curve = ax.lines[0]
+    expect = np.where(np.arange(12) == 10, np.nan, off)
+    np.testing.assert_allclose(curve.get_ydata(), expect, rtol=1e-12)
+    missed = next(ln for ln in ax.lines if ln.get_label().startswith("a marker missed"))
+    np.testing.assert_allclose(missed.get_ydata(), off[[3, 7]], rtol=1e-12)
+    late = off[6:][np.arange(6, 12) != 10]  # the tracking phase, in reach
+    track = next(ln for ln in ax.lines if ln.get_label().startswith("tracking phase"))
+    assert list(track.get_xdata()) == [5.5, 5.5]  # between set points 5 and 6
+    assert f"p95 {np.percentile(late, 95):.3g} " in track.get_label()
+    assert ax.get_ylabel().startswith("E_i (mm)")
+    assert ax.yaxis.get_transform().linthresh == 0.01
+
+
+def test_paths_figure_draws_the_actual_gripper_and_the_jump_between_set_points(figures):
+    """The actual path is the gripper's, the jump joins its two set points, x and y in mm."""
+    d = np.array([[0, 0, 0], [10, 0, 0], [50, 50, 0], [60, 50, 0]], float)
+    g = d + [1.0, 2.0, 0.0]
+    plot.paths_figure([("abcd", _trace(d, g), [(1, 2, "jump")])], "t", "x.png")
+    ax = figures[0].axes[0]
+    by = {ln.get_label(): ln for ln in ax.lines}
+    np.testing.assert_array_equal(by["actual"].get_xydata(), g[:, :2])
+    np.testing.assert_array_equal(by["jump"].get_xydata(), d[[1, 2], :2])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (mm)", "y (mm)")
+
+
+def test_lines_figure_floors_and_says_log_only_on_a_log_y_axis(figures):
+    """On a linear y axis (log x) the label says nothing of log and small values are drawn as
+    they are."""
+    plot.lines_figure({"a": ([1, 2, 3], [0.0, 1e-4, 2.0])}, "n", "E (mm)", "t", "x.png",
+                       logx=True)
+    ax = figures[0].axes[0]
+    assert ax.get_ylabel() == "E (mm)"  # linear
+    np.testing.assert_array_equal(ax.lines[0].get_ydata(), [0.0, 1e-4, 2.0])
