@@ -75,6 +75,10 @@ class VideoRecorder:
         views = obs.frames() if obs is not None else None
         if not views:
             return
+        arm = feedback.arm  # the cross marks where the gripper's LED belongs: planar arms carry
+        desired = np.array(desired_mm, float)  # it led_standoff_mm above the set point's plane
+        if arm.planar:
+            desired[2] = arm.led_standoff_mm
         panels = []
         for i, (img, cam) in enumerate(zip(views, feedback.estimate_rig.cameras)):
             bgr = np.ascontiguousarray(img[..., ::-1])
@@ -83,7 +87,7 @@ class VideoRecorder:
                     uv = dets[i].uv_raw_px
                     colour = tuple(int(255 * c) for c in LED_RGB[name][::-1])
                     cv2.circle(bgr, (int(round(uv[0])), int(round(uv[1]))), 9, colour, 1, cv2.LINE_AA)
-            d = cam.project(np.asarray(desired_mm, float)).reshape(-1)
+            d = cam.project(desired).reshape(-1)
             if np.all(np.isfinite(d)):
                 cv2.drawMarker(bgr, (int(round(d[0])), int(round(d[1]))), (200, 0, 200),
                                cv2.MARKER_CROSS, 14, 1, cv2.LINE_AA)

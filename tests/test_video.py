@@ -1,0 +1,97 @@
+"""The --video frames: what each panel draws and where, and the check of the written file."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from itg_vision import video
+from itg_vision.arm import ArmSpec
+from itg_vision.camera import Rig, default_rig_path
+from itg_vision.detect import Detection
+from itg_vision.errors import UserError
+from itg_vision.urdf import LED_RGB
+
+BACKGROUND = ((200, 100, 10), (10, 100, 200))  # RGB, one per camera
+
+
+@pytest.fixture
+def written(monkeypatch):
+    """The frames the recorder hands to OpenCV's writer."""
+    frames = []
+
+    class Writer:
+        def write(self, frame):
+            frames.append(frame.copy())
+
+        def release(self):
+            pass
+
+    monkeypatch.setattr(video, "open_writer",
+                        lambda path, fps, size: (Writer(), path.with_suffix(".mp4"), "test"))
+    return frames
+
+
+def _eye(detections):
+    """A two-link eye on the planar rig whose last look is two flat views."""
+    rig = Rig.from_yaml(default_rig_path("two-link"))
+    W, H = rig.cameras[0].size
+    views = tuple(np.full((H, W, 3), c, np.uint8) for c in BACKGROUND)
+    return SimpleNamespace(arm=ArmSpec.from_args("two-link"), estimate_rig=rig,
+                           last_observation=SimpleNamespace(frames=lambda: views,
+                                                            detections=detections))
+
+
+def test_a_frame_rings_each_led_at_its_raw_pixel_the_panels_in_camera_order(written):
+    """The panels side by side in camera order, each RGB turned to OpenCV's BGR; a found LED
+    ringed (radius 9 px) in its colour about its raw (distorted) centroid, where the camera saw
+    it, not its undistorted one."""
+    raw, und = np.array([100.0, 120.0]), np.array([300.0, 300.0])
+    eye = _eye({"gripper": (Detection(True, und, raw, 30.0),
+                            Detection(False, np.full(2, np.nan), np.full(2, np.nan)))})
+    video.VideoRecorder("unused").frame(eye, np.full(3, np.nan))
+    (frame,) = written
+    W, H = eye.estimate_rig.cameras[0].size
+    assert frame.shape == (H, 2 * W, 3)
+    assert frame[H - 1, 0].tolist() == list(BACKGROUND[0][::-1])
+    assert frame[H - 1, W].tolist() == list(BACKGROUND[1][::-1])
+    ring = frame[120, 109].astype(int)  # 9 px right of the raw centroid
+    assert np.abs(ring - [255 * c for c in LED_RGB["gripper"][::-1]]).max() < 80, ring
+    assert frame[300, 309].tolist() == list(BACKGROUND[0][::-1])  # nothing about the undistorted
+
+
+def test_the_cross_marks_where_the_gripper_led_belongs_above_a_planar_set_point(written):
+    """A planar set point lies in the joints' plane (z = 0); the gripper's LED, which the camera
+    sees, is led_standoff_mm (12 mm) above it. The cross (its drawn pixels' centroid) is within
+    1 px of the projection of that point in each camera (drawn at the nearest whole pixel: up to
+    0.71 px), not of the set point itself (2-4 px off on the planar rig)."""
+    eye = _eye({})
+    set_point = np.array([60.0, 150.0, 0.0])
+    video.VideoRecorder("unused").frame(eye, set_point)
+    (frame,) = written
+    W = eye.estimate_rig.cameras[0].size[0]
+    for i, cam in enumerate(eye.estimate_rig.cameras):
+        panel = frame[:, i * W:(i + 1) * W].astype(int)
+        drawn = np.abs(panel - BACKGROUND[i][::-1]).sum(axis=2) > 60
+        drawn[:30, :] = False  # the camera's name
+        v, u = np.nonzero(drawn)
+        centre = np.array([u.mean(), v.mean()])
+        led = cam.project(set_point + [0, 0, eye.arm.led_standoff_mm]).ravel()
+        assert np.linalg.norm(centre - led) < 1.0, (i, centre, led)  # drawn at a whole pixel
+        assert np.linalg.norm(cam.project(set_point).ravel() - led) > 1.5
+
+
+def test_a_video_one_frame_short_is_an_error(tmp_path):
+    """The file is read back: one frame fewer than were written is a one-line error."""
+    rng = np.random.default_rng(0)
+    views = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(2)]
+    eye = _eye({})
+    eye.last_observation = SimpleNamespace(frames=lambda: views, detections={})
+    rec = video.VideoRecorder(tmp_path / "v")
+    for _ in range(5):
+        rec.frame(eye, np.full(3, np.nan))
+    rec.frames += 1  # the recorder believes one frame more than the file holds
+    with pytest.raises(UserError, match="only 5 of its 6 frames"):
+        rec.close(check=True)
