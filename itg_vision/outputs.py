@@ -276,15 +276,15 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
 
 
 def check_out_dir(out: str | Path, command: str, *, force: bool = False,
-                  option: str = "--out", own: list[str] | None = None,
-                  inputs: dict | None = None) -> Path:
+                  option: str = "--out", inputs: dict | None = None) -> Path:
     """Check that ``command`` may replace ``out`` with a new output folder; raise `UserError`
     (one line naming ``option``) if not. Writes nothing.
 
     Allowed: a path that does not exist, an empty folder, a folder whose manifest names
     ``command`` and that holds nothing but the entries that manifest lists (what an earlier run
-    of ``command`` wrote) and ``own`` (what this run writes, once known; see
-    :func:`listing`), or any folder, and a symbolic link, with ``force``. Never a file.
+    of ``command`` wrote), or any folder, and a symbolic link, with ``force``. Never a file.
+    An entry named like one this run writes is no exception: a file the user put there while
+    the command worked is theirs, whatever its name.
 
     A manifest written before manifests listed their entries proves nothing about the rest of
     the folder: such a folder is refused (``force`` replaces it). The file managers' own
@@ -328,7 +328,7 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
                             f"does not list what it wrote; choose another {option}, or add "
                             "--force to replace it")
         try:
-            foreign = _foreign(path, set(recorded) | set(own or ()))
+            foreign = _foreign(path, set(recorded))
         except OSError as exc:
             raise UserError(f"{option} {out}: cannot read the folder ({exc.strerror})") from None
         edited = _edited(path, made)
@@ -546,9 +546,8 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         except OSError as exc:
             raise _named_under(exc, tmp, out, option) from None
         with flocked(out.parent):
-            check_out_dir(out, command, force=force, option=option, own=entries)  # changed?
-            keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(
-                out, command, entries))
+            check_out_dir(out, command, force=force, option=option)  # changed meanwhile?
+            keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(out, command))
             old = _swap(out, tmp, keep, command, option)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -603,10 +602,10 @@ def _swap(out: Path, tmp: Path, keep: bool, command: str, option: str) -> Path |
     return old
 
 
-def _replaceable(out: Path, command: str, own: list[str]) -> bool:
+def _replaceable(out: Path, command: str) -> bool:
     """Whether ``command`` may replace ``out`` without ``--force``: only its own results there."""
     try:
-        check_out_dir(out, command, own=own)
+        check_out_dir(out, command)
     except UserError:
         return False
     return True

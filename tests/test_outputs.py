@@ -1,8 +1,10 @@
 """Output ownership: a command replaces only what it made; nothing half-written; strict JSON."""
 
+import io
 import json
 import math
 import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -900,3 +902,91 @@ def test_a_library_import_leaves_ctrl_c_alone():
                           "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"],
                          capture_output=True, text=True, timeout=60, preexec_fn=_sigint_default)
     assert res.stdout.strip() == "True", res.stderr
+
+
+# ------------------------------------------- refusals, permissions, names, the log
+@pytest.mark.parametrize("below", ["res", "a/b/res"])
+def test_an_out_below_a_file_is_refused_before_any_work(tmp_path, below):
+    """An --out below a file is refused by the check made before any work (bench speed and
+    accuracy swap in only at the end: they ran a minute, then failed), and nothing is written."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes")
+    out = notes / below
+    before = _tree(tmp_path)
+    with pytest.raises(UserError) as exc:
+        outputs.check_out_dir(out, "bench-speed")
+    assert str(exc.value) == f"--out {out}: {notes} is a file, not a folder"
+    assert _tree(tmp_path) == before
+
+
+def test_the_staging_folder_of_a_process_we_may_not_signal_is_left_alone(tmp_path, monkeypatch):
+    """A staging folder whose process we may not signal (another user's, still working:
+    os.kill says PermissionError) is not stale: the next run leaves it alone."""
+    out = tmp_path / "r"
+    staging = tmp_path / ".r.staging-4242-abcd1234"
+    staging.mkdir()
+    outputs.write_json(staging / outputs.MANIFEST, outputs.manifest("run"))
+    (staging / "trace.csv").write_text("half written by another user's run\n")
+
+    def kill(pid, sig):  # what os.kill says of another user's live process
+        if pid == 4242:
+            raise PermissionError(1, "Operation not permitted")
+        raise ProcessLookupError(3, "No such process")
+
+    monkeypatch.setattr(os, "kill", kill)
+    _make(out)
+    assert (staging / "trace.csv").read_text() == "half written by another user's run\n"
+    assert (out / "result.txt").read_text() == "new"
+
+
+def test_an_output_folder_is_readable_by_everyone_like_its_files(tmp_path):
+    """The output folder is 0755 like its files' 0644, not mkdtemp's private 0700."""
+    out = tmp_path / "r"
+    _make(out)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755
+    assert stat.S_IMODE((out / outputs.MANIFEST).stat().st_mode) == 0o644
+
+
+def test_a_dangling_link_named_like_a_kept_folder_is_not_taken_as_free(tmp_path, capsys):
+    """--force keeps a foreign folder aside under the first free name: a dangling link named
+    r.replaced-1 is not free (it stays), the folder goes to r.replaced-2."""
+    out = tmp_path / "r"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    link = tmp_path / "r.replaced-1"
+    link.symlink_to(tmp_path / "gone")
+    with outputs.staged_dir(out, "run", force=True) as tmp:
+        (tmp / "result.txt").write_text("forced")
+    assert link.is_symlink() and os.readlink(link) == str(tmp_path / "gone")
+    assert (tmp_path / "r.replaced-2" / "notes.txt").read_text() == "mine"
+    assert (out / "result.txt").read_text() == "forced"
+    assert f"kept as {tmp_path / 'r.replaced-2'}" in capsys.readouterr().err
+
+
+def test_a_log_says_something_at_least_once_a_minute(monkeypatch):
+    """A log line comes at each tenth of the way and, between them, at least once a minute."""
+    from itg_vision import progress as progress_mod
+
+    now = [1000.0]
+    monkeypatch.setattr(progress_mod.time, "monotonic", lambda: now[0])
+    log = io.StringIO()
+    bar = progress_mod.LineProgress(1000, "run x", unit="pt", file=log)
+    now[0] += 30.0
+    bar.update(1)  # not a tenth of the way, half a minute: nothing yet
+    assert log.getvalue() == ""
+    now[0] += 31.0
+    bar.update(1)  # still not a tenth, but over a minute since the start
+    assert log.getvalue() == "run x: 2/1000 pt (0%), 61 s\n"
+
+
+def test_a_file_the_user_puts_in_while_the_command_works_is_kept_whatever_its_name(tmp_path):
+    """A file put into --out while the command works is refused at the swap and kept, even
+    named like one of the run's outputs (the check used to count those as the run's own, and
+    the user's video.mp4 went with the old folder)."""
+    out = tmp_path / "r"
+    _make(out)
+    with pytest.raises(UserError, match=r"holds 1 entry that run did not write \(first: video.mp4\)"):
+        with outputs.staged_dir(out, "run") as tmp:
+            (tmp / "video.mp4").write_bytes(b"the new video")
+            (out / "video.mp4").write_bytes(b"the user's video")  # meanwhile
+    assert (out / "video.mp4").read_bytes() == b"the user's video"
