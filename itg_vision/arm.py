@@ -33,7 +33,7 @@ KINDS = ("planar", "yaw-pitch-pitch")
 #: The fields of an arm file, every one required.
 FIELDS = ("name", "kind", "links_mm", "led_standoff_mm", "start_pose_deg", "defaults",
           "pose_ranges_deg", "benchmark", "calibration")
-#: Longest link an arm file or ``--links`` may give (mm).
+#: Longest link an arm file or ``--links`` may give (mm), and largest LED stand-off.
 MAX_LINK_MM = 5000.0
 #: Largest joint angle (and servo step per iteration) an arm file may give (deg).
 MAX_ANGLE_DEG = 360.0
@@ -211,7 +211,7 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
     n = len(links)
     if not (1 <= n <= 2 if planar else n == 3):
         F.fail("links_mm", f"a {kind} arm has {'1 or 2' if planar else '3'} links, got {n}")
-    standoff = F.number(doc["led_standoff_mm"], "led_standoff_mm", 0.0, unit=" (mm)")
+    standoff = F.number(doc["led_standoff_mm"], "led_standoff_mm", 0.0, MAX_LINK_MM, unit=" (mm)")
     angle = dict(lo=-MAX_ANGLE_DEG, hi=MAX_ANGLE_DEG, unit=" (deg)")
     start = F.numbers(doc["start_pose_deg"], n, "start_pose_deg", "angles in deg (one per joint)",
                       **angle)

@@ -527,7 +527,8 @@ def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
                       f"{W} x {H} px image, about {rendered * BYTES_PER_PIXEL / 1e9:.3g} GB per "
                       f"frame; the limit is {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx")
     R, t = _pose_from_dict(F, d["pose"], f"{where}.pose")
-    sensor = F.mapping(d.get("sensor") or {}, f"{where}.sensor", (),
+    sensor = d.get("sensor")  # left out (or null): the defaults below; [] or 0 is refused
+    sensor = F.mapping({} if sensor is None else sensor, f"{where}.sensor", (),
                        ("noise_sigma_gray", "exposure"))
     sigma = F.number(sensor.get("noise_sigma_gray", 2.0), f"{where}.sensor.noise_sigma_gray")
     if not 0 <= sigma <= 255:

@@ -7,6 +7,7 @@ import os
 import random
 import re
 
+import numpy as np
 import pytest
 import yaml
 
@@ -90,6 +91,14 @@ ARM_EDITS = [
     ("sweep-poses-0", r"poses: 23, pose_deg: \[90, null\]", "poses: 0, pose_deg: [90, null]"),
     ("standoff-5000-digits", r"^led_standoff_mm:.*$", "led_standoff_mm: " + "9" * 5000),
     ("standoff-nested", r"^led_standoff_mm:.*$", "led_standoff_mm: " + "[" * 2000 + "]" * 2000),
+    ("standoff-true", r"^led_standoff_mm:.*$", "led_standoff_mm: true"),
+    ("standoff-5001", r"^led_standoff_mm:.*$", "led_standoff_mm: 5001"),
+    ("kind-typo", r"^kind:.*$", "kind: planer"),
+    ("planar-3-links", r"^links_mm:.*$", "links_mm: [100, 100, 100]"),
+    ("no-base-sweep", r"^    - \{joint: 1,.*\n", ""),
+    ("base-swept-twice", r"\{joint: 2, from_deg", "{joint: 1, from_deg"),
+    ("elbow-on-the-last-joint", r"pose_deg: \[90, null\], markers: \[gripper\]",
+     "pose_deg: [90, null], markers: [elbow, gripper]"),
 ]
 
 
@@ -175,7 +184,8 @@ def make_inputs(tmp):
 
 
 RUN = ["--quiet", "--feedback", "model"]
-# (id, command, argv with {file} placeholders, what the one line must contain)
+# (id, command, argv with {file} placeholders, what the one line must contain; an expect
+# ending in a newline is the line's end, and from its file's name on, the whole message)
 CASES = [
     # rule files
     ("rules-binary", "run", RUN + ["--rules", "{binary.rules}"], "binary.rules:2:1: not UTF-8"),
@@ -210,7 +220,7 @@ CASES = [
     ("rig-yaml-syntax", "run", ["--quiet", "--rig", "{syntax.yaml}"], "syntax.yaml:4:1: not valid YAML (expected ',' or ']'"),
     ("rig-5000-digit-int", "run", ["--quiet", "--rig", "{digits.yaml}"], "digits.yaml:2:10: not valid YAML (a number of more than 4300 digits)"),
     ("rig-nested", "run", ["--quiet", "--rig", "{nested.yaml}"], "nested.yaml: nested too deeply"),
-    ("arm-negative-standoff", "run", ["--quiet", "--arm", "{negative-standoff.yaml}"], "negative-standoff.yaml: led_standoff_mm: must be >= 0 (mm), got -3"),
+    ("arm-negative-standoff", "run", ["--quiet", "--arm", "{negative-standoff.yaml}"], "negative-standoff.yaml: led_standoff_mm: must be in [0, 5000] (mm), got -3"),
     ("rig-not-a-rig", "run", ["--quiet", "--rig", "{not-rig.yaml}"], "not-rig.yaml: name: missing"),
     # arm files: every field checked when the file is read
     ("arm-pose-ranges-5", "run", RUN + ["--arm", "{arm-ranges-5.yaml}"], "arm-ranges-5.yaml: pose_ranges_deg: must be a list of 2 [lo, hi] ranges in deg (one per joint), got 5"),
@@ -240,6 +250,14 @@ CASES = [
     ("arm-name-newline", "run", RUN + ["--arm", "{arm-name-newline.yaml}"], "arm-name-newline.yaml: name: must be a name on one line, got 'two\\nlines'"),
     ("arm-unknown-field", "run", RUN + ["--arm", "{arm-unknown-field.yaml}"], "arm-unknown-field.yaml: colour: unknown field"),
     ("arm-sweep-poses-0", "run", RUN + ["--arm", "{arm-sweep-poses-0.yaml}"], "arm-sweep-poses-0.yaml: calibration.axis_sweeps[1].poses: must be a whole number in 3..1000, got 0"),
+    # a bool is no number; a stand-off beyond the links' 5000 mm bound makes no arm
+    ("arm-standoff-true", "run", RUN + ["--arm", "{arm-standoff-true.yaml}"], "/arm-standoff-true.yaml: led_standoff_mm: must be a finite number (mm), got True\n"),
+    ("arm-standoff-5001", "run", RUN + ["--arm", "{arm-standoff-5001.yaml}"], "/arm-standoff-5001.yaml: led_standoff_mm: must be in [0, 5000] (mm), got 5001\n"),
+    ("arm-kind-typo", "run", RUN + ["--arm", "{arm-kind-typo.yaml}"], "/arm-kind-typo.yaml: kind: must be one of planar, yaw-pitch-pitch, got 'planer'\n"),
+    ("arm-planar-3-links", "run", RUN + ["--arm", "{arm-planar-3-links.yaml}"], "/arm-planar-3-links.yaml: links_mm: a planar arm has 1 or 2 links, got 3\n"),
+    ("arm-no-base-sweep", "run", RUN + ["--arm", "{arm-no-base-sweep.yaml}"], "/arm-no-base-sweep.yaml: calibration.axis_sweeps: must sweep joint 1 (the base: the world's z axis)\n"),
+    ("arm-base-swept-twice", "run", RUN + ["--arm", "{arm-base-swept-twice.yaml}"], "/arm-base-swept-twice.yaml: calibration.axis_sweeps[1].joint: joint 1 is swept twice\n"),
+    ("arm-elbow-on-the-last-joint", "run", RUN + ["--arm", "{arm-elbow-on-the-last-joint.yaml}"], "/arm-elbow-on-the-last-joint.yaml: calibration.axis_sweeps[1].markers: the elbow LED does not move when joint 2 turns\n"),
     ("arm-5000-digit-int", "run", RUN + ["--arm", "{arm-standoff-5000-digits.yaml}"], "arm-standoff-5000-digits.yaml:6:18: not valid YAML (a number of more than 4300 digits)"),
     ("arm-nested", "run", RUN + ["--arm", "{arm-standoff-nested.yaml}"], "arm-standoff-nested.yaml: nested too deeply to be an arm file"),
     ("rig-dev-zero", "run", ["--quiet", "--rig", "/dev/zero"], "/dev/zero: rig file larger than"),
@@ -368,7 +386,7 @@ def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, 
     assert "Traceback" not in err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), err
-    assert expect in lines[0], lines[0]
+    assert expect in lines[0] + "\n", lines[0]
     assert _tree(tmp) == before  # nothing written, nothing left behind (staging, parents)
     assert _cameras_tree() == cameras  # the shipped rigs and calibrations too
 
@@ -423,6 +441,17 @@ def test_an_arm_may_have_any_one_line_name_markup_included(tmp_path):
     assert run.main(["--quiet", "--arm", str(arm), "--feedback", "vision", "--points", "4",
                      "--out", str(tmp_path / "o")]) == 0
     assert json.loads((tmp_path / "o" / "summary.json").read_text())["arm"] == 'UR5 ("modified") <a/>'
+
+
+def test_a_pose_range_of_one_angle_is_a_range(tmp_path):
+    """An arm file's pose_ranges_deg[i]: lo must be <= hi (arm-pose-range-reversed above), so
+    [30, 30] is a range: it holds the joint at 30 deg in every random pose."""
+    arm = tmp_path / "fixed-q2.yaml"
+    arm.write_text(re.sub(r"(?m)^pose_ranges_deg:.*$", "pose_ranges_deg: [[-180, 180], [30, 30]]",
+                          (ARMS_DIR / "two-link.yaml").read_text()))
+    spec = load_arm(str(arm))
+    assert spec.pose_ranges_deg == ((-180.0, 180.0), (30.0, 30.0))
+    assert np.all(spec.random_poses(5, np.random.default_rng(0))[:, 1] == 30.0)
 
 
 def test_the_servo_limit_note_names_the_arm_file_in_use(tmp_path):

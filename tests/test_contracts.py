@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from itg_vision.arm import ArmSpec
-from itg_vision.contracts import Controller, FeedbackSource, Markers
+from itg_vision.contracts import Controller, FeedbackSource, Markers, Step
 from itg_vision.controllers import make_controller
 from itg_vision.feedback import ModelFeedback, TruthFeedback
 from itg_vision.rules import load_rules
@@ -28,6 +28,27 @@ def test_rule_bases_get_the_encoders_only_if_a_rule_reads_a_joint_angle():
     m = Markers(np.zeros(3), np.zeros(3))
     assert rb.step(np.zeros(3), m, None).dq_deg.tolist() == [0.0, 0.0]
     assert rb.step(np.zeros(3), m, np.array([20.0, 0.0])).dq_deg.tolist() == [-1.0, 0.0]
+
+
+def test_a_controller_that_flags_nothing_has_no_set_point_flagged():
+    """README (summary.json's n_flagged: set points the controller flagged out of reach) and
+    contracts.Step: a step is flagged only when the controller says so, so the Step(dq) of a
+    controller of one's own that holds the arm flags none of its set points."""
+    from itg_vision.loop import simulate
+    from itg_vision.world import World
+
+    class Still:
+        uses_encoders = False
+
+        def params(self):
+            return {}
+
+        def step(self, desired_mm, markers, q_deg):
+            return Step(np.zeros(2))
+
+    with World(ArmSpec.from_args("two-link")) as w:
+        trace = simulate(w, Still(), TruthFeedback(), np.array([[100.0, 50.0, 0.0]] * 3))
+    assert not trace.out_of_reach.any()
 
 
 @pytest.mark.parametrize("name", ["ik", "jacobian"])

@@ -151,14 +151,26 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     # lengths that put the arm file's own path out of reach: the option is named, not the file
     (["--true-links", "10,10"], "--true-links: none of the 180 set points of ellipse-t1"),
     (["--links", "10,10"], "--links: none of the 180 set points of ellipse-t1"),
+    # an option a run cannot apply is refused by its own name (the whole line)
+    (["--trajectory", "{csv}", "--points", "10"],
+     "--points: applies to named trajectories only, not to a CSV file\n"),
+    (["--noise-px", "2"], "--noise-px: applies to vision feedback only\n"),
+    (["--trajectory", "abcd", "--laps", "2"],
+     "--laps: trajectory abcd is not a closed path (its last point is not next to its first): "
+     "it can run only once\n"),
 ])
 def test_bad_input_one_line_exit_2_old_output_kept(main_in_process, tmp_path, args, expect):
+    """The one line on stderr starts "error: " + expect (an expect ending in a newline: the
+    whole line); {csv} is a 3-point CSV file."""
     out = tmp_path / "r"
     out.mkdir()
     (out / "summary.json").write_text("old")
+    csv = tmp_path / "t.csv"
+    csv.write_text("x_mm,y_mm\n100,0\n110,0\n120,0\n")
+    args = [a.replace("{csv}", str(csv)) for a in args]
     res = main_in_process("itg_vision.run", "--feedback", "model", "--out", out, *args)
     assert res.returncode == 2
-    assert expect in res.stderr and "Traceback" not in res.stderr
+    assert res.stderr.startswith(f"error: {expect}") and "Traceback" not in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
     assert (out / "summary.json").read_text() == "old"
 
@@ -269,13 +281,15 @@ _VIDEO_SCRIPT = """
 import sys
 from types import SimpleNamespace
 import numpy as np
+from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig, default_rig_path
 from itg_vision.errors import UserError
 from itg_vision.video import VideoRecorder
 rng = np.random.default_rng(0)
 views = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(2)]
 eye = SimpleNamespace(last_observation=SimpleNamespace(frames=lambda: views, detections={}),
-                      estimate_rig=Rig.from_yaml(default_rig_path("two-link")))
+                      estimate_rig=Rig.from_yaml(default_rig_path("two-link")),
+                      arm=ArmSpec.from_args("two-link"))
 try:
     with VideoRecorder(sys.argv[1]) as rec:
         for _ in range(12):

@@ -116,6 +116,22 @@ def test_csv_reader_good(tmp_path):
     for newline in ("\r\n", "\r"):  # Windows' and old Macs' line ends read alike
         f.write_bytes(newline.join(["x_mm,y_mm", "1,2", "3,4", ""]).encode())
         assert T.read_csv(f).points_mm[:, :2].tolist() == [[1, 2], [3, 4]]
+    # a header typed by hand, spaces after its commas, is read as its cells (' 2') are
+    f.write_text("x_mm, y_mm , z_mm\n1, 2, 3\n4, 5, 6\n")
+    t = T.read_csv(f)
+    assert not t.planar and t.points_mm.tolist() == [[1, 2, 3], [4, 5, 6]]
+
+
+def test_a_csv_is_3d_exactly_when_it_has_a_z_mm_column(tmp_path):
+    """README: header x_mm,y_mm[,z_mm][,t_s]; a file with z_mm is 3-D whatever its time
+    column, one without is planar (z = 0): by the header alone, with and without t_s."""
+    f = tmp_path / "t.csv"
+    f.write_text("x_mm,y_mm,z_mm\n100,0,150\n110,0,160\n")
+    t = T.read_csv(f)
+    assert not t.planar and t.points_mm[:, 2].tolist() == [150, 160] and t.t_s is None
+    f.write_text("x_mm,y_mm,t_s\n100,0,0\n110,0,1\n")
+    t = T.read_csv(f)
+    assert t.planar and t.points_mm[:, 2].tolist() == [0, 0] and t.t_s.tolist() == [0, 1]
 
 
 @pytest.mark.parametrize("text, expect", [
@@ -270,15 +286,38 @@ def test_three_points_are_never_a_closed_path():
 
 def test_an_open_csv_path_is_not_closed_and_runs_once(tmp_path):
     """A straight line in a file: its end is 4 steps from its start, so not closed, and
-    --laps 2 is refused (helix.csv, open, gets 1 lap in the benchmarks by this flag)."""
+    --laps 2 is refused (helix.csv, open, gets 1 lap in the benchmarks by this flag). The same
+    for a 3-D line straight up (x, y fixed, z 100..180 mm in 20 mm steps: its end 80 mm, 4
+    steps, from its start), which seen from above is one point: closedness is judged in 3-D."""
     f = tmp_path / "line.csv"
-    f.write_text("x_mm,y_mm\n100,0\n110,0\n120,0\n130,0\n140,0\n")
-    t = T.read_csv(f)
-    assert not t.closed
-    with pytest.raises(ConfigError):
-        t.repeated(2)
+    for text in ("x_mm,y_mm\n100,0\n110,0\n120,0\n130,0\n140,0\n",
+                 "x_mm,y_mm,z_mm\n100,0,100\n100,0,120\n100,0,140\n100,0,160\n100,0,180\n"):
+        f.write_text(text)
+        t = T.read_csv(f)
+        assert not t.closed, text
+        with pytest.raises(ConfigError):
+            t.repeated(2)
     root = Path(T.__file__).resolve().parents[1]
     assert not T.load(str(root / "data" / "trajectories" / "helix.csv")).closed
+
+
+def test_a_missing_csv_file_is_not_found_whatever_the_case_of_its_suffix(tmp_path):
+    """A path ending in .csv (or .CSV: the suffix's case is not looked at) is a file, never a
+    trajectory's name: missing, it is 'not found', not an unknown trajectory."""
+    for name in ("gone.csv", "GONE.CSV"):
+        with pytest.raises(UserError) as exc:
+            T.load(str(tmp_path / name))
+        assert str(exc.value) == f"{tmp_path / name}: trajectory file not found"
+
+
+def test_points_is_refused_for_a_csv_file(tmp_path):
+    """README: `--points` resamples the named trajectories only (a file keeps its set
+    points): 10 points of a 3-point file is a ConfigError on points, not ignored."""
+    f = tmp_path / "t.csv"
+    f.write_text("x_mm,y_mm\n100,0\n110,0\n120,0\n")
+    with pytest.raises(ConfigError) as exc:
+        T.load(str(f), n_points=10)
+    assert exc.value.field == "points" and "named trajectories only" in exc.value.message
 
 
 def test_equal_times_do_not_decrease(tmp_path):

@@ -1,5 +1,7 @@
 """The PyBullet arm against the nominal kinematic model."""
 
+import re
+
 import numpy as np
 import pytest
 from conftest import PYBULLET_RTOL, roundoff
@@ -33,6 +35,16 @@ def test_marker_positions_match_the_kinematic_model(name, links):
                 assert np.allclose(truth[m], model[m], rtol=PYBULLET_RTOL, atol=roundoff(300)), (m, q)
 
 
+def test_the_inner_reach_of_unequal_links_is_their_difference_whichever_is_longer():
+    """Links 60 and 100 mm (upper arm the shorter, unlike UNEQUAL's): the gripper reaches
+    40..160 mm from the base (by hand, |60 - 100| and 60 + 100); a point 10 mm out is in the
+    hole."""
+    arm = ArmSpec.from_args("two-link", (60.0, 100.0))
+    assert arm.reach_mm() == (40.0, 160.0)
+    assert not arm.reachable(np.array([10.0, 0.0, 0.0]))
+    assert arm.reachable(np.array([0.0, 41.0, 0.0])) and arm.reachable(np.array([159.0, 0.0, 0.0]))
+
+
 def test_start_pose_is_the_papers():
     with World(ArmSpec.from_args("two-link")) as w:
         # float32 positions (conftest.PYBULLET_RTOL); the 0: float64 round-off of cos(90 deg) 200 mm
@@ -54,12 +66,18 @@ def test_joint_offset_and_link_error_move_the_true_arm_not_the_model():
         assert np.allclose(w.q_deg, q, rtol=0, atol=roundoff(180))  # the encoders read the commanded angle
 
 
-@pytest.mark.parametrize("links, bad", [((100.0,), "needs 2"), ((100.0, -1.0), "link 2"),
-                                        ((100.0, float("nan")), "link 2")])
+@pytest.mark.parametrize("links, bad", [
+    ((100.0,), "needs 2"), ((100.0, -1.0), "link 2"), ((100.0, float("nan")), "link 2"),
+    # links are lengths in (0, 5000] mm: 0 is none, 5000.5 beyond the bound
+    ((0.0, 100.0), "link 1 must be a length in mm in (0, 5000], got 0.0"),
+    ((100.0, 5000.5), "link 2 must be a length in mm in (0, 5000], got 5000.5"),
+])
 def test_bad_links(links, bad):
     from itg_vision.errors import UserError
-    with pytest.raises(UserError, match=bad):
+    with pytest.raises(UserError, match=re.escape(bad)):
         ArmSpec.from_args("two-link", links)
+    # the bound itself is a length
+    assert ArmSpec.from_args("two-link", (5000.0, 5000.0)).links_mm == (5000.0, 5000.0)
 
 
 def test_pybullet_ik_is_exact_at_a_solution_and_descends_near_one():
