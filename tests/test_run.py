@@ -3,6 +3,7 @@
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 
@@ -155,6 +156,8 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--trajectory", "{csv}", "--points", "10"],
      "--points: applies to named trajectories only, not to a CSV file\n"),
     (["--noise-px", "2"], "--noise-px: applies to vision feedback only\n"),
+    (["--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
+    (["--feedback", "vision", "--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
     (["--trajectory", "abcd", "--laps", "2"],
      "--laps: trajectory abcd is not a closed path (its last point is not next to its first): "
      "it can run only once\n"),
@@ -503,3 +506,65 @@ def test_names_whose_bytes_are_not_utf8_are_written_and_drawn(cli, tmp_path):
     moved = tmp_path / "moved.webm"  # OpenCV reads a plain name; the bytes are the same
     moved.write_bytes(open(out + b"/video.webm", "rb").read())
     assert cv2.VideoCapture(str(moved)).get(cv2.CAP_PROP_FRAME_COUNT) == 4
+
+
+# --------------------------------------------- what run passes on: seed, force, names, inputs
+def test_an_input_in_a_subfolder_of_out_is_refused_even_with_force(main_in_process, tmp_path):
+    """A rule file anywhere below --out, not only directly in it, is refused even with --force,
+    which would move it aside with the folder; nothing moves."""
+    from itg_vision.rules import resolve_rules_path
+
+    out = tmp_path / "thesis"
+    (out / "rules").mkdir(parents=True)
+    mine = out / "rules" / "mine.rules"
+    text = resolve_rules_path("table2").read_text()
+    mine.write_text(text)
+    before = sorted(tmp_path.rglob("*"))
+    res = main_in_process("itg_vision.run", "--feedback", "model", "--rules", mine,
+                          "--points", "10", "--out", out, "--quiet", "--force")
+    assert res.returncode == 2
+    assert res.stderr.strip() == (f"error: --rules {mine} lies inside --out {out}, which this "
+                                  f"command replaces whole: move it out of {out}, or give "
+                                  "another --out")
+    assert sorted(tmp_path.rglob("*")) == before and mine.read_text() == text
+
+
+def test_run_seed_reaches_the_run_and_its_summary(main_in_process, tmp_path):
+    """--seed reaches the run (another seed, other noise draws) and its summary."""
+    common = ["--feedback", "truth", "--noise-mm", "0.5", "--points", "10", "--quiet"]
+    for seed in (0, 3):
+        res = main_in_process("itg_vision.run", *common, "--seed", seed, "--out", tmp_path / f"s{seed}")
+        assert res.returncode == 0, res.stderr
+    assert json.loads((tmp_path / "s3" / "summary.json").read_text())["seed"] == 3
+    assert (tmp_path / "s3" / "trace.csv").read_text() != (tmp_path / "s0" / "trace.csv").read_text()
+
+
+def test_run_force_writes_over_a_users_folder_and_keeps_it(main_in_process, tmp_path):
+    """--force over a folder run did not make writes the results and keeps the folder aside,
+    saying where, in one line."""
+    out = tmp_path / "thesis"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    res = main_in_process("itg_vision.run", "--feedback", "model", "--points", "10",
+                          "--out", out, "--quiet", "--force")
+    assert res.returncode == 0, res.stderr
+    assert (out / "summary.json").is_file()
+    assert (tmp_path / "thesis.replaced-1" / "notes.txt").read_text() == "mine"
+    assert res.stderr.strip() == (f"note: --out {out}: held what run did not write; kept as "
+                                  f"{tmp_path / 'thesis.replaced-1'}")
+
+
+def test_a_default_folder_for_a_long_file_name_is_shortened_and_written(main_in_process,
+                                                                        tmp_path, monkeypatch):
+    """A default folder named after a 213-character rule file is shortened to a name the file
+    system takes, and written."""
+    from itg_vision.rules import resolve_rules_path
+
+    monkeypatch.chdir(tmp_path)
+    rules = tmp_path / ("my-rule-base-" + "x" * 200 + ".rules")
+    shutil.copy(resolve_rules_path("table2"), rules)
+    res = main_in_process("itg_vision.run", "--feedback", "model", "--rules", rules,
+                          "--points", "10", "--quiet")
+    assert res.returncode == 0, res.stderr
+    (folder,) = (tmp_path / "runs").iterdir()
+    assert (folder / "summary.json").is_file()
