@@ -7,12 +7,15 @@ from __future__ import annotations
 
 import csv
 import math
+from concurrent.futures import Executor, Future
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import PYBULLET_RTOL, roundoff
 
+from itg_vision import outputs
 from itg_vision.bench import execute, noise
 from itg_vision.bench.execute import run_one
 from itg_vision.bench.noise import main
@@ -21,6 +24,7 @@ from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.bench.sweep import (CONTROLLERS, RIG_ANGLE_DEG, RIG_SHIFT_MM, TRAJECTORIES, RunSpec,
                                     build_sweep, load_trajectory, run_config)
 from itg_vision.camera import perturbed
+from itg_vision.errors import UserError
 from itg_vision.rules import resolve_rules_path
 
 
@@ -1314,3 +1318,93 @@ def test_ctrl_c_between_a_rows_write_and_its_record_counts_the_rows_on_disk(tmp_
     on_disk = len(Results(out / "results.csv").rows)
     assert on_disk == 3
     assert f"{on_disk} of 12 runs are in {out / 'results.csv'}" in capsys.readouterr().err
+
+
+# --------------------------------- what each run of a sweep is given; a worker that died
+def test_rows_of_another_sweep_without_sweep_json_are_refused_and_kept(tmp_path):
+    """A sweep folder that lost its sweep.json still refuses a different sweep while it holds
+    rows of another, and nothing in it changes (the report would mix the two)."""
+    from itg_vision.bench import noise
+    from itg_vision.bench.store import Results, make_row
+    from itg_vision.bench.sweep import build_sweep
+
+    specs = build_sweep(quick=True, seeds=1, controllers=("ik",))
+    other = [s for s in build_sweep(quick=True, seeds=2, controllers=("ik",)) if s.seed == 1][0]
+    Results(tmp_path / "results.csv").append(make_row(other, None, no_start="x"))
+    outputs.write_json(tmp_path / outputs.MANIFEST, outputs.manifest(noise.COMMAND))
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    with pytest.raises(UserError, match=r"holds 1 results of a different sweep definition "
+                                        r"\(no sweep.json\)"):
+        noise.run_sweep(specs, tmp_path, {}, "cmd", workers=1, limit=0, quiet=True)
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_a_dropout_condition_reaches_its_vision_runs():
+    """A condition's dropout reaches its vision runs (and only those: model feedback has no
+    LEDs to lose)."""
+    from itg_vision.bench.sweep import build_sweep, run_config
+
+    specs = build_sweep(quick=True, seeds=1, conditions=("dropout-0.2", "noise-0.3px+dropout-0.05"))
+    want = {"dropout-0.2": 0.2, "noise-0.3px+dropout-0.05": 0.05}
+    assert {s.feedback for s in specs} == {"vision", "model"}
+    for s in specs:
+        assert run_config(s).dropout == (want[s.condition] if s.feedback == "vision" else 0.0)
+
+
+def test_the_sweeps_controllers_with_memory_run_with_correction_one_half():
+    """The itg-plus sweep's controllers with memory (-ff) run at correction 0.5, the others at 1."""
+    from itg_vision.bench.sweep import build_sweep, run_config
+
+    specs = build_sweep(sweep="itg-plus", seeds=1, conditions=("clean",),
+                        trajectories=("ellipse-t1",))
+    got = {s.controller: run_config(s).correction for s in specs}
+    assert got["itg-plus-vision-ff"] == got["jacobian-vision-ff"] == 0.5
+    assert got["itg-plus-vision"] == got["jacobian-vision"] == got["itg-vision"] == 1.0
+
+
+def test_each_seed_of_rig_perturbed_believes_the_rig_of_its_own_seed(monkeypatch):
+    """Each seed of rig-perturbed believes the rig perturbed with its own seed, so the spread
+    over seeds is over rigs, not one draw."""
+    from itg_vision import runner
+    from itg_vision.bench.execute import run_one
+    from itg_vision.bench.sweep import RIG_ANGLE_DEG, RIG_SHIFT_MM, build_sweep
+    from itg_vision.camera import Rig, default_rig_path, perturbed
+
+    believed = {}
+
+    def prepare(cfg, estimate_rig=None, **kw):
+        believed[cfg.seed] = estimate_rig
+        raise RuntimeError("stop before the run")
+
+    monkeypatch.setattr(runner, "prepare", prepare)
+    specs = [s for s in build_sweep(quick=True, seeds=2, conditions=("rig-perturbed",),
+                                    controllers=("itg-vision",))]
+    assert sorted(s.seed for s in specs) == [0, 1]
+    for s in specs:
+        assert "stop before the run" in run_one(s)["error"]
+    true_path = default_rig_path(specs[0].arm)
+    for seed in (0, 1):
+        want = perturbed(Rig.from_yaml(true_path), seed, angle_deg=RIG_ANGLE_DEG,
+                         shift_mm=RIG_SHIFT_MM, true_rig=true_path)
+        assert believed[seed].cameras == want.cameras
+    assert believed[0].cameras != believed[1].cameras
+
+
+def test_a_run_whose_worker_died_is_an_error_row_not_an_exception():
+    """A worker that died (killed, out of memory) gives each of its runs an error row naming
+    the cause, not a traceback that ends the sweep."""
+    from itg_vision.bench.execute import results
+    from itg_vision.bench.sweep import build_sweep
+
+    class DeadPool(Executor):
+        def submit(self, fn, /, *args, **kwargs):
+            fut = Future()
+            fut.set_exception(BrokenProcessPool("A process in the process pool was terminated"))
+            return fut
+
+    specs = build_sweep(quick=True, seeds=1, controllers=("ik",))[:3]
+    rows = list(results(DeadPool(), specs, 2))
+    assert [s.run_id for s, _ in rows] == [s.run_id for s in specs]
+    for spec, row in rows:
+        assert row == {"run_id": spec.run_id, "error": "BrokenProcessPool: A process in the "
+                                                       "process pool was terminated"}

@@ -250,3 +250,25 @@ def test_a_cancelled_pool_leaves_no_manager_thread_for_the_exit_hook():
     # the exit hook skips a closed wake-up; only a running thread can close it under the hook
     assert not thread.is_alive() and cfp._threads_wakeups[thread]._closed
     assert time.monotonic() - t0 < 10  # the terminated workers are not waited for 30 s
+
+
+def test_each_appended_row_is_synced_before_append_returns(tmp_path, monkeypatch):
+    """Each row is on disk when append returns (fsync of the file holding it, at its full size):
+    a finished run is not lost to a power cut, so a resume neither redoes nor loses it."""
+    from itg_vision.bench import store
+    from itg_vision.bench.store import COLUMNS, Results
+
+    path = tmp_path / "results.csv"
+    synced = []
+    real = os.fsync
+
+    def fsync(fd):
+        synced.append((os.fstat(fd).st_ino, os.fstat(fd).st_size))
+        real(fd)
+
+    monkeypatch.setattr(store.os, "fsync", fsync)
+    res = Results(path)
+    for k in range(2):
+        res.append({c: (f"{k:016x}" if c == "run_id" else "") for c in COLUMNS})
+        assert synced[-1] == (path.stat().st_ino, path.stat().st_size)
+    assert len(synced) == 2
