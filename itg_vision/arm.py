@@ -147,6 +147,15 @@ class ArmSpec:
         base column (yaw-pitch-pitch), shape (3,)."""
         return np.array([0.0, 0.0, 0.0 if self.planar else self.links_mm[0]])
 
+    def gripper_led_mm(self, point_mm) -> np.ndarray:
+        """Where the gripper's LED is with the gripper at ``point_mm``: a planar arm's set point
+        lies in the joints' plane and its LED ``led_standoff_mm`` above it; the three-link
+        arm's set points are its LED's, shape (3,)."""
+        p = np.array(point_mm, float).reshape(3)
+        if self.planar:
+            p[2] = self.led_standoff_mm
+        return p
+
     def reachable(self, p_mm: np.ndarray, tol_mm: float = REACH_TOL_MM) -> bool:
         """Whether the gripper LED can reach the point, within ``tol_mm`` on each radius below
         (planar arms: its x, y only, the LED sits above the joint: the distance from the base).

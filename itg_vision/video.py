@@ -75,10 +75,7 @@ class VideoRecorder:
         views = obs.frames() if obs is not None else None
         if not views:
             return
-        arm = feedback.arm  # the cross marks where the gripper's LED belongs: planar arms carry
-        desired = np.array(desired_mm, float)  # it led_standoff_mm above the set point's plane
-        if arm.planar:
-            desired[2] = arm.led_standoff_mm
+        desired = feedback.arm.gripper_led_mm(desired_mm)  # the cross: where the LED belongs
         panels = []
         for i, (img, cam) in enumerate(zip(views, feedback.estimate_rig.cameras)):
             bgr = np.ascontiguousarray(img[..., ::-1])

@@ -63,8 +63,7 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
     has_elbow = "elbow" in arm.marker_names
     elbows = [start["elbow"][None]] if has_elbow else []
     for p in reach:
-        g = np.array([p[0], p[1], arm.led_standoff_mm]) if arm.planar else p
-        gripper.append(g)
+        gripper.append(arm.gripper_led_mm(p))
         if not has_elbow:
             continue
         if arm.planar:

@@ -157,3 +157,14 @@ def test_ik_of_unequal_links_puts_the_simulators_led_on_the_point(name):
         got = world.true_markers()["gripper"]
     dim = 2 if arm.planar else 3
     np.testing.assert_allclose(got[:dim], target[:dim], rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("name, q", [("one-link", [30.0]), ("two-link", [40.0, -70.0]),
+                                     ("three-link", [20.0, 60.0, -30.0])])
+def test_the_gripper_led_of_a_set_point_is_where_the_forward_kinematics_puts_it(name, q):
+    """A set point where a pose puts the gripper: a planar arm's in the joints' plane (z = 0),
+    the three-link arm's the LED itself; gripper_led_mm gives the LED the pose carries there."""
+    arm = ArmSpec.from_args(name)
+    led = forward_kinematics(arm, q)["gripper"]
+    set_point = np.r_[led[:2], 0.0] if arm.planar else led
+    np.testing.assert_allclose(arm.gripper_led_mm(set_point), led, rtol=0, atol=roundoff(200))

@@ -126,7 +126,7 @@ def decision_costs(n_points: int = DECISION_POINTS, repeat: int = DECISION_PASSE
         native_error = str(exc)
     # PyBullet's IK as a tracking loop would call it: from the previous set point's solution,
     # through World (its mm and deg converted), and the call alone with them converted before
-    goals = [(p[0], p[1], arm.led_standoff_mm) for p in pts]
+    goals = [tuple(arm.gripper_led_mm(p)) for p in pts]
     solved = [np.array(two_link_ik(p[0], p[1], *arm.links_mm)[0]) for p in pts]
     ik_from_previous = [(g, "gripper", q) for g, q in zip(goals, solved[-1:] + solved[:-1])]
     with World(arm) as world:
