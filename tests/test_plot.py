@@ -15,9 +15,14 @@ from itg_vision.loop import SetPointRecord, Trace
 
 @pytest.fixture
 def figures(monkeypatch):
+    """The figures the module would save, kept open to be read; closed after the test."""
+    import matplotlib.pyplot as plt
+
     made = []
     monkeypatch.setattr(plot, "_save", lambda fig, path: made.append(fig))
-    return made
+    yield made
+    for fig in made:
+        plt.close(fig)
 
 
 def _trace(desired, actual, *, planar=True, missed=(), tracking_start=0, gone=(), flagged=()):
