@@ -126,9 +126,18 @@ def test_a_second_sweep_into_the_same_out_at_once_is_refused_in_one_line(tmp_pat
     out = tmp_path / "n"
     args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(out), "--quiet",
             "--workers", "1"]
+    def waited(signum, frame):  # a sweep that waits for the lock instead would hang the suite
+        raise AssertionError("the second sweep waited for the lock instead of being refused")
+
     with sweep_lock(out):
         capsys.readouterr()
-        assert main(args) == 2
+        previous = signal.signal(signal.SIGALRM, waited)
+        signal.alarm(60)
+        try:
+            assert main(args) == 2
+        finally:
+            signal.alarm(0)
+            signal.signal(signal.SIGALRM, previous)
         assert capsys.readouterr().err == (f"error: --out {out}: another sweep is writing into it "
                                            "now; wait for it to end, or choose another --out\n")
         assert sorted(p.name for p in out.iterdir()) == [LOCK]
