@@ -13,6 +13,7 @@ import yaml
 from itg_vision import calibration as cal
 from itg_vision.calibrate import measured_links, summary_table
 from itg_vision.arm import ArmSpec
+from itg_vision.board import Board
 from itg_vision.camera import Camera, Rig
 from itg_vision.errors import UserError
 from itg_vision.world import World
@@ -142,7 +143,6 @@ def test_poses_tilted_about_one_axis_only_are_refused():
     about the board's x axis alone (0.05 px corner noise, the detector's order) are refused by
     the tilt-span gate, whose smaller span is 0: the focal std (0.19 %) would pass its own 1 %
     gate. The same views spread over both axes (60 x 50 deg) calibrate."""
-    from itg_vision.board import Board
     rig, board = Rig.from_yaml(PLANAR), Board()
     one_axis = [(a, 0.0) for a in np.linspace(-30, 30, 12)]
     with pytest.raises(UserError, match=r"degenerate board poses: the board's tilt spans only "
@@ -689,3 +689,225 @@ def test_board_poses_spanning_less_than_forty_degrees_about_an_axis_are_refused(
     views = _synthetic_views(rig, board, tilts, 0.05)
     with pytest.raises(UserError, match=r"tilt spans only 60 x 30 deg"):
         cal.calibrate_views(views, board, tuple(c.size for c in rig.cameras))
+
+
+# ------------------------- each camera's result, the record, the table, what calibrate replaces
+TWO_AXES = ([(a, 0.0) for a in np.linspace(-30, 30, 6)]
+            + [(0.0, b) for b in np.linspace(-25, 25, 6)])
+
+
+def _mono_reference(obj, corners, size):
+    """OpenCV directly, as the calibration's contract says (k3 fixed)."""
+    return cv2.calibrateCameraExtended([obj] * len(corners), corners, size, None, None,
+                                       flags=cv2.CALIB_FIX_K3,
+                                       criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS,
+                                                 100, 1e-12))
+
+
+def _views_with_an_outlier_and_a_miss():
+    """13 views (12 over two axes + 1): camera 1's view 0 off by 1 px (an outlier: dropped),
+    camera 2 misses views 11 and 12 (found by camera 1 alone)."""
+    rig, board = Rig.from_yaml(PLANAR), Board()
+    views = _synthetic_views(rig, board, TWO_AXES + [(15.0, 15.0)], 0.05)
+    rng = np.random.default_rng(5)
+    c1, c2 = views.corners[0]
+    views.corners[0] = ((c1 + rng.normal(0, 1.0, c1.shape)).astype(np.float32), c2)
+    for k in (11, 12):
+        views.corners[k] = (views.corners[k][0], None)
+    return rig, board, views
+
+
+def test_each_cameras_calibration_is_opencvs_on_its_own_views_and_the_pair_is_the_true_one():
+    """Camera 1 (view 0 an outlier) and camera 2 (views 11, 12 missed) each get OpenCV's mono
+    calibration of exactly the views it kept, bit for bit; the stereo pair is the true rig's
+    relative pose (exact projections, 0.05 px noise); counts: found 13 / 11, both 11, stereo
+    10 (view 0 dropped)."""
+    rig, board, views = _views_with_an_outlier_and_a_miss()
+    sizes = tuple(c.size for c in rig.cameras)
+    st = cal.calibrate_views(views, board, sizes)
+    assert st.dropped == [0]
+    assert st.used == (list(range(1, 13)), list(range(11)))
+    assert st.n_found == (13, 11) and st.n_found_both == 11
+    assert st.stereo_views == list(range(1, 11))
+    obj = board.object_points()
+    for i in range(2):
+        rms, K, dist, rvecs, _, std_in, _, pv = _mono_reference(
+            obj, [views.corners[k][i] for k in st.used[i]], sizes[i])
+        np.testing.assert_allclose(st.K[i], K, rtol=1e-9, atol=0)
+        np.testing.assert_allclose(st.dist[i], dist.ravel()[:5], rtol=1e-7, atol=1e-12)
+        assert st.rms_px[i] == pytest.approx(rms, rel=1e-9)
+        np.testing.assert_allclose(st.per_view_rms_px[i], pv.ravel(), rtol=1e-9)
+        np.testing.assert_allclose(st.intrinsics_std_px[i], std_in.ravel()[:4], rtol=1e-9)
+        assert st.focal_std_rel[i] == pytest.approx(std_in.ravel()[0] / K[0, 0], rel=1e-9)
+        if i == 0:
+            assert st.tilt_span_deg == pytest.approx(cal.tilt_spans_deg(rvecs), rel=1e-9)
+        # the true lens, to the noise's reach
+        assert K[0, 0] == pytest.approx(rig.cameras[i].fx, rel=0.01)
+    c1, c2 = rig.cameras
+    R_true = c2.R @ c1.R.T
+    T_true = c2.t_mm - R_true @ c1.t_mm
+    angle = np.degrees(np.linalg.norm(cv2.Rodrigues(st.R @ R_true.T)[0]))
+    assert angle < 0.1 and np.linalg.norm(st.T_mm - T_true) < 2.0
+
+
+def test_exactly_the_minimum_number_of_views_is_accepted():
+    """"need at least N": N views in both cameras calibrate."""
+    rig, board = Rig.from_yaml(PLANAR), Board()
+    st = cal.calibrate_views(_synthetic_views(rig, board, TWO_AXES, 0.05), board,
+                             tuple(c.size for c in rig.cameras), min_views=len(TWO_AXES))
+    assert len(st.stereo_views) == len(TWO_AXES)
+
+
+def test_too_few_views_left_after_each_camera_drops_its_outliers_is_a_user_error():
+    """8 views, 7 needed: camera 1 drops view 0, camera 2 view 1 (each keeps 7), so only 6
+    are left in both: one UserError naming the outliers (exit 2 on the command line)."""
+    rig, board = Rig.from_yaml(PLANAR), Board()
+    tilts = [(a, 0.0) for a in (-30, -10, 10, 30)] + [(0.0, b) for b in (-25, -8, 8, 25)]
+    views = _synthetic_views(rig, board, tilts, 0.05)
+    rng = np.random.default_rng(3)
+    for k, i in ((0, 0), (1, 1)):
+        c = list(views.corners[k])
+        c[i] = (c[i] + rng.normal(0, 1.0, c[i].shape)).astype(np.float32)
+        views.corners[k] = tuple(c)
+    with pytest.raises(UserError, match=r"only 6 views with the board in both cameras are left "
+                                        r"after dropping outliers \[0, 1\]; need at least 7"):
+        cal.calibrate_views(views, board, tuple(c.size for c in rig.cameras), min_views=7)
+
+
+@pytest.fixture(scope="module")
+def quick_result():
+    """calibrate() with the board views replaced by _synthetic_views (13 views, camera 1's
+    view 0 an outlier, camera 2 missing views 11 and 12, the corner picture's view 2), the LEDs
+    rendered as usual: a few seconds instead of ~20."""
+    mp = pytest.MonkeyPatch()
+    rig, board, views = _views_with_an_outlier_and_a_miss()
+    views.sample = (2, np.full((480, 640, 3), 200, np.uint8))
+    seen_errors = []
+    led_errors = cal.led_errors
+
+    def fake_render(world, true_rig, board, poses, rng, *, supersample=2, progress=None):
+        assert len(poses) == len(views.corners)
+        return views
+
+    def spy(rig_, arm, shots):
+        out = led_errors(rig_, arm, shots)
+        seen_errors.append(out)
+        return out
+
+    mp.setattr(cal, "render_views", fake_render)
+    mp.setattr(cal, "led_errors", spy)
+    try:
+        res = cal.calibrate(rig, ArmSpec.from_args("two-link"), views=13, seed=0, check_poses=8)
+    finally:
+        mp.undo()
+    return rig, views, res, seen_errors
+
+
+def test_quick_calibration_places_both_cameras_and_reports_their_errors(quick_result):
+    """The calibrated cameras sit where the true ones do (world frame, mm and deg), and the
+    record's error_vs_true is that difference, computed here from the two rigs directly."""
+    true_rig, _, res, _ = quick_result
+    e = res.record["error_vs_true"]
+    for t, c in zip(true_rig.cameras, res.rig.cameras):
+        dpos = float(np.linalg.norm(c.position_mm - t.position_mm))
+        drot = float(np.degrees(np.linalg.norm(cv2.Rodrigues(c.R @ t.R.T)[0])))
+        assert dpos < 5.0 and drot < 0.5, (t.name, dpos, drot)
+        rec = e["cameras"][t.name]
+        assert rec["position_mm"] == pytest.approx(dpos, rel=1e-4, abs=1e-6)
+        assert rec["rotation_deg"] == pytest.approx(drot, rel=1e-4, abs=1e-6)
+        assert rec["focal_length_pct"] == pytest.approx(
+            [100 * (c.fx - t.fx) / t.fx, 100 * (c.fy - t.fy) / t.fy], rel=1e-4, abs=1e-9)
+    (t1, t2), (c1, c2) = true_rig.cameras, res.rig.cameras
+    baseline = (np.linalg.norm(c2.position_mm - c1.position_mm)
+                - np.linalg.norm(t2.position_mm - t1.position_mm))
+    assert e["baseline_mm"] == pytest.approx(baseline, rel=1e-4, abs=1e-6)
+    assert abs(e["baseline_mm"]) < 2.0
+    led = res.record["led_triangulation"]
+    assert led["calibrated_rig_rms_mm"] < 1.0
+
+
+def test_quick_calibration_record_counts_and_figures(quick_result):
+    """The record's counts are those of the views given (13 shown; left found 13, right 11,
+    both 11; left used 12 (view 0 dropped), right 11, stereo 10); the RMS per camera is
+    OpenCV's on that camera's views; the LED figures are those of the errors measured."""
+    true_rig, views, res, seen_errors = quick_result
+    r = res.record
+    assert r["views_shown"] == 13 and r["views_dropped"] == [0]
+    assert r["views_found"] == {"left": 13, "right": 11, "both": 11}
+    assert r["views_used"] == {"left": 12, "right": 11, "stereo": 10}
+    assert r["board"] == {"inner_corners": [9, 6], "square_mm": 15.0}
+    assert r["picture_view"] == 2
+    obj = Board().object_points()
+    for i, name in enumerate(("left", "right")):
+        used = [k for k in range(13) if views.corners[k][i] is not None and (i, k) != (0, 0)]
+        rms = _mono_reference(obj, [views.corners[k][i] for k in used], true_rig.cameras[i].size)[0]
+        assert r["reprojection_rms_px"][name] == pytest.approx(rms, rel=1e-5)
+    err_true, err_cal = seen_errors
+    common = sorted(set(err_true) & set(err_cal))
+    e_t = np.array([err_true[k] for k in common])
+    e_c = np.array([err_cal[k] for k in common])
+    led = r["led_triangulation"]
+    assert led["points"] == len(common)
+    assert led["true_rig_p95_mm"] == pytest.approx(np.percentile(e_t, 95), rel=1e-5)
+    assert led["calibrated_rig_p95_mm"] == pytest.approx(np.percentile(e_c, 95), rel=1e-5)
+    rms_t, rms_c = np.sqrt(np.mean(e_t**2)), np.sqrt(np.mean(e_c**2))
+    assert led["ratio"] == pytest.approx(rms_c / rms_t, rel=1e-5)
+
+
+def test_no_led_found_at_the_check_poses_is_a_user_error(monkeypatch):
+    rig, board, views = _views_with_an_outlier_and_a_miss()
+    monkeypatch.setattr(cal, "render_views", lambda *a, **k: views)
+    monkeypatch.setattr(cal, "led_errors", lambda rig_, arm, shots: {})
+    with pytest.raises(UserError, match=r"planar.yaml: LED check: no LED was found"):
+        cal.calibrate(rig, ArmSpec.from_args("two-link"), views=13, check_poses=1)
+
+
+def test_write_result_records_the_hash_of_the_true_rig_as_read(tmp_path):
+    """The hash the command read the true rig with, not the file's content after the work."""
+    rig = Rig.from_yaml(PLANAR)
+    res = cal.Result(rig, {"seed": 0})
+    out = tmp_path / "planar.calib.yaml"
+    assert cal.write_result(res, out, PLANAR, "ab" * 32) is None
+    assert yaml.safe_load(out.read_text())["true_rig_sha256"] == "ab" * 32
+
+
+def test_check_out_replaces_this_rigs_calibration_only(tmp_path):
+    """Re-calibrating over this rig's calibration and its picture needs no --force; a
+    calibration of another rig is refused without it; the true rig itself always."""
+    from itg_vision.calibrate import check_out
+
+    out = _this_rigs_calibration(tmp_path / "x.calib.yaml")
+    (tmp_path / "x.calib.png").write_bytes(b"old picture")
+    assert check_out(out, PLANAR) == []
+    other = ROOT / "cameras" / "three-link.yaml"
+    with pytest.raises(UserError, match=r"is a calibration of .*, not of "):
+        check_out(out, other)
+    with pytest.raises(UserError, match=r"would overwrite the true rig"):
+        check_out(PLANAR, PLANAR, force=True)
+
+
+def test_summary_table_shows_the_records_baseline_error():
+    from itg_vision.calibrate import summary_table
+
+    record = Rig.from_yaml(ROOT / "cameras" / "planar.calib.yaml").calibration
+    line = next(x for x in summary_table(record).splitlines() if x.startswith("baseline error"))
+    assert float(line.split()[-1]) == pytest.approx(record["error_vs_true"]["baseline_mm"],
+                                                    abs=5.1e-4)
+
+
+def test_even_numbered_board_poses_show_the_whole_board_to_both_cameras():
+    from itg_vision import board as brd
+
+    rig, board = Rig.from_yaml(PLANAR), Board()
+    arm = ArmSpec.from_args("two-link")
+    poses = brd.sample_board_poses(rig, board, 30, np.random.default_rng(0),
+                                   target_mm=arm.calibration["board_target_mm"])
+    assert all(brd.board_visible(c, board, p) for p in poses[::2] for c in rig.cameras)
+    assert all(any(brd.board_visible(c, board, p) for c in rig.cameras) for p in poses[1::2])
+
+
+def test_sensor_noise_overrides_both_cameras():
+    from itg_vision.calibrate import Job, build_parser
+
+    job = Job.from_args(build_parser().parse_args(["--sensor-noise", "7.5"]))
+    assert [c.noise_sigma_gray for c in job.true_rig.cameras] == [7.5, 7.5]
