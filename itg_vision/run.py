@@ -318,9 +318,8 @@ def plot_title(s: dict) -> str:
             + (", DIVERGED" if s.get("diverged") else ""))
     more = []
     from_ = s.get("controller_params_from", {})
-    more += [f"{PARAM_OF_FIELD[k]} {v:g} {PARAM_UNITS[PARAM_OF_FIELD[k]]}"
-             for k, v in s.get("controller_params", {}).items()
-             if k in PARAM_OF_FIELD and from_.get(k) != "the servo limit"]  # (that S: line 1)
+    more += [f"{n} {v:g} {PARAM_UNITS[n]}" for k, v in s.get("controller_params", {}).items()
+             if (n := PARAM_OF_FIELD.get(k)) and from_.get(k) != "the servo limit"]  # (S: line 1)
     if s.get("correction", 1) != 1:
         more.append(f"memory K {s['correction']:g}")
     if s.get("preview"):

@@ -354,6 +354,12 @@ def test_one_step_removes_a_small_error_like_newton(name, factor):
         n += 1
 
 
+def _around_base(rng, lo_mm, hi_mm):
+    """A set point lo_mm..hi_mm from the base in a random direction (the plane, z = 0)."""
+    a = rng.uniform(-np.pi, np.pi)
+    return np.array([*(rng.uniform(lo_mm, hi_mm) * np.array([np.cos(a), np.sin(a)])), 0.0])
+
+
 def _near_base_poses(arm, rng):
     """Poses with the gripper within a quarter forearm (25 mm) of the base, folded either way."""
     while True:
@@ -378,8 +384,7 @@ def test_near_the_base_with_the_set_point_at_it_the_step_is_the_dls_trackers_ste
         tracker = make_controller("jacobian", arm, max_step_deg=servo)
         assert tracker.damping == 5.0
         for q, _ in zip(_near_base_poses(arm, rng), range(150)):
-            a = rng.uniform(-np.pi, np.pi)
-            p = np.array([*(rng.uniform(0, 2.0) * np.array([np.cos(a), np.sin(a)])), 0.0])
+            p = _around_base(rng, 0, 2.0)
             if distance(arm, p, q) <= 0.5:  # the hold band w
                 continue
             got = rb.step(p, observe(arm, q), q)
@@ -406,8 +411,7 @@ def test_near_the_base_the_step_never_ends_farther_and_beats_the_dls_step():
     rng = np.random.default_rng(5)
     excess, excess_dls, fired = [], [], set()
     for q, _ in zip(_near_base_poses(arm, rng), range(400)):
-        a = rng.uniform(-np.pi, np.pi)
-        p = np.array([*(rng.uniform(2.0, 30.0) * np.array([np.cos(a), np.sin(a)])), 0.0])
+        p = _around_base(rng, 2.0, 30.0)
         before = distance(arm, p, q)
         got = rb.step(p, observe(arm, q), q)
         fired |= set(got.fired)
@@ -431,8 +435,7 @@ def test_near_the_base_a_set_point_25_to_100_mm_away_is_never_left_farther():
     rng = np.random.default_rng(11)
     farther = []
     for q, _ in zip(_near_base_poses(arm, rng), range(5000)):
-        a = rng.uniform(-np.pi, np.pi)
-        p = np.array([*(rng.uniform(25.0, 100.0) * np.array([np.cos(a), np.sin(a)])), 0.0])
+        p = _around_base(rng, 25.0, 100.0)
         before = distance(arm, p, q)
         got = rb.step(p, observe(arm, q), q)
         if distance(arm, p, q + got.dq_deg) > before:
@@ -610,8 +613,7 @@ def test_near_the_base_the_predicted_landings_are_the_forward_kinematics():
                                           ("th3", "s3")))}
     rng = np.random.default_rng(12)
     for q, _ in zip(_near_base_poses(arm, rng), range(200)):
-        a = rng.uniform(-np.pi, np.pi)
-        p = np.array([*(rng.uniform(2.0, 30.0) * np.array([np.cos(a), np.sin(a)])), 0.0])
+        p = _around_base(rng, 2.0, 30.0)
         for rb in probes.values():
             dq = rb.step(p, observe(arm, q), [*q, 0.0]).dq_deg
             assert np.all(np.abs(dq[:2]) <= SERVO["two-link"] + 1e-9)
@@ -701,8 +703,7 @@ def test_passing_by_slides_by_the_error_across_the_turned_forearm():
     for q, _ in zip(_near_base_poses(arm, rng), range(300)):
         m = forward_kinematics(arm, q)
         g, e = m["gripper"][:2], m["elbow"][:2]
-        a = rng.uniform(-np.pi, np.pi)
-        d = rng.uniform(2.0, 30.0) * np.array([np.cos(a), np.sin(a)])
+        d = _around_base(rng, 2.0, 30.0)[:2]
         th, b = probe.step(np.array([*d, 0.0]), observe(arm, q), q).dq_deg
         t = np.radians(th)
         u = g - e

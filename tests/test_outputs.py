@@ -336,13 +336,19 @@ def test_a_file_the_user_puts_in_while_the_command_works_is_kept(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
 
 
-def test_force_replaces_a_foreign_folder_keeping_it_and_never_a_file(tmp_path, capsys):
+@pytest.mark.parametrize("taken_by", ["a folder", "a dangling link"])
+def test_force_replaces_a_foreign_folder_keeping_it_and_never_a_file(tmp_path, capsys, taken_by):
     """A successful run never deletes what the user made: --force puts the folder it replaces
-    beside the new one, as <name>.replaced-N (the first free N), and says so."""
+    beside the new one, as <name>.replaced-N (the first free N), and says so. A name taken by
+    a dangling link is not free (the link stays)."""
     folder, file = tmp_path / "f", tmp_path / "notes.txt"
     folder.mkdir()
     (folder / "x").write_text("x")
-    (tmp_path / "f.replaced-1").mkdir()  # taken: the next free name is used
+    taken = tmp_path / "f.replaced-1"  # taken: the next free name is used
+    if taken_by == "a folder":
+        taken.mkdir()
+    else:
+        taken.symlink_to(tmp_path / "gone")
     file.write_text("keep")
     with outputs.staged_dir(folder, "run", force=True) as tmp:
         (tmp / "result.txt").write_text("new")
@@ -350,6 +356,8 @@ def test_force_replaces_a_foreign_folder_keeping_it_and_never_a_file(tmp_path, c
     assert (tmp_path / "f.replaced-2" / "x").read_text() == "x"
     assert capsys.readouterr().err == (f"note: --out {folder}: held what run did not write; "
                                        f"kept as {tmp_path / 'f.replaced-2'}\n")
+    assert taken.is_dir() if taken_by == "a folder" else (
+        taken.is_symlink() and os.readlink(taken) == str(tmp_path / "gone"))
     # a folder of its own results is replaced, with or without --force: nothing kept
     with outputs.staged_dir(folder, "run", force=True) as tmp:
         (tmp / "result.txt").write_text("newer")
@@ -945,22 +953,6 @@ def test_an_output_folder_is_readable_by_everyone_like_its_files(tmp_path):
     _make(out)
     assert stat.S_IMODE(out.stat().st_mode) == 0o755
     assert stat.S_IMODE((out / outputs.MANIFEST).stat().st_mode) == 0o644
-
-
-def test_a_dangling_link_named_like_a_kept_folder_is_not_taken_as_free(tmp_path, capsys):
-    """--force keeps a foreign folder aside under the first free name: a dangling link named
-    r.replaced-1 is not free (it stays), the folder goes to r.replaced-2."""
-    out = tmp_path / "r"
-    out.mkdir()
-    (out / "notes.txt").write_text("mine")
-    link = tmp_path / "r.replaced-1"
-    link.symlink_to(tmp_path / "gone")
-    with outputs.staged_dir(out, "run", force=True) as tmp:
-        (tmp / "result.txt").write_text("forced")
-    assert link.is_symlink() and os.readlink(link) == str(tmp_path / "gone")
-    assert (tmp_path / "r.replaced-2" / "notes.txt").read_text() == "mine"
-    assert (out / "result.txt").read_text() == "forced"
-    assert f"kept as {tmp_path / 'r.replaced-2'}" in capsys.readouterr().err
 
 
 def test_a_log_says_something_at_least_once_a_minute(monkeypatch):
