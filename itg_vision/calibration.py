@@ -367,8 +367,12 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,
         S = c + ((C2 - c) @ z) * z
         origin = S - arm.links_mm[0] * z
         record["standoff_mm"] = float(np.linalg.norm(C2 - S))
-        measured = [shoulder["elbow"]["radius_mm"], float(np.median(np.linalg.norm(
-            shoulder["gripper"]["points"] - shoulder["elbow"]["points"], axis=1)))]
+        # L3: the LEDs' distance in the poses where both were seen (either may miss a few)
+        gripper_at = dict(zip(shoulder["gripper"]["angles_deg"], shoulder["gripper"]["points"]))
+        measured = [shoulder["elbow"]["radius_mm"], float(np.median(
+            [np.linalg.norm(gripper_at[q] - e) for q, e in zip(shoulder["elbow"]["angles_deg"],
+                                                              shoulder["elbow"]["points"])
+             if q in gripper_at]))]
         names = ["L2", "L3"]  # L1 is the base height, not seen
         record["nominal_used"] = (f"base height L1 = {arm.links_mm[0]:g} mm below the measured "
                                   "shoulder (the floor is not seen)")

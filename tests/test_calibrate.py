@@ -911,3 +911,32 @@ def test_sensor_noise_overrides_both_cameras():
 
     job = Job.from_args(build_parser().parse_args(["--sensor-noise", "7.5"]))
     assert [c.noise_sigma_gray for c in job.true_rig.cameras] == [7.5, 7.5]
+
+
+def test_a_three_link_shoulder_sweep_with_one_led_missed_in_one_pose_still_measures_l3(
+        monkeypatch):
+    """L3 is the LEDs' distance over the shoulder sweep's poses where both were seen: with the
+    gripper missed in one pose (as `calibrate --rig planar --arm three-link` met: 24 gripper
+    points against 25 elbow points) it is still the simulated link, within the 0.5 mm of the
+    frame test above, and the frame is the one all poses give to well within that test's
+    tolerances; it raised a numpy broadcast error."""
+    true_rig = Rig.from_yaml(ROOT / "cameras" / "three-link.yaml")
+    rig_c1 = _camera1_frame(true_rig)
+    arm = ArmSpec.from_args("three-link")
+    with World(arm) as world:
+        sweeps = {j: (cal.led_images(world, true_rig, arm, q, np.random.default_rng(0)), names)
+                  for j, (q, names) in cal.axis_sweeps(arm).items()}
+    R_all, t_all, _ = cal.base_frame_from_axes(rig_c1, arm, sweeps)
+    real, dropped = cal.triangulate_leds, sweeps[1][0][5][1]  # the shoulder sweep's 6th pose
+
+    def eye(rig, arm_, imgs):
+        X = real(rig, arm_, imgs)
+        return {n: p for n, p in X.items() if not (imgs is dropped and n == "gripper")}
+
+    monkeypatch.setattr(cal, "triangulate_leds", eye)
+    R_w, t_w, rec = cal.base_frame_from_axes(rig_c1, arm, sweeps)
+    assert rec["measured_links"] == ["L2", "L3"]
+    assert rec["measured_links_mm"][1] == pytest.approx(arm.links_mm[2], abs=0.5)
+    # one point fewer of 25 on the gripper's circle: the frame moves far less than 0.1 deg / 1 mm
+    assert np.degrees(np.linalg.norm(cv2.Rodrigues(R_w @ R_all.T)[0])) < 0.05
+    assert np.linalg.norm(t_w - t_all) < 0.5
