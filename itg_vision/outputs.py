@@ -166,7 +166,7 @@ def digests(folder: Path, entries: list[str]) -> dict[str, str]:
             if not e.endswith("/") and (folder / e).is_file() and not (folder / e).is_symlink()}
 
 
-def _edited(folder: Path, made: dict) -> list[str]:
+def edited(folder: Path, made: dict) -> list[str]:
     """The files of ``folder`` whose bytes differ from what the manifest ``made`` recorded of
     them (none for a manifest without digests)."""
     recorded = made.get("sha256")
@@ -331,17 +331,17 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
             foreign = _foreign(path, set(recorded))
         except OSError as exc:
             raise UserError(f"{option} {out}: cannot read the folder ({exc.strerror})") from None
-        edited = _edited(path, made)
-        if not foreign and not edited:
+        changed = edited(path, made)
+        if not foreign and not changed:
             return path
         if foreign:
             n = f"{len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'}"
             what = f"holds {n} that {command} did not write (first: {foreign[0]})"
         else:
-            n = f"{len(edited)} file{'' if len(edited) == 1 else 's'}"
-            what = f"holds {n} changed since {command} wrote {'it' if len(edited) == 1 else 'them'} (first: {edited[0]})"
+            n = f"{len(changed)} file{'' if len(changed) == 1 else 's'}"
+            what = f"holds {n} changed since {command} wrote {'it' if len(changed) == 1 else 'them'} (first: {changed[0]})"
         raise UserError(f"{option} {out}: {what}; move "
-                        f"{'it' if len(foreign) + len(edited) == 1 else 'them'} out or "
+                        f"{'it' if len(foreign) + len(changed) == 1 else 'them'} out or "
                         f"choose another {option}, or add --force to write there anyway (the folder is kept)")
     if made is not None:
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "

@@ -105,6 +105,33 @@ def test_resume_after_interruption_and_a_torn_last_line(tmp_path):
     assert set(ids) == {s.run_id for s in specs}
 
 
+def test_a_report_or_plot_the_user_changed_is_kept_aside_not_written_over(tmp_path, capsys):
+    """A rerun writes report.md and the plots again: one the user changed since (their notes
+    added to the report, a plot replaced) is kept as report.replaced-1.md, ... with a note on
+    stderr, and the new one written; an unchanged one is written over, and a file the benchmark
+    did not write is left alone. The notes were lost."""
+    args = ["--quick", "--controllers", "itg-model", "--seeds", "1", "--out", str(tmp_path),
+            "--quiet", "--workers", "1", *FEW_PLOTS]
+    assert main(args) == 0
+    report = (tmp_path / "report.md").read_text()
+    plot = sorted(tmp_path.glob("*.png"))[0]
+    (tmp_path / "report.md").write_text(report + "MY NOTES\n")
+    plot.write_bytes(b"my own figure")
+    (tmp_path / "notes.md").write_text("mine")
+    capsys.readouterr()
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert (tmp_path / "report.replaced-1.md").read_text() == report + "MY NOTES\n"
+    assert (tmp_path / f"{plot.stem}.replaced-1.png").read_bytes() == b"my own figure"
+    assert (tmp_path / "report.md").read_text() == report  # written again, as before
+    assert plot.read_bytes().startswith(b"\x89PNG")
+    assert (tmp_path / "notes.md").read_text() == "mine"
+    assert err.count("was changed since the benchmark wrote it; kept as") == 2, err
+    assert main(args) == 0  # nothing changed since: nothing more kept aside
+    assert "kept as" not in capsys.readouterr().err
+    assert len(list(tmp_path.glob("*.replaced-*"))) == 2
+
+
 def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
     """Run ids cover parameters and input files, not the code: each row records the code that
     made it, and a resume says how many rows other code made (silent when none did)."""

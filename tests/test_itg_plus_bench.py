@@ -419,7 +419,7 @@ def test_speed_target_threshold_is_fifty_times(native_us, ratio, met):
 
 
 @pytest.mark.slow
-def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys):
+def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys, monkeypatch):
     """A small run (1 seed, 20 points; three two-link paths: a named closed path, the jump of
     `abcd` and a curve file, whose preview plan moves aims): every printed verdict agrees with
     its own numbers, and the tracking targets cover exactly the paths asked for. Every run
@@ -445,6 +445,21 @@ def test_bench_itg_plus_end_to_end_verdicts_match_their_numbers(tmp_path, capsys
         # the table prints 3 significant digits: the verdict is checked where they decide it
         if abs(measured - float(threshold)) > 0.01 * max(abs(measured), abs(float(threshold))):
             assert (cells[4] == "met") == ops[op](measured, float(threshold)), line
+    # a rerun (every run stored) keeps the user's edited targets.md aside; the bounds, the
+    # oracle, the timing and the sweeps' plots, which take its time, are not tested there
+    (out / "targets.md").write_text(text + "MY NOTES\n")
+    capsys.readouterr()
+    monkeypatch.setattr("itg_vision.bench.report._plots", lambda *a: [])
+    monkeypatch.setattr(itg_plus, "servo_bound_mm", lambda *a: 0.0)
+    monkeypatch.setattr(itg_plus, "greedy_tracking_max_mm", lambda *a: 0.0)
+    monkeypatch.setattr("itg_vision.bench.speed.decision_costs", lambda: {
+        "itg_plus_compiled_us": 1.0, "ik_pybullet_us": 100.0, "rules_compiled_us": 1.0,
+        "itg_plus_native_us": None, "native_error": None})
+    assert itg_plus.main(["--out", str(out), "--seeds", "1", "--seeds-three-link", "1",
+                          "--points", "20", "--trajectories", ",".join(paths), "--quiet"]) == 0
+    assert (out / "targets.replaced-1.md").read_text() == text + "MY NOTES\n"
+    assert "targets.md was changed since the benchmark wrote it" in capsys.readouterr().err
+    assert (out / "targets.md").read_text().splitlines()[:6] == text.splitlines()[:6]
 
 
 def test_bench_itg_plus_trajectories_ignore_empty_names():

@@ -613,7 +613,9 @@ def main(argv: list[str] | None = None) -> int:
         checks = preview_checks(rows["itg-plus"], two_link, plans)
         if checks:
             text += PREVIEW_INTRO + table(checks, "check") + [""]
+        noise.keep_edits(out)
         outputs.write_text(out / "targets.md", "\n".join(text))
+        noise.record_written(out, COMMAND, ["targets.md"])
         print("\n".join(table(targets)))
         print(f"{sum(t.met for t in targets)} of {len(targets)} targets met; {out / 'targets.md'}")
         return status

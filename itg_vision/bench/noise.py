@@ -57,6 +57,23 @@ def check_out(out: Path, command: str = COMMAND) -> Path:
     return path
 
 
+def keep_edits(out: Path) -> None:
+    """Keep aside (``report.replaced-1.md``, ...: :func:`outputs.keep_aside`) each file a run of
+    this benchmark wrote into ``out`` and the user changed since (its manifest's digests), so
+    that writing it again loses nothing of theirs."""
+    made = outputs.read_manifest(out)
+    for name in outputs.edited(out, made) if made is not None else []:
+        outputs.keep_aside(out / name, f"{out / name} was changed since the benchmark wrote it")
+
+
+def record_written(out: Path, command: str, names: list[str]) -> None:
+    """The manifest of ``out``, with the digests of the files named that exist (what
+    :func:`keep_edits` compares)."""
+    written = [n for n in names if (out / n).is_file()]
+    outputs.write_json(out / outputs.MANIFEST,
+                       outputs.manifest(command, digests=outputs.digests(out, written)))
+
+
 def command_line(name: str, argv: list[str]) -> str:
     """What reruns ``python -m itg_vision.bench NAME`` with ``argv`` (less ``--quiet``), for
     the reports to print: quoted, so that a path with a space reruns as it ran."""
@@ -250,7 +267,8 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     """:func:`run_sweep` under its --out's lock."""
     n_vision = sum(s.vision for s in specs)
     store = Results(out / "results.csv")  # as the lock found it (a sweep may just have ended)
-    outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
+    if outputs.read_manifest(out) is None:  # an earlier run's keeps what it wrote (kept_edits)
+        outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
     record_sweep_file(out, definition, options, specs)
     store.repair()
     for msg in store.problems + [m for m in [code_warning(store)] if m]:
@@ -284,6 +302,7 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     shutdown(executor, client=client)
     store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
     rows = list(store.rows.values())
+    keep_edits(out)
     plots = write_report(out, rows, specs, command, failures, plot_metrics)
     failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
     if failures:
@@ -291,6 +310,7 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
                            "".join(f"{k}\t{v}\n" for k, v in failures.items()))
     elif (out / "failures.log").exists():  # every run it listed has its row now
         (out / "failures.log").unlink()
+    record_written(out, COMMAND, ["report.md", "failures.log", *(p.name for p in plots)])
     done = stored()
     gone = len(rows) - len(started(rows))
     print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
