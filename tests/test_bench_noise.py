@@ -960,6 +960,31 @@ def test_a_users_controller_is_unknown_without_its_rules(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------- trajectory files
+def test_a_trajectory_file_in_metres_gets_runs_note_on_stderr_and_in_the_report(tmp_path,
+                                                                                capsys):
+    """T1 written in metres under an x_mm header (a 0.1 mm path about the base): the sweep runs
+    it as written, as `run` does, and says what `run` says, on stderr and in report.md; it
+    said nothing. The same path in mm gets no note."""
+    from itg_vision.trajectory import read_csv, span_note
+
+    lap = load_trajectory("ellipse-t1", 20).points_mm[:, :2]
+    for name, scale in (("in-m.csv", 1e-3), ("in-mm.csv", 1.0)):
+        f = tmp_path / name
+        f.write_text("x_mm,y_mm\n" + "".join(f"{float(x)!r},{float(y)!r}\n" for x, y in scale * lap))
+        capsys.readouterr()
+        out = tmp_path / f"o-{f.stem}"
+        assert main(["--trajectories", str(f), "--controllers", "itg-model", "--conditions",
+                     "clean", "--seeds", "1", "--workers", "1", "--quiet", "--out", str(out),
+                     *FEW_PLOTS]) == 0
+        err, report = capsys.readouterr().err, (out / "report.md").read_text()
+        note = span_note(read_csv(f.resolve()), ArmSpec.from_args("two-link").reach_mm()[1])
+        if scale < 1:
+            assert note and note.startswith("note: trajectory ") and "not metres" in note
+            assert note in err.splitlines() and "N" + note[1:] in report.splitlines()
+        else:
+            assert note is None and "not metres" not in err + report
+
+
 def test_a_users_trajectory_file_is_what_the_runs_track(tmp_path, monkeypatch):
     """A copy of a shipped path gives that path's numbers; a rule base that holds every joint
     on a file of one's own gives the closed-form E_av and E_max of that file's points (the
@@ -1055,6 +1080,26 @@ def test_an_arm_file_tracks_your_trajectory_files_under_its_benchmark_limits(tmp
                      str(alone), "--quiet"]) == 0
     summary = json.loads((alone / "summary.json").read_text())
     assert [row[m] for m in metrics] == [f"{summary[m]:.6g}" for m in metrics]
+
+
+def test_a_rule_controllers_title_names_the_rule_base_an_arm_file_gives_it_instead():
+    """The report's setup called `itg-vision` "ITG (the paper's rules)" when an arm file's
+    defaults.rules named the user's own rule base: every conclusion then read as one against
+    the paper's rules. The title now says which rule base ran; the shipped arms' are unchanged."""
+    import dataclasses
+
+    from itg_vision.bench.sweep import CONTROLLER_TITLES, controller_title
+
+    specs = {s.controller: s for s in build_sweep(
+        quick=True, seeds=1, conditions=("clean",),
+        controllers=("itg-vision", "itg-model", "itg-plus-vision", "jacobian-vision"))}
+    for name, spec in specs.items():  # the shipped two-link arm's: table2, itg-plus-two-link
+        assert controller_title(spec) == CONTROLLER_TITLES[name]
+    for name, key in (("itg-vision", "rules"), ("itg-model", "rules"),
+                      ("itg-plus-vision", "itg_plus_rules")):
+        title = controller_title(dataclasses.replace(specs[name], rules="/home/me/mine.rules"))
+        assert title == (f"{CONTROLLER_TITLES[name]}; here the rule base your arm file names "
+                         f"instead (defaults.{key}: /home/me/mine.rules)")
 
 
 def test_an_arm_files_own_rig_file_is_what_its_vision_runs_read(tmp_path):

@@ -27,7 +27,7 @@ from .store import (Results, check_sweep_file, code_warning, definition_hash, pa
                     LOCK, record_sweep_file, started, sweep_lock)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, QUICK, SWEEPS,
                     TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
-                    rules_controllers, trajectory_label, user_rules)
+                    rules_controllers, span_notes, trajectory_label, user_rules)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -180,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
             raise UserError("--points: applies to the named trajectories only (ellipse-t1, "
                             f"ellipse-t2, abcd, line-ab-reach); {', '.join(paths)} keep their "
                             "files' set points")
+        for note in span_notes(specs):
+            print(note, file=sys.stderr)
         if args.list:  # after every check: a file the sweep would refuse is refused here
             print("\n".join(listing(specs, args.rules, trajs or (), arm, params)))
             return 0

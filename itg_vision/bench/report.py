@@ -15,7 +15,7 @@ from .. import outputs
 from ..loop import DIVERGED_MM
 from .store import params_cell, started
 from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, controller_title,
-                    is_trajectory_file, trajectory_label)
+                    is_trajectory_file, span_notes, trajectory_label)
 
 def _float(v: str) -> float:
     try:
@@ -300,6 +300,9 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
         f"`{t}` ({spec_limits(specs, t)['arm']}, {'/'.join(map(str, pts[t])) or '?'} set points "
         f"per lap{_file_note(specs, t)})" for t in trajs) + ".", ""]
     L += [f"- `{t}`: {_limits_line(specs, t)}" for t in trajs]
+    notes = span_notes(specs)  # a file likely written in metres
+    if notes:
+        L += [""] + ["N" + n[1:] for n in notes]
     L += ["", "Under vision (or truth) feedback the rules' link lengths and the Jacobian "
           "tracker's shoulder and LED stand-off are measured from the LEDs at start-up "
           "(`measured_links_mm` in results.csv); only the `-model` controllers and `ik` use the "

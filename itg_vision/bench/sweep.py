@@ -364,6 +364,18 @@ def load_trajectory(name: str, points: int | None = None):
     return load(trajectory_source(name), points, arm=arm)
 
 
+def span_notes(specs) -> list[str]:
+    """The note `run` prints for a trajectory file that lies within 1 % of its arm's reach of
+    the base (:func:`itg_vision.trajectory.span_note`: likely written in metres), one per
+    such file the sweep ``specs`` tracks."""
+    from ..trajectory import span_note
+
+    files = dict.fromkeys((s.trajectory, s.arm) for s in specs if is_trajectory_file(s.trajectory))
+    notes = (span_note(load_trajectory(t), ArmSpec.from_args(arm).reach_mm()[1])
+             for t, arm in files)
+    return [n for n in notes if n]
+
+
 def _parse_names(text: str | None, known, what: str, noun: str,
                  files=lambda name: False) -> tuple[str, ...] | None:
     """The names of a comma-separated option, each ``known`` (or a file, by ``files``)."""
@@ -496,9 +508,15 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
 
 
 def controller_title(spec: RunSpec) -> str:
-    """What a controller of the sweep is, for the report."""
+    """What a controller of the sweep is, for the report. A rule-based controller's title names
+    the shipped arms' rule base (the paper's, or ITG+); an arm file of yours may name another
+    in its ``defaults``, and the title then says which."""
     if spec.controller in CONTROLLER_TITLES:
-        return CONTROLLER_TITLES[spec.controller]
+        title = CONTROLLER_TITLES[spec.controller]
+        key = ALL_CONTROLLERS[spec.controller][3]
+        if key and spec.rules not in {ArmSpec.from_args(a).defaults[key] for a in arm_names()}:
+            title += f"; here the rule base your arm file names instead (defaults.{key}: {spec.rules})"
+        return title
     fed = ("vision (no model)" if spec.feedback == "vision"
            else "encoders + nominal model")
     return f"your rule base {spec.rules} (--rules) fed by {fed}"
