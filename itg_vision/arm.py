@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
-from .shipped import ARMS_DIR, TRAJECTORY_NAMES, rig_names, rule_names
+from .shipped import ARMS_DIR, TRAJECTORY_NAMES, rig_names, rule_names, trajectory_file_names
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -250,7 +250,7 @@ def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:
 def _shipped(key: str) -> list[str]:
     """The shipped names a ``defaults`` entry may give: rule bases, rigs or trajectories."""
     if key == "trajectory":
-        return list(TRAJECTORY_NAMES)
+        return [*TRAJECTORY_NAMES, *trajectory_file_names()]
     return rig_names() if key == "rig" else rule_names()
 
 

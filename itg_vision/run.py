@@ -66,7 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="link lengths in mm (default: the arm file's links_mm; the shipped "
                          "arms': the paper's 100 mm each)")
     ap.add_argument("--trajectory", metavar="NAME|PATH",
-                    help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, or a CSV with "
+                    help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, a file of "
+                         "data/trajectories by name (peanut, helix, ...), or a CSV with "
                          "header x_mm,y_mm[,z_mm][,t_s] (default: ellipse-t1 for two-link, "
                          "line-ab-reach for three-link, arc for one-link)")
     ap.add_argument("--points", type=points_arg, metavar="N",

@@ -23,6 +23,11 @@ CAMERAS_DIR = ROOT / "cameras"
 TRAJECTORY_NAMES = ("ellipse-t1", "ellipse-t2", "abcd", "line-ab", "line-ab-reach", "arc")
 
 
+def trajectory_file_names() -> list[str]:
+    """The shipped trajectory files, by name (``peanut`` for data/trajectories/peanut.csv)."""
+    return sorted(p.stem for p in TRAJECTORIES_DIR.glob("*.csv"))
+
+
 def rule_names() -> list[str]:
     """The shipped rule bases (``table2``, ``itg-plus-two-link``, ...)."""
     return sorted(p.stem for p in RULES_DIR.glob("*.rules"))

@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import clip, read_text
-from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES
+from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES, trajectory_file_names
 
 
 @dataclass(frozen=True)
@@ -170,8 +170,9 @@ def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
     trajectories defined on it: ``line-ab-reach`` about its shoulder, ``arc`` on its reach.
     """
     if name not in NAMES:
-        raise UserError(f"unknown trajectory {name!r} (choose from {', '.join(NAMES)}, "
-                        "or give a path to a CSV file)")
+        raise UserError(f"unknown trajectory {name!r} (choose from {', '.join(NAMES)}; the "
+                        f"shipped files {', '.join(trajectory_file_names())}; or give a path "
+                        "to a CSV file)")
     n = DEFAULT_POINTS[name] if n_points is None else int(n_points)
     if n < 2 or (name == "abcd" and n % 2):
         raise ConfigError("points", f"{name} needs {'an even number of' if name == 'abcd' else 'at least 2'} "
@@ -294,10 +295,13 @@ def span_note(trajectory: Trajectory, reach_mm: float) -> str | None:
 
 
 def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory:
-    """A named trajectory (placed on ``arm``, see :func:`named`) or a CSV file's."""
+    """A named trajectory (placed on ``arm``, see :func:`named`), a CSV file's, or a shipped
+    file's by its name (``peanut``: data/trajectories/peanut.csv, as the benchmark names it)."""
     if name_or_path in NAMES:
         return named(name_or_path, n_points, arm)
     p = Path(name_or_path)
+    if name_or_path in trajectory_file_names():
+        p = TRAJECTORIES_DIR / f"{name_or_path}.csv"
     if p.suffix.lower() == ".csv" or p.exists():
         if not p.exists():
             raise UserError(f"{p}: trajectory file not found")

@@ -241,6 +241,32 @@ def test_a_path_in_metres_is_run_and_noted(main_in_process, tmp_path):
         assert ("note: trajectory" in res.stderr) == noted, res.stderr
 
 
+def test_a_shipped_trajectory_by_name_runs_as_its_file_and_an_arm_file_may_default_to_it(
+        main_in_process, tmp_path):
+    """`--trajectory peanut` runs data/trajectories/peanut.csv (the name the benchmark takes),
+    with the file's numbers and the record naming the file; an arm file's
+    `defaults.trajectory: peanut` is that default. Both were refused as unknown."""
+    import json
+
+    from itg_vision.arm import arm_path
+
+    arm = tmp_path / "my-arm.yaml"
+    arm.write_text(arm_path("two-link").read_text().replace("trajectory: ellipse-t1",
+                                                            "trajectory: peanut"))
+    summaries = []
+    for k, args in enumerate((["--trajectory", "peanut"],
+                              ["--trajectory", ROOT / "data" / "trajectories" / "peanut.csv"],
+                              ["--arm", arm])):
+        res = main_in_process("itg_vision.run", "--feedback", "model", *args, "--out",
+                              tmp_path / f"o{k}", "--quiet")
+        assert res.returncode == 0, res.stderr
+        summaries.append(json.loads((tmp_path / f"o{k}" / "summary.json").read_text()))
+    for s in summaries:
+        assert s["trajectory"] == "data/trajectories/peanut.csv"
+        assert (s["e_av_mm"], s["track_max_mm"]) == (summaries[1]["e_av_mm"],
+                                                     summaries[1]["track_max_mm"])
+
+
 @pytest.mark.slow
 def test_vision_tracking_meets_the_bound_against_truth():
     """Issue bound: E_av(vision) <= 1.5 E_av(truth) + 0.5 mm on ellipse-t1, same rules/gain.

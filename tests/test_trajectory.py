@@ -310,6 +310,32 @@ def test_a_missing_csv_file_is_not_found_whatever_the_case_of_its_suffix(tmp_pat
         assert str(exc.value) == f"{tmp_path / name}: trajectory file not found"
 
 
+def test_a_shipped_trajectory_file_is_loaded_by_its_name_as_the_benchmark_names_it(tmp_path,
+                                                                                  monkeypatch):
+    """`run --trajectory peanut` (and an arm file's defaults.trajectory: helix) read
+    data/trajectories/peanut.csv, as `bench noise --trajectories peanut` does; both were
+    refused as unknown. A shipped name wins over a file of that name in the current folder
+    (./peanut for that one), as with rule bases; --points is refused for it as for any file; an
+    unknown name lists the shipped files too."""
+    from itg_vision.shipped import TRAJECTORIES_DIR, trajectory_file_names
+
+    assert {"peanut", "helix", "rounded-square"} <= set(trajectory_file_names())
+    for name in trajectory_file_names():
+        by_name = T.load(name)
+        assert by_name.file == (TRAJECTORIES_DIR / f"{name}.csv").resolve()
+        assert np.array_equal(by_name.points_mm, T.read_csv(TRAJECTORIES_DIR / f"{name}.csv").points_mm)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "peanut").write_text("x_mm,y_mm\n100,0\n110,0\n")
+    assert T.load("peanut").file == (TRAJECTORIES_DIR / "peanut.csv").resolve()
+    assert len(T.load("./peanut")) == 2
+    with pytest.raises(ConfigError) as exc:
+        T.load("peanut", n_points=10)
+    assert exc.value.field == "points"
+    with pytest.raises(UserError) as exc:
+        T.load("spiral")
+    assert "the shipped files ellipse-by-base, gerono, helix," in str(exc.value)
+
+
 def test_points_is_refused_for_a_csv_file(tmp_path):
     """README: `--points` resamples the named trajectories only (a file keeps its set
     points): 10 points of a 3-point file is a ConfigError on points, not ignored."""
