@@ -104,6 +104,12 @@ class ArmSpec:
         return self.kind == "planar"
 
     @property
+    def label(self) -> str:
+        """How a message names the arm: ``arm NAME``, and its file unless a shipped one."""
+        shipped = not self.source or Path(self.source).resolve().parent == ARMS_DIR.resolve()
+        return f"arm {self.name}" + ("" if shipped else f" ({self.source})")
+
+    @property
     def n_joints(self) -> int:
         return len(self.links_mm)
 

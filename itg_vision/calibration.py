@@ -290,7 +290,7 @@ def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names, source: str = "") ->
     where = f"{source}: " if source else ""
     for n in names:
         if len(pts[n]) < need:
-            raise UserError(f"{where}base frame: arm {arm.name}, joint q{joint + 1}'s sweep: "
+            raise UserError(f"{where}base frame: {arm.label}, joint q{joint + 1}'s sweep: "
                             f"the {n} LED was seen by both cameras in only {len(pts[n])} of "
                             f"{len(shots)} poses; need at least {need}: both cameras must see "
                             "the LEDs over the arm's joint sweeps (check the rig's camera poses)")

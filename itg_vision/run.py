@@ -30,7 +30,8 @@ from .progress import progress
 from .options import OPTIONS, RULE_OPTIONS, add_rule_options
 from .rules import PARAM_OF_FIELD, PARAM_UNITS
 from .shipped import rule_names
-from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare
+from .identify import StartUpFailed
+from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare, shown_path
 
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"),
@@ -277,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
                 try:
                     trace, summary = execute(prep, progress=bar.update,
                                              recorder=recorder if args.video else None)
+                except StartUpFailed as exc:  # say which rig and arm, and the way on
+                    raise StartUpFailed(f"{shown_path(prep.info['estimate_rig'])} (--rig), "
+                                        f"{prep.model.label}: {exc} (--allow-unseen runs on the "
+                                        "nominal model's lengths instead)") from None
                 finally:
                     bar.close()
             if args.video:

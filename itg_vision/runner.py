@@ -208,9 +208,14 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
             field = "true_links_mm"  # the model reaches them: the simulated arm's lengths do not
         elif cfg.links_mm is not None and not cfg.trajectory:
             field = "links_mm"  # the arm file's own path, for lengths the user gave
+        beside = ("" if true_arm.planar else f", and at least {true_arm.led_standoff_mm:g} mm "
+                  "from the base axis, the LEDs' stand-off")
+        metres = ("" if traj.span_note(trajectory, hi) is None else
+                  "; every point lies within 1 % of the reach of the base: written in metres?")
         raise NothingInReach(field, f"none of the {len(trajectory.points_mm) // trajectory.laps}"
-                          f" set points of {trajectory.name} is in reach of arm {true_arm.name} "
-                          f"({lo:g} to {hi:g} mm from its shoulder): nothing to track")
+                          f" set points of {trajectory.name} is in reach of {true_arm.label} "
+                          f"({lo:g} to {hi:g} mm from its shoulder{beside}): nothing to "
+                          f"track{metres}")
     info: dict = {}
     given = given_rule_params(cfg)
     if not with_controller:
@@ -301,7 +306,7 @@ def _preview(cfg: RunConfig, model: ArmSpec, trajectory) -> Preview:
     most q1's servo limit per iteration."""
     if not (model.planar and model.n_joints == 2):
         raise ConfigError("preview", f"plans for a planar two-link arm (its gripper slides "
-                                     f"along a line through the base); arm {model.name} is not")
+                                     f"along a line through the base); {model.label} is not")
     if cfg.max_step_deg is None:
         raise ConfigError("preview", "plans under the servo limit: set max_step_deg "
                                      "(--max-step)")

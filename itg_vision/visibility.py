@@ -137,7 +137,7 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
 
     hint = "; --allow-unseen runs anyway"
     if arm.n_joints > 1 and arm.links_mm[-1] < 2 * LED_RADIUS_MM:
-        raise UserError(f"arm {arm.name}: its last link, {arm.links_mm[-1]:g} mm (links_mm or "
+        raise UserError(f"{arm.label}: its last link, {arm.links_mm[-1]:g} mm (links_mm or "
                         f"--links), is shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): "
                         f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()

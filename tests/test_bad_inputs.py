@@ -66,6 +66,7 @@ def _below(doc):
 
 #: Bad arm files: (name, a line of data/arms/two-link.yaml (regex), what replaces it).
 ARM_EDITS = [
+    ("last-link-5", r"^links_mm:.*$", "links_mm: [100, 5]"),
     ("ranges-5", r"^pose_ranges_deg:.*$", "pose_ranges_deg: 5"),
     ("ranges-empty", r"^pose_ranges_deg:.*$", "pose_ranges_deg:"),
     ("ranges-reversed", r"^pose_ranges_deg:.*$", "pose_ranges_deg: [[-180, 180], [150, -150]]"),
@@ -158,6 +159,7 @@ def make_inputs(tmp):
     text("digits.csv", "x_mm,y_mm\n" + "1" * 5000 + ",20\n30,40\n")
     f["binary.csv"] = tmp / "binary.csv"
     f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
+    text("helix-in-m.csv", "x_mm,y_mm,z_mm\n0.095,0.04,0.16\n0.0949,0.0422,0.1604\n")
     text("not-rig.yaml", "just: text\n")
     text("rig-duplicate-key.yaml", "name: x\ncameras: []\ncameras: []\n")
     text("negative-standoff.yaml", re.sub(r"(?m)^led_standoff_mm: .*$", "led_standoff_mm: -3",
@@ -284,6 +286,9 @@ CASES = [
     # a start-up measurement that fails names its cause, and the option that set it
     ("start-up-dropout-1", "run", ["--quiet", "--dropout", "1"], "at the start pose (missed: dropped at random (--dropout 1): 50 looks); the arm's lengths cannot be measured"),
     ("start-up-noise-1e6-px", "run", ["--quiet", "--noise-px", "1e6"], "(missed: reprojection residual above 2 px (--noise-px 1e+06): 50 looks)"),
+    ("start-up-rig-sees-another-arm", "run", ["--quiet", "--arm", "three-link", "--rig", "planar"], "cameras/planar.yaml (--rig), arm three-link: start-up measurement: the LEDs were measured in only 0 of 50 observations leaned"),
+    ("start-up-names-allow-unseen", "run", ["--quiet", "--dropout", "1"], "the arm's lengths cannot be measured (--allow-unseen runs on the nominal model's lengths instead)"),
+    ("arm-file-last-shorter-than-an-led", "run", ["--quiet", "--arm", "{arm-last-link-5.yaml}"], "arm-last-link-5.yaml): its last link, 5 mm (links_mm or --links), is shorter than an LED's diameter"),
     ("links-last-shorter-than-an-led", "run", ["--quiet", "--links", "100,10"], "arm two-link: its last link, 10 mm (links_mm or --links), is shorter than an LED's diameter (12 mm): the elbow and gripper LEDs overlap in every image"),
     ("joint-offset-text", "run", ["--quiet", "--joint-offset", "1,x"], "--joint-offset: expected joint offsets in deg separated by commas, got '1,x'"),
     ("links-text", "run", ["--quiet", "--links", "100,x"], "--links: expected link lengths in mm separated by commas, got '100,x'"),
@@ -291,6 +296,7 @@ CASES = [
     # trajectories
     ("csv-bom-bad-value", "run", RUN + ["--trajectory", "{bom-bad.csv}"], "bom-bad.csv:2: field y_mm: not a number: 'twenty'"),
     ("csv-all-out-of-reach", "run", RUN + ["--trajectory", "{unreachable.csv}"], "unreachable.csv is in reach of arm two-link (0 to 200 mm from its shoulder): nothing to track"),
+    ("csv-3d-in-metres", "run", ["--quiet", "--arm", "three-link", "--trajectory", "{helix-in-m.csv}"], "helix-in-m.csv is in reach of arm three-link (0 to 200 mm from its shoulder, and at least 12 mm from the base axis, the LEDs' stand-off): nothing to track; every point lies within 1 % of the reach of the base: written in metres?\n"),
     ("csv-all-out-of-reach-true-links", "run", RUN + ["--trajectory", "ellipse-t1", "--true-links", "10,10"], "--true-links: none of the 180 set points of ellipse-t1 is in reach of arm two-link (0 to 20 mm"),
     ("csv-5000-digits", "run", RUN + ["--trajectory", "{digits.csv}"], "digits.csv:2: field x_mm: must be finite, got 1111"),
     ("csv-binary", "run", RUN + ["--trajectory", "{binary.csv}"], "binary.csv:3:1: not UTF-8"),
