@@ -383,7 +383,8 @@ def summary_table(s: dict, out: Path) -> str:
                  ("iterations held (missed before any aim)", f(s["n_held"]))]
         t = s.get("timing_ms", {})
         rows.append(("median ms render/detect/triang./rules",
-                     " / ".join(f"{t.get(k, float('nan')):.2f}" for k in ("render", "detect", "triangulate", "rules"))))
+                     " / ".join(f"{t[k]:.2f}" if k in t else "-"  # a stage that never ran
+                                for k in ("render", "detect", "triangulate", "rules"))))
     if s.get("video"):
         rows.append(("video", f"{s['video']} ({s.get('video_codec', '')})"))
     rows += [("wall time", f(s["wall_s"], " s")), ("written to", str(out))]

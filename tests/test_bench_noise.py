@@ -259,6 +259,34 @@ def test_an_edited_trajectory_or_rig_file_gives_its_runs_new_ids(tmp_path, monke
     assert all(v != rigged[k] for k, v in ids().items())
 
 
+def test_a_resume_refused_for_an_edited_file_names_the_file(tmp_path, capsys):
+    """The same command after an edit of one of its files (here the trajectory file) is another
+    sweep, refused in one line: the line names the edited file (sweep.json records each file's
+    hash); it said only 'an edited rule, arm, rig or trajectory file'. A sweep.json of before
+    (no hashes) keeps that general line. No row is touched."""
+    import json
+
+    mine, out = tmp_path / "mine.csv", tmp_path / "o"
+    mine.write_text("x_mm,y_mm\n100,0\n0,100\n-100,0\n")
+    args = ["--trajectories", str(mine), "--controllers", "itg-model", "--conditions", "clean",
+            "--seeds", "1", "--workers", "1", "--quiet", "--out", str(out), *FEW_PLOTS]
+    assert main(args) == 0
+    rows = (out / "results.csv").read_bytes()
+    mine.write_text("x_mm,y_mm\n100,0\n0,100\n-100,1\n")
+    capsys.readouterr()
+    assert main(args) == 2
+    line = _one_line_error(capsys, "holds results of a different sweep definition")
+    assert f"; edited since: {mine.resolve()}): rerun with the same options" in line, line
+    doc = json.loads((out / "sweep.json").read_text())
+    assert mine.resolve().as_posix() in doc["files"]
+    del doc["files"]
+    (out / "sweep.json").write_text(json.dumps(doc))
+    assert main(args) == 2
+    assert "; other options, or an edited rule, arm, rig or trajectory file" in _one_line_error(
+        capsys, "different sweep definition")
+    assert (out / "results.csv").read_bytes() == rows
+
+
 def test_a_run_that_cannot_start_is_a_row_not_a_failure(tmp_path, capsys, monkeypatch):
     """A start-up measurement that sees no LED (as under rig-perturbed-cams, whose rays miss by
     ~10 px) is an outcome of the condition: a row naming why, metrics empty, its cell saying
@@ -519,6 +547,27 @@ def test_a_stale_calibrated_rig_is_refused_before_any_run(tmp_path, monkeypatch,
                  "--seeds", "1", "--workers", "1", "--out", str(out)])
     assert code == 2 and not out.exists()
     _one_line_error(capsys, f"{calib}: its true rig {true} has changed since it was calibrated")
+
+
+def test_a_missing_calibrated_rig_is_refused_with_the_calibrate_command_that_makes_it(
+        tmp_path, capsys):
+    """An arm file whose rig has no calibration yet: rig-calibrated is refused before any run,
+    and the line gives the command that makes it, with this arm (--arm): without it, calibrate
+    would take the shipped arm the rig names."""
+    from itg_vision import camera
+
+    rig = tmp_path / "myrig.yaml"
+    rig.write_text(camera.default_rig_path("two-link").read_text())
+    arm = _arm_file(tmp_path / "myarm.yaml", rig=("rig: planar", f"rig: {rig.name}"))
+    path = tmp_path / "p.csv"
+    path.write_text("x_mm,y_mm\n100,0\n0,100\n-100,0\n")
+    out = tmp_path / "o"
+    assert main(["--trajectories", str(path), "--arm", str(arm), "--conditions",
+                 "rig-calibrated", "--seeds", "1", "--workers", "1", "--out", str(out)]) == 2
+    assert not out.exists()
+    _one_line_error(capsys, f"condition rig-calibrated needs {tmp_path / 'myrig.calib.yaml'}: make "
+                            f"it with `python -m itg_vision.calibrate --rig {rig} --arm "
+                            f"{arm.resolve()} --out {tmp_path / 'myrig.calib.yaml'}`")
 
 
 def test_cli_entry_point_exit_status(cli, tmp_path):

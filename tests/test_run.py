@@ -267,6 +267,22 @@ def test_a_shipped_trajectory_by_name_runs_as_its_file_and_an_arm_file_may_defau
                                                      summaries[1]["track_max_mm"])
 
 
+def test_a_stage_that_never_ran_is_a_dash_in_the_printed_timings(tmp_path):
+    """`timing_ms` keeps only the stages that ran (a run whose every look missed never asks its
+    rules); the printed row showed 'nan' for such a stage."""
+    from itg_vision.run import summary_table
+
+    _, s = execute(prepare(RunConfig(points=6)))
+    assert set(s["timing_ms"]) == {"render", "detect", "triangulate", "rules"}
+    del s["timing_ms"]["rules"]
+    row = next(ln for ln in summary_table(s, tmp_path).splitlines()
+               if ln.startswith("median ms render/detect/triang./rules"))
+    ms = row.split("rules", 1)[1].split(" / ")
+    assert [float(v) for v in ms[:3]] == pytest.approx(
+        [s["timing_ms"][k] for k in ("render", "detect", "triangulate")], abs=0.005)
+    assert ms[3].strip() == "-" and "nan" not in row
+
+
 @pytest.mark.slow
 def test_vision_tracking_meets_the_bound_against_truth():
     """Issue bound: E_av(vision) <= 1.5 E_av(truth) + 0.5 mm on ellipse-t1, same rules/gain.

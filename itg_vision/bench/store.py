@@ -29,7 +29,7 @@ from pathlib import Path
 from .. import outputs
 from ..provenance import code_hash
 from ..errors import UserError
-from .sweep import SCHEMA, RunSpec
+from .sweep import SCHEMA, RunSpec, input_files
 
 #: Per-run metrics from the run's summary (see itg_vision.loop.Trace.metrics).
 RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median_mm",
@@ -226,10 +226,13 @@ def check_sweep_file(out: Path, definition: str, specs: list[RunSpec], results: 
             raise UserError(f"{path}: unreadable sweep definition: choose another --out") from None
         if old != definition:
             was = " ".join(f"{k}={v}" for k, v in stored.get("options", {}).items() if v not in (None, False))
+            recorded = stored.get("files") if isinstance(stored.get("files"), dict) else {}
+            edited = [p for p, h in input_files(specs).items() if recorded.get(p, h) != h]
+            why = (f"edited since: {', '.join(edited)}" if edited else "other options, or an "
+                   "edited rule, arm, rig or trajectory file, or a new calibrated rig")
             raise UserError(f"--out {out} holds results of a different sweep definition "
-                            f"({old} [{was or 'defaults'}], now {definition}; other options, or "
-                            "an edited rule, arm, rig or trajectory file, or a new calibrated "
-                            "rig): rerun with the same options or choose another --out")
+                            f"({old} [{was or 'defaults'}], now {definition}; {why}): rerun "
+                            "with the same options or choose another --out")
         return
     ids = {s.run_id for s in specs}
     foreign = [r for r in results.rows if r not in ids]
@@ -256,5 +259,6 @@ def record_sweep_file(out: Path, definition: str, options: dict, specs: list[Run
     path = out / "sweep.json"
     if not path.exists():
         outputs.write_json(path, {"definition": definition, "schema": SCHEMA, "code": code_hash(),
-                                  "n_runs": len(specs), "options": options})
+                                  "n_runs": len(specs), "options": options,
+                                  "files": input_files(specs)})
 

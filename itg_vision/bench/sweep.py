@@ -618,7 +618,7 @@ def _calibrated_rig_sha(arm: str) -> str:
     if not path.exists():
         raise UserError(f"condition rig-calibrated needs {path}: make it with `python -m "
                         f"itg_vision.calibrate --rig {ArmSpec.from_args(arm).defaults['rig']} "
-                        f"--out {path}`, or leave "
+                        f"--arm {arm} --out {path}`, or leave "
                         "the rig-calibrated conditions out with --conditions")
     from ..camera import Rig, load_true_rig
 
@@ -643,6 +643,28 @@ def inputs_sha(trajectory: str, vision: bool, arm: str | None = None) -> str:
     if trajectory in TRAJECTORY_FILES or is_trajectory_file(trajectory):
         files.append(Path(trajectory_source(trajectory)))
     return hashlib.sha256("".join(_file_sha(f) for f in files).encode()).hexdigest()[:12]
+
+
+def input_files(specs) -> dict[str, str]:
+    """Every file the runs of ``specs`` read (arm files, rule bases, the rigs that render,
+    trajectory files, calibrated rigs), by absolute path -> the start of its SHA-256: what
+    sweep.json records, so that a resume refused for an edited file can name it."""
+    from ..arm import arm_path
+    from ..camera import default_rig_path
+
+    files: dict[Path, None] = {}
+    for arm, rules, vision, traj, rig in {(s.arm, s.rules, s.vision, s.trajectory, s.rig)
+                                          for s in specs}:
+        files[arm_path(arm)] = None
+        if rules:
+            files[resolve_rules_path(rules)] = None
+        if vision:
+            files[default_rig_path(arm)] = None
+        if traj in TRAJECTORY_FILES or is_trajectory_file(traj):
+            files[Path(trajectory_source(traj))] = None
+        if rig == "calibrated":
+            files[calibrated_rig_path(arm)] = None
+    return {str(p.resolve()): _file_sha(p) for p in sorted(files)}
 
 
 def run_config(spec: RunSpec, rig_path: str | None = None):
