@@ -142,7 +142,8 @@ def tokenize(text: str, source: str = "<rules>") -> list[Token]:
         elif kind in ("ws", "comment"):
             continue
         elif kind == "bad":
-            raise RuleSyntaxError(f"{source}:{line}:{col}: unexpected character {s!r}")
+            hint = ": '&&' is not an operator here, AND is" if s == "&" else ""
+            raise RuleSyntaxError(f"{source}:{line}:{col}: unexpected character {s!r}{hint}")
         elif kind == "num" and not math.isfinite(float(s)):
             raise RuleSyntaxError(f"{source}:{line}:{col}: number {clip(s)} is out of range "
                                   "(the largest is about 1.8e308)")
@@ -278,7 +279,8 @@ class _Parser:
     def _slip(self, tok: Token) -> str:
         """The likely slip behind an error at ``tok``, as a hint ('' if none is clear): two
         operands side by side (a product written without its *), two actions without the
-        ',' between them, or '=>', '=<' or a single '=' where a comparison belongs."""
+        ',' between them, '=>', '=<' or a single '=' where a comparison belongs, or C's '||'
+        and Python's '**'."""
         k = next((i for i, t in enumerate(self.t) if t is tok), -1)
         before = self.t[k - 1] if k > 0 else None
         after = self.t[k + 1] if 0 <= k < len(self.t) - 1 else None
@@ -289,8 +291,12 @@ class _Parser:
                 and not JOINT_NAME.fullmatch(before.text):
             return ": '=' is not a comparison, '==' is"
         if JOINT_NAME.fullmatch(tok.text) and after is not None \
-                and after.text in ("+=", "-=", "=", "HOLD"):
+                and after.text in ("+=", "-=", "=", "HOLD") and (before is None or before.text != ","):
             return ": the next action needs a ',' before it"
+        for a, b in ((before, tok), (tok, after)):  # '||' or '**' written as in C or Python
+            if a is not None and b is not None and a.text == b.text and a.text in ("|", "*") \
+                    and (b.line, b.col) == (a.line, a.col + 1):
+                return f": '{a.text * 2}' is not an operator here, {'OR' if a.text == '|' else '^'} is"
         operand_end = before is not None and (before.kind in ("num", "name")
                                               or before.text == ")")
         if operand_end and (tok.kind in ("num", "name") or tok.text in ("(", "|")):
@@ -976,8 +982,15 @@ class RuleBase:
                                 f"{name[1:]}'s length, but only {len(self.links_mm)} link "
                                 f"length(s) were given (links_mm)")
             if name not in known:
+                later = next((d for d in self.definitions if d.name == name), None)
+                if later is not None:  # defined, but below its use
+                    raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is defined "
+                                    f"by the LET on line {later.line}, below: a LET must come "
+                                    "before the rules and LETs that use it")
+                alike = [k for k in known if k.lower() == name.lower()]
+                hint = f"; did you mean {alike[0]!r}? names are case-sensitive" if alike else ""
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
-                                f"(known: {', '.join(sorted(known))})")
+                                f"(known: {', '.join(sorted(known))}){hint}")
 
     # -------------------------------------------------------------- compile
     def _source(self) -> str:

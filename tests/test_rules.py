@@ -64,13 +64,28 @@ def table2(f=0.5):
     ("RULE 1: IF xd = xg THEN q1 += S", ":1:15:", "(found '='): '=' is not a comparison, '==' is"),
     ("RULE 1: IF xd > xg THEN q1 += S q2 HOLD", ":1:33:", "(found 'q2'): the next action needs a "
      "',' before it"),
+    # a second action for one joint, after its ',': the comma is there, so no comma hint
+    ("RULE 1: IF xd > xg THEN q1 -= f * |xd - xg|, q1 HOLD", ":1:46:", "q1 has two actions in one "
+     "rule (found 'q1')\n"),
+    # C's '||' and '&&', Python's '**'; a name in the wrong case; a LET below its use
+    ("RULE 1: IF xd > xg || yd > yg THEN q1 += S", ":1:20:", "(found '|'): '||' is not an "
+     "operator here, OR is"),
+    ("RULE 1: IF xd > xg && yd > yg THEN q1 += S", ":1:20:", "unexpected character '&': '&&' is "
+     "not an operator here, AND is"),
+    ("RULE 1: IF xd > xg THEN q1 += f ** 2", ":1:34:", "(found '*'): '**' is not an operator "
+     "here, ^ is"),
+    ("RULE 1: IF xd > xg THEN q1 += F", ":1:31:", "unknown name 'F' (known: L, L1, L2, S, f, q1, "
+     "q2, rd2, re2, rg2, w, xd, xe, xg, yd, ye, yg, zd, ze, zg); did you mean 'f'? names are "
+     "case-sensitive\n"),
+    ("RULE 1: IF e > 0 THEN q1 += f\nLET e = xd - xg", ":1:12:", "'e' is defined by the LET on "
+     "line 2, below: a LET must come before the rules and LETs that use it\n"),
 ])
 def test_syntax_and_name_errors_name_file_line_column(text, where, what):
     with pytest.raises(UserError) as exc:
         RuleBase.from_text(text, 2, TWO, source="my.rules")
     msg = str(exc.value)
     assert msg.startswith("my.rules" + where), msg
-    assert what in msg
+    assert what in msg + "\n", msg  # what ends in \n: the line ends there (no hint follows)
     assert "\n" not in msg
 
 
