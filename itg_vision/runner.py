@@ -9,8 +9,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from . import trajectory as traj
-from .arm import ARMS_DIR, MAX_ITERATIONS, ArmSpec
+from .arm import MAX_ITERATIONS, ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
+from .shipped import DATA_DIR
 from .errors import ConfigError, NothingInReach, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
@@ -328,16 +329,17 @@ def supersample_of(cfg: RunConfig, rig) -> int:
 
 
 def shown_path(path: str) -> str:
-    """A path for a summary: a shipped file's relative to the project (``data/arms/...``), the
-    same on every machine; a user's file absolute, so that the summary finds it from anywhere;
-    anything else (a shipped trajectory's name) as given."""
+    """A path for a summary: a file in the project's shipped folders (``data/``, ``cameras/``)
+    relative to the project (``data/arms/...``), the same on every machine; any other file
+    absolute (a user's, wherever it lies, the project folder included), so that the summary
+    finds it from anywhere; anything else (a shipped trajectory's name) as given."""
     if not path or not Path(path).is_file():
         return path
     full = Path(path).resolve()
-    try:
-        return str(full.relative_to(ARMS_DIR.parent.parent))
-    except ValueError:
-        return str(full)
+    for shipped in (DATA_DIR, CAMERAS_DIR):
+        if shipped.resolve() in full.parents:
+            return str(full.relative_to(shipped.resolve().parent))
+    return str(full)
 
 
 def servo_limit_for_rules(cfg: RunConfig, model: ArmSpec, source: str,

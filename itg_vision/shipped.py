@@ -11,12 +11,14 @@ from __future__ import annotations
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+#: The shipped data: arms, rules, trajectories.
+DATA_DIR = ROOT / "data"
 #: The shipped arm files (``<name>.yaml``).
-ARMS_DIR = ROOT / "data" / "arms"
+ARMS_DIR = DATA_DIR / "arms"
 #: The shipped rule bases (``<name>.rules``).
-RULES_DIR = ROOT / "data" / "rules"
+RULES_DIR = DATA_DIR / "rules"
 #: The shipped user-style trajectories (CSV files).
-TRAJECTORIES_DIR = ROOT / "data" / "trajectories"
+TRAJECTORIES_DIR = DATA_DIR / "trajectories"
 #: The shipped rigs and their calibrations (``<name>.yaml``, ``<name>.calib.yaml``).
 CAMERAS_DIR = ROOT / "cameras"
 #: The paper's trajectories, made by ``trajectory.named``.

@@ -441,6 +441,26 @@ def test_open_loop_ik_records_the_nominal_lengths_it_uses_not_the_measured_ones(
     assert vis["e_av_mm"] == pytest.approx(mod["e_av_mm"], rel=1e-9)
 
 
+def test_a_users_file_in_the_project_folder_is_recorded_absolute(tmp_path, monkeypatch):
+    """Only the shipped folders (data/, cameras/) are recorded relative to the project; a
+    user's file elsewhere in the project folder (mine/path.csv) is absolute, as the README says
+    of every file of yours (it was recorded 'mine/path.csv', found from the project only)."""
+    from itg_vision import runner
+
+    project = tmp_path / "project"
+    for rel in ("data/trajectories/t.csv", "cameras/r.yaml", "mine/path.csv", "p.csv"):
+        (project / rel).parent.mkdir(parents=True, exist_ok=True)
+        (project / rel).write_text("x")
+    monkeypatch.setattr(runner, "DATA_DIR", project / "data")
+    monkeypatch.setattr(runner, "CAMERAS_DIR", project / "cameras")
+    monkeypatch.chdir(project)
+    assert runner.shown_path("data/trajectories/t.csv") == "data/trajectories/t.csv"
+    assert runner.shown_path(str(project / "cameras/r.yaml")) == "cameras/r.yaml"
+    assert runner.shown_path("mine/path.csv") == str(project / "mine/path.csv")
+    assert runner.shown_path("p.csv") == str(project / "p.csv")
+    assert runner.shown_path("ellipse-t1") == "ellipse-t1"  # a name, as given
+
+
 def test_summary_locates_its_input_files_from_anywhere(tmp_path, monkeypatch):
     from pathlib import Path
 
