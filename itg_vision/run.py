@@ -260,6 +260,11 @@ def main(argv: list[str] | None = None) -> int:
         note = traj.span_note(prep.trajectory, prep.true_arm.reach_mm()[1])
         if note:
             print(note, file=sys.stderr)
+        points = prep.trajectory.points_mm
+        n_in = sum(prep.true_arm.reachable(p) for p in points)
+        if 2 * n_in < len(points):  # in reach: as the metrics count them
+            print(f"note: {len(points) - n_in} of the {len(points)} set points are out of the "
+                  f"arm's reach: every metric rests on the {n_in} in reach", file=sys.stderr)
         key = run_key(prep)
         if args.out is not None:  # '' is check_path's empty-path error, not the default folder
             out = outputs.check_path(args.out)

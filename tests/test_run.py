@@ -283,6 +283,28 @@ def test_a_stage_that_never_ran_is_a_dash_in_the_printed_timings(tmp_path):
     assert ms[3].strip() == "-" and "nan" not in row
 
 
+def test_a_run_whose_metrics_rest_on_few_set_points_says_so(main_in_process, tmp_path):
+    """The one-link arm on the rounded square reaches 1 of its 120 set points: E_av and the
+    tracking statistics rest on that one, and a note says so, its counts the summary's
+    (n_out_of_reach); it printed the statistics without a word. A path mostly in reach gets no
+    note."""
+    import json
+
+    for args, noted in ((["--arm", "one-link", "--trajectory", "rounded-square"], True),
+                        (["--trajectory", "rounded-square"], False)):
+        out = tmp_path / f"o{noted}"
+        res = main_in_process("itg_vision.run", "--feedback", "model", *args, "--out", out,
+                              "--quiet")
+        assert res.returncode == 0, res.stderr
+        s = json.loads((out / "summary.json").read_text())
+        n, gone = s["n_setpoints"], s["n_out_of_reach"]
+        note = (f"note: {gone} of the {n} set points are out of the arm's reach: every metric "
+                f"rests on the {n - gone} in reach")
+        assert (note in res.stderr.splitlines()) == noted, res.stderr
+        assert ("out of the arm's reach" in res.stderr) == noted
+        assert (gone, n) == ((119, 120) if noted else (0, 120))
+
+
 @pytest.mark.slow
 def test_vision_tracking_meets_the_bound_against_truth():
     """Issue bound: E_av(vision) <= 1.5 E_av(truth) + 0.5 mm on ellipse-t1, same rules/gain.
