@@ -213,9 +213,10 @@ class Fields:
         for k in v:
             if k not in known:
                 self.fail(f"{prefix}{clip(str(k))}", f"unknown field (known: {', '.join(known)})")
-        for k in required:
-            if k not in v:
-                self.fail(f"{prefix}{k}", "missing")
+        missing = [k for k in required if k not in v]
+        if missing:  # all of them at once: a file written from scratch misses several
+            also = f" (and {', '.join(prefix + k for k in missing[1:])})" if missing[1:] else ""
+            self.fail(f"{prefix}{missing[0]}", f"missing{also}")
         return v
 
     def get(self, d, key: str, where: str):

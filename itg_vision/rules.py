@@ -984,9 +984,10 @@ class RuleBase:
             if name not in known:
                 later = next((d for d in self.definitions if d.name == name), None)
                 if later is not None:  # defined, but below its use
-                    raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is defined "
-                                    f"by the LET on line {later.line}, below: a LET must come "
-                                    "before the rules and LETs that use it")
+                    raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name "
+                                    f"{name!r} here: the LET on line {later.line} defines it "
+                                    "below, and a LET must come before the rules and LETs that "
+                                    "use it")
                 alike = [k for k in known if k.lower() == name.lower()]
                 hint = f"; did you mean {alike[0]!r}? names are case-sensitive" if alike else ""
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "

@@ -160,6 +160,7 @@ def make_inputs(tmp):
     f["binary.csv"] = tmp / "binary.csv"
     f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
     text("helix-in-m.csv", "x_mm,y_mm,z_mm\n0.095,0.04,0.16\n0.0949,0.0422,0.1604\n")
+    text("arm-two-fields.yaml", "name: mine\nkind: planar\n")
     text("not-rig.yaml", "just: text\n")
     text("rig-duplicate-key.yaml", "name: x\ncameras: []\ncameras: []\n")
     text("negative-standoff.yaml", re.sub(r"(?m)^led_standoff_mm: .*$", "led_standoff_mm: -3",
@@ -222,6 +223,7 @@ CASES = [
     ("rig-yaml-syntax", "run", ["--quiet", "--rig", "{syntax.yaml}"], "syntax.yaml:4:1: not valid YAML (expected ',' or ']'"),
     ("rig-5000-digit-int", "run", ["--quiet", "--rig", "{digits.yaml}"], "digits.yaml:2:10: not valid YAML (a number of more than 4300 digits)"),
     ("rig-nested", "run", ["--quiet", "--rig", "{nested.yaml}"], "nested.yaml: nested too deeply"),
+    ("arm-most-fields-missing", "run", ["--quiet", "--arm", "{arm-two-fields.yaml}"], "arm-two-fields.yaml: links_mm: missing (and led_standoff_mm, start_pose_deg, defaults, pose_ranges_deg, benchmark, calibration)\n"),
     ("arm-negative-standoff", "run", ["--quiet", "--arm", "{negative-standoff.yaml}"], "negative-standoff.yaml: led_standoff_mm: must be in [0, 5000] (mm), got -3"),
     ("rig-not-a-rig", "run", ["--quiet", "--rig", "{not-rig.yaml}"], "not-rig.yaml: name: missing"),
     # arm files: every field checked when the file is read

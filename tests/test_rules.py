@@ -77,8 +77,8 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q1 += F", ":1:31:", "unknown name 'F' (known: L, L1, L2, S, f, q1, "
      "q2, rd2, re2, rg2, w, xd, xe, xg, yd, ye, yg, zd, ze, zg); did you mean 'f'? names are "
      "case-sensitive\n"),
-    ("RULE 1: IF e > 0 THEN q1 += f\nLET e = xd - xg", ":1:12:", "'e' is defined by the LET on "
-     "line 2, below: a LET must come before the rules and LETs that use it\n"),
+    ("RULE 1: IF e > 0 THEN q1 += f\nLET e = xd - xg", ":1:12:", "unknown name 'e' here: the LET "
+     "on line 2 defines it below, and a LET must come before the rules and LETs that use it\n"),
 ])
 def test_syntax_and_name_errors_name_file_line_column(text, where, what):
     with pytest.raises(UserError) as exc:
