@@ -293,6 +293,10 @@ def main(argv: list[str] | None = None) -> int:
                 summary["video"] = recorder.path.name
                 summary["video_codec"] = recorder.codec_note
             cols, rows = trace.rows()
+            if prep.trajectory.t_s is not None:  # the file's times (laps go on by a period)
+                cols.insert(1, "t_s")
+                for row, t in zip(rows, prep.trajectory.t_s, strict=True):
+                    row.insert(1, f"{t:.6g}")
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
             outputs.write_json(tmp / "summary.json", summary)
             title = plot_title(summary)

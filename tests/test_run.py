@@ -305,6 +305,30 @@ def test_a_run_whose_metrics_rest_on_few_set_points_says_so(main_in_process, tmp
         assert (gone, n) == ((119, 120) if noted else (0, 120))
 
 
+def test_a_timed_files_times_are_a_column_of_the_trace(main_in_process, tmp_path):
+    """A trajectory file with t_s gives trace.csv a t_s column beside k: the file's times, the
+    second lap going on by a period (the median step after the last time); a file without t_s
+    has no such column. (The times were read, then dropped.)"""
+    import csv
+
+    timed = tmp_path / "timed.csv"
+    timed.write_text("x_mm,y_mm,t_s\n100,50,0\n110,50,0.5\n110,60,1.0\n100,60,1.5\n")
+    plain = tmp_path / "plain.csv"
+    plain.write_text("x_mm,y_mm\n100,50\n110,50\n110,60\n100,60\n")
+    for path in (timed, plain):
+        out = tmp_path / path.stem
+        res = main_in_process("itg_vision.run", "--trajectory", path, "--laps", "2",
+                              "--feedback", "model", "--out", out, "--quiet")
+        assert res.returncode == 0, res.stderr
+        with open(out / "trace.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        if path is timed:
+            assert list(rows[0])[:3] == ["k", "t_s", "tracking"]
+            assert [float(r["t_s"]) for r in rows] == [0, 0.5, 1, 1.5, 2, 2.5, 3, 3.5]
+        else:
+            assert "t_s" not in rows[0]
+
+
 @pytest.mark.slow
 def test_vision_tracking_meets_the_bound_against_truth():
     """Issue bound: E_av(vision) <= 1.5 E_av(truth) + 0.5 mm on ellipse-t1, same rules/gain.
