@@ -366,7 +366,8 @@ def exp6(base, out) -> dict:
         e = trace.error_mm()
         res[label] = {"e_av_mm": s["e_av_mm"], "e_max_mm": s["e_max_mm"],
                       "e_av_second_half_mm": float(e[len(e) // 2:].mean()),
-                      "e_max_second_half_mm": float(e[len(e) // 2:].max())}
+                      "e_max_second_half_mm": float(e[len(e) // 2:].max()),
+                      "e_max_setpoint": int(np.nanargmax(e)), "n_setpoints": int(len(e))}
         panels.append((f"line-ab-reach, {label}: E_av {s['e_av_mm']:.1f} mm", e, s["e_av_mm"]))
         plot.path_figure(trace, f"experiment 6, line-ab-reach, {label}: E_av {s['e_av_mm']:.2f} mm"
                                 f"\n{_setup(base, **kw)}",
@@ -428,6 +429,13 @@ def settings(base: RunConfig) -> dict:
 def _options(base: RunConfig) -> str:
     opts = {"--feedback": base.feedback, "--gain": base.gain_deg_per_mm, "--seed": base.seed}
     return " ".join(f"{k} {v}" for k, v in opts.items() if v is not None)
+
+
+def _where(run: dict) -> str:
+    """Where a run's E_max lies, for the report: the start (its first set point) or the set
+    point that has it."""
+    k = run["e_max_setpoint"]
+    return "the start" if k == 0 else f"at set point {k} of {run['n_setpoints']}"
 
 
 def report(r: dict, base: RunConfig) -> str:
@@ -523,7 +531,7 @@ def report(r: dict, base: RunConfig) -> str:
         f"the 300 mm the arm reaches; RULE 0 flags {e6['line-ab']['n_flagged']}), E_av {e6['line-ab']['e_av_mm']:.1f} mm over "
         f"the {e6['line-ab']['n_setpoints'] - n_oor} in reach. Reachable variant (`line-ab-reach`): as the paper, E_av "
         f"{asis['e_av_mm']:.1f} mm; with a 2 deg/iteration servo limit and 5 iterations E_av {lim['e_av_mm']:.2f} mm "
-        f"(E_max {lim['e_max_mm']:.0f} mm, the start), {lim['e_av_second_half_mm']:.2f} mm on the second half | agrees if "
+        f"(E_max {lim['e_max_mm']:.0f} mm, {_where(lim)}), {lim['e_av_second_half_mm']:.2f} mm on the second half | agrees if "
         f"every point of the paper's line is in reach and its E_av (as the paper: one iteration, no servo limit) <= "
         f"{EXP6_FACTOR:g} x {PAPER_EXP6_E_AV_MM} mm | {v6} as given |")
     L += ["", "## Experiment 5: where the settled lap flails, and why", ""]
@@ -577,8 +585,10 @@ def report(r: dict, base: RunConfig) -> str:
     L += ["## Experiments 1 and 4: the two-link arm's straight-up tie", "",
           "The two-link arm starts straight up too (q 90, 0 deg), where x_g = x_e: a tie of Table 2's RULE 3/4 (q2), which "
           "the paper resolves as 'no update'. With the model's forward kinematics in floating point, cos 90 deg = 6e-17 puts "
-          "the gripper 6e-15 mm right of the elbow, and RULE 4 fires at the first set point; the table above is that run. "
-          "With the model rounded to 1e-9 mm the tie is exact (model feedback both ways; the same thresholds):", "",
+          "the gripper 6e-15 mm right of the elbow, and RULE 4 fires at the first set point; "
+          + ("the table above is that run. " if base.feedback == "model" else
+             f"the table above is not that run but the {base.feedback}-fed one, whose first look decides the tie. ")
+          + "With the model rounded to 1e-9 mm the tie is exact (model feedback both ways; the same thresholds):", "",
           "| start tie | rules at the first set point | exp. 1: E_i after the jump (mm) | forgotten after (set points) | "
           "exp. 1 verdict | exp. 4: best f T1 / T2 (deg/mm) | good ranges | exp. 4 verdict |",
           "| --- | --- | --- | --- | --- | --- | --- | --- |"]

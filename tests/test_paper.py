@@ -78,6 +78,20 @@ def test_verdicts_follow_their_numbers(paper_run):
     text = paper.report(good, base)
     assert _row(text, 6).endswith("| agrees as given |")
     assert "average error about 0.4 mm" in _row(text, 6)  # the paper's number, threshold 2x it
+    # where the servo-limited run's E_max lies is read from the run, not written in: the start
+    # under the model (its first set point), a later set point where a run has it there (the
+    # vision-fed paper's diverged late, and the row still said 'the start')
+    lim = r["exp6"]["servo limit 2 deg/iteration, 5 iterations"]
+    assert lim["e_max_setpoint"] == 0 and f"(E_max {lim['e_max_mm']:.0f} mm, the start)" in _row(
+        paper.report(r, base), 6)
+    late = copy.deepcopy(r)
+    late["exp6"]["servo limit 2 deg/iteration, 5 iterations"]["e_max_setpoint"] = 150
+    assert f"mm, at set point 150 of {lim['n_setpoints']})" in _row(paper.report(late, base), 6)
+    # the two-link tie's paragraph calls the table above its run only under model feedback
+    assert "RULE 4 fires at the first set point; the table above is that run." in text
+    seen = paper.report(r, RunConfig(feedback="vision"))
+    assert "the table above is not that run but the vision-fed one" in seen
+    assert "the table above is that run" not in seen
     far = copy.deepcopy(good)
     far["exp6"]["line-ab"]["e_av_mm"] = 0.9
     assert _row(paper.report(far, base), 6).endswith("| disagrees as given |")
