@@ -394,9 +394,12 @@ class Session:
         if not all(map(math.isfinite, q)):
             j = next(j for j, v in enumerate(q) if not math.isfinite(v))
             fired = f"; rules fired: {', '.join(map(str, step.fired))}" if step.fired else ""
+            fix = ("the controller's step is not a number (NaN): the step itself is wrong"
+                   if math.isnan(dq[j]) else "bound each step with the servo limit "
+                   "(max_step_deg; run's --max-step)")
             raise UserError(f"set point {self.k + 1}: joint q{j + 1} would turn to {q[j]} deg (from "
                             f"{self.world.q_deg[j]:.6g} by {dq[j]:.6g}{fired}): no joint angle is "
-                            "that; bound each step with --max-step")
+                            f"that; {fix}")
         self.world.set_q(q)
         self._aim = self.desired_mm.copy() if aim_mm is None else np.asarray(aim_mm, float).copy()
         self._fired += [r for r in step.fired if r not in self._fired]

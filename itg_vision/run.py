@@ -85,8 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="rule iterations per set point (default 1: the paper's one step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",
                     help="servo rate limit: no joint moves more than DEG per iteration, whatever "
-                         "the controller (default: none, as in the paper; the three-link "
-                         "composition needs one, see README)")
+                         "the controller, in (0, 360] (default: none, as in the paper; the "
+                         "three-link composition needs one, see README)")
     ap.add_argument("--correction", type=float, default=1.0, metavar="K",
                     help="itg, jacobian: feed the set point's motion forward and correct only K "
                          "of the error measured against the previous decision's set point (0 < K "

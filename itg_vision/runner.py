@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from . import trajectory as traj
-from .arm import MAX_ITERATIONS, ArmSpec
+from .arm import MAX_ANGLE_DEG, MAX_ITERATIONS, ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
 from .shipped import DATA_DIR
 from .errors import ConfigError, NothingInReach, UserError
@@ -103,8 +103,10 @@ class RunConfig:
             ("tolerance_mm", self.tolerance_mm is None or (
                 math.isfinite(self.tolerance_mm) and 0 <= self.tolerance_mm <= 1e4),
              f"must be in [0, 1e4] mm, got {self.tolerance_mm}"),
-            ("max_step_deg", positive(self.max_step_deg),
-             f"must be > 0 (deg per iteration), got {self.max_step_deg}"),
+            ("max_step_deg", positive(self.max_step_deg) and (
+                self.max_step_deg is None or self.max_step_deg <= MAX_ANGLE_DEG),
+             f"must be in (0, {MAX_ANGLE_DEG:g}] deg per iteration (as an arm file's "
+             f"benchmark.max_step_deg), got {self.max_step_deg}"),
             ("iterations", is_whole(self.iterations) and 1 <= self.iterations <= MAX_ITERATIONS,
              f"must be a whole number in 1..{MAX_ITERATIONS}, got {self.iterations}"),
             ("noise_px", math.isfinite(self.noise_px) and self.noise_px >= 0,

@@ -569,9 +569,28 @@ def test_finite_steps_that_overflow_a_joint_angle_are_one_line():
         with pytest.raises(UserError, match=r"^set point 2: joint q1 would turn to inf deg "
                                             r"\(from 1e\+308 by 1e\+308; rules fired: 7\): no "
                                             r"joint angle is that; bound each step with "
-                                            r"--max-step$"):
+                                            r"the servo limit \(max_step_deg; run's "
+                                            r"--max-step\)$"):
             simulate(world, rb, TruthFeedback(), np.array([[100.0, 0.0, 0.0]] * 3))
         assert np.all(np.isfinite(world.q_deg))
+
+
+def test_a_step_that_is_not_a_number_is_said_to_be_the_controllers_not_a_missing_limit():
+    """A controller of one's own returning a NaN step was told to bound its steps with
+    --max-step, a command-line option no library caller has and no servo limit can mend."""
+
+    class NaNStep:
+        uses_encoders = False
+
+        def step(self, desired_mm, markers, q_deg):
+            return Step(np.array([np.nan, 0.0]))
+
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(UserError, match=r"^set point 1: joint q1 would turn to nan deg .*: "
+                                            r"no joint angle is that; the controller's step is "
+                                            r"not a number \(NaN\): the step itself is wrong$"):
+            simulate(world, NaNStep(), TruthFeedback(), np.array([[100.0, 0.0, 0.0]] * 2),
+                     max_step_deg=20.0)
 
 
 class _Hold:

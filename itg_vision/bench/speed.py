@@ -300,14 +300,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m itg_vision.bench speed",
                         description=__doc__.split("\n\n")[0])
     ap.add_argument("--no-vision", action="store_true", help="skip the vision pipeline timings")
-    ap.add_argument("--frames", type=at_least_one, default=DEFAULT_FRAMES, metavar="N",
+    ap.add_argument("--frames", type=at_least_one, metavar="N",
                     help=f"stereo loop: states of the replay per pass, at most {max_frames()} "
-                         "(default %(default)s)")
-    ap.add_argument("--passes", type=at_least_one, default=DEFAULT_PASSES, metavar="N",
-                    help="stereo loop: passes over the states, settings interleaved (default "
-                         f"%(default)s; the decision timings always take {DECISION_PASSES})")
+                         f"(default {DEFAULT_FRAMES})")
+    ap.add_argument("--passes", type=at_least_one, metavar="N",
+                    help=f"stereo loop: passes over the states, settings interleaved (default "
+                         f"{DEFAULT_PASSES}; the decision timings always take {DECISION_PASSES})")
     ap.add_argument("--out", metavar="DIR",
-                    help="also save what is printed (report.txt) and the figures (results.json) "
+                    help="also save what is printed (report.txt) and its numbers (results.json) "
                          "as this folder; it replaces only a folder this benchmark made")
     ap.add_argument("--force", action="store_true",
                     help="let --out replace a folder this benchmark did not make (kept beside it "
@@ -342,6 +342,13 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         args = build_parser().parse_args(argv)
+        if args.no_vision:
+            given = [o for o, v in (("--frames", args.frames), ("--passes", args.passes)) if v]
+            if given:
+                raise UserError(f"{given[0]}: applies to the stereo loop's timings, which "
+                                "--no-vision skips")
+        args.frames = DEFAULT_FRAMES if args.frames is None else args.frames
+        args.passes = DEFAULT_PASSES if args.passes is None else args.passes
         most = max_frames()
         if args.frames > most:
             raise UserError(f"--frames: must be at most {most} (the set points of "
