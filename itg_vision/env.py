@@ -53,14 +53,13 @@ import dataclasses
 import gymnasium as gym
 import numpy as np
 
+from .arm import ArmSpec
 from .loop import Session
 from .contracts import Step
 from .errors import ConfigError
-from .runner import RunConfig, given_rule_params, prepare, start_up_geometry
+from .runner import CONTROLLERS, RunConfig, given_rule_params, prepare, start_up_geometry
 from .world import World
 
-#: Servo limit (deg per iteration) when the configuration sets none: an action space needs bounds.
-DEFAULT_MAX_STEP_DEG = 20.0
 #: Bounds of the observed positions (mm): none. An arm file's links and a trajectory file's
 #: coordinates have bounds of their own (up to 1e6 mm); a finite box here clipped an estimate
 #: beyond it without a word, and a set point beyond it left the space.
@@ -74,7 +73,10 @@ class TrackingEnv(gym.Env):
     ----------
     config : a :class:`itg_vision.runner.RunConfig`; or its fields as keyword arguments
         (``arm``, ``trajectory``, ``feedback``, ``rig``, ``iterations``, ``max_step_deg``, ``laps``,
-        ``noise_px``, ``true_links_mm``, ...). Its ``controller`` is not used, and settings
+        ``noise_px``, ``true_links_mm``, ...). ``max_step_deg`` bounds the action space; unset,
+        it is the arm file's servo limit (``benchmark.max_step_deg``: 20 deg per iteration for
+        the one- and two-link arms, 2 for the three-link), which ``run`` applies only when
+        given. Its ``controller`` is not used, and settings
         that shape a controller (``rules``, f, S, w, ``correction``, ``preview``) are refused:
         you are the controller.
     images : add both camera images to the observation (``feedback="vision"`` only).
@@ -92,8 +94,12 @@ class TrackingEnv(gym.Env):
         if set_:  # (a rule setting was accepted and unused: it read as in use)
             raise ConfigError(set_[0], "sets a controller; in the environment you are the "
                                        "controller")
-        if cfg.max_step_deg is None:
-            cfg = dataclasses.replace(cfg, max_step_deg=DEFAULT_MAX_STEP_DEG)
+        if cfg.controller not in CONTROLLERS:  # not used, but a typo is not a setting
+            raise ConfigError("controller", f"unknown {cfg.controller!r} (choose from "
+                                            f"{', '.join(CONTROLLERS)})")
+        if cfg.max_step_deg is None:  # an action space needs bounds: the arm file's limit
+            cfg = dataclasses.replace(cfg, max_step_deg=ArmSpec.from_args(cfg.arm).benchmark[
+                "max_step_deg"])
         if images:
             if cfg.feedback != "vision":
                 raise ValueError(f"images: only vision feedback has camera images, "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -12,7 +13,7 @@ from . import trajectory as traj
 from .arm import MAX_ANGLE_DEG, MAX_ITERATIONS, ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
 from .shipped import DATA_DIR
-from .errors import ConfigError, NothingInReach, UserError
+from .errors import MAX_POINTS, ConfigError, NothingInReach, UserError
 from .feedback import ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
@@ -90,7 +91,16 @@ class RunConfig:
         def positive(v):
             return v is None or (math.isfinite(v) and v > 0)
 
+        for name in ("gain_deg_per_mm", "step_deg", "tolerance_mm", "max_step_deg", "noise_px",
+                     "noise_mm", "dropout", "correction"):  # from code: a number, not text
+            v = getattr(self, name)
+            optional = name in ("gain_deg_per_mm", "step_deg", "tolerance_mm", "max_step_deg")
+            if not ((v is None and optional)
+                    or (isinstance(v, numbers.Real) and not isinstance(v, bool))):
+                raise ConfigError(name, f"must be a number, got {v!r}")
         checks = [
+            ("points", self.points is None or (is_whole(self.points) and 2 <= self.points <= MAX_POINTS),
+             f"must be a whole number of set points in 2..{MAX_POINTS}, got {self.points!r}"),
             ("controller", self.controller in CONTROLLERS,
              f"unknown {self.controller!r} (choose from {', '.join(CONTROLLERS)})"),
             ("feedback", self.feedback in FEEDBACKS,
@@ -133,7 +143,7 @@ class RunConfig:
             ("dropout", 0 <= self.dropout <= 1,
              f"must be a probability in [0, 1], got {self.dropout}"),
             ("seed", is_whole(self.seed) and self.seed >= 0,
-             f"must be a whole number >= 0, got {self.seed}"),
+             f"must be a whole number >= 0, got {self.seed!r}"),
             ("correction", math.isfinite(self.correction) and 0 < self.correction <= 1,
              f"must be in (0, 1], got {self.correction}"),
             ("correction", self.correction == 1 or self.controller != "ik",

@@ -257,14 +257,40 @@ def test_a_failed_reset_leaves_no_client_open():
 
 
 @pytest.mark.parametrize("field, value", [("iterations", 2.5), ("iterations", True),
-                                          ("seed", 1.5), ("seed", -1)])
+                                          ("seed", 1.5), ("seed", -1), ("seed", "3"),
+                                          ("points", 2.5), ("points", True)])
 def test_whole_number_fields_refuse_other_values(field, value):
-    """iterations=2.5 ran 2 iterations while the config said 2.5; a bool is not a count."""
+    """iterations=2.5 ran 2 iterations while the config said 2.5, and points=2.5 ran 2 set
+    points; a bool is not a count, nor "3" a seed (it was refused as 'got 3', which hid the
+    quotes): the value is shown as given."""
     from itg_vision.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=f"{field}: must be a whole number"):
-        TrackingEnv(feedback="truth", points=5, **{field: value})
-    TrackingEnv(feedback="truth", points=5, **{field: np.int64(2)}).close()  # numpy's ints are
+    with pytest.raises(ConfigError, match=f"{field}: must be a whole number") as exc:
+        TrackingEnv(feedback="truth", **{"points": 5, field: value})
+    assert str(exc.value).endswith(f"got {value!r}")
+    TrackingEnv(feedback="truth", **{"points": 5, field: np.int64(2)}).close()  # numpy's ints are
+
+
+@pytest.mark.parametrize("field, value", [("noise_px", "1"), ("dropout", "0.1"),
+                                          ("max_step_deg", "20"), ("correction", None)])
+def test_number_fields_given_text_are_refused_by_name(field, value):
+    """noise_px="1" from code ended in a bare TypeError naming no field; now one ConfigError
+    naming it (correction has no None: it is a number too)."""
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError) as exc:
+        RunConfig(feedback="vision", **{field: value}).validate()
+    assert exc.value.field == field and str(exc.value) == f"{field}: must be a number, got {value!r}"
+
+
+def test_an_unknown_controller_is_refused_though_the_env_uses_none():
+    """The env ignores a known controller (a run's config may be passed as it is), but
+    controller="foo" was accepted without a word."""
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="controller: unknown 'foo' \\(choose from itg, "):
+        TrackingEnv(feedback="model", points=5, controller="foo")
+    TrackingEnv(feedback="model", points=5, controller="jacobian").close()
 
 
 @pytest.mark.parametrize("field, value, said", [
@@ -283,6 +309,25 @@ def test_the_library_names_its_fields_not_the_command_lines_options(field, value
         TrackingEnv(**{field: value})
     assert caught.value.field == field and str(caught.value).startswith(said)
     assert "--" not in str(caught.value)
+
+
+@pytest.mark.parametrize("arm", ["one-link", "two-link", "three-link"])
+def test_without_a_servo_limit_the_action_space_is_the_arm_files(arm):
+    """An action space needs bounds: unset, the servo limit is the arm file's own
+    (benchmark.max_step_deg: 2 deg/iteration for the three-link arm), not 20 for every arm (the
+    three-link env clipped at 10x its arm's limit)."""
+    from itg_vision.arm import ArmSpec
+
+    limit = ArmSpec.from_args(arm).benchmark["max_step_deg"]
+    assert limit == (2.0 if arm == "three-link" else 20.0)
+    env = TrackingEnv(arm=arm, feedback="model", points=4)
+    try:
+        n = ArmSpec.from_args(arm).n_joints
+        assert env.config.max_step_deg == limit
+        np.testing.assert_array_equal(env.action_space.high, np.full(n, limit))
+        np.testing.assert_array_equal(env.action_space.low, np.full(n, -limit))
+    finally:
+        env.close()
 
 
 def test_the_action_space_is_the_servo_limit_both_ways():
