@@ -53,7 +53,10 @@ def open_writer(path: Path, fps: float, size: tuple[int, int]):
 
 
 class VideoRecorder:
-    """Writes one frame per set point from a ``VisionFeedback``'s last observation.
+    """Writes one frame per set point (the look of its last iteration; 20 fps by default) from
+    a ``VisionFeedback``'s last observation: each LED the eye found ringed in its colour, one it
+    then rejected (its triangulation's residual, or the other camera's miss) crossed out too and
+    named in the panel's corner.
 
     ``path``: the file to write; its suffix is set by the codec found (see the module
     docstring), so read :attr:`path` after the first frame.
@@ -76,6 +79,7 @@ class VideoRecorder:
         if not views:
             return
         desired = feedback.arm.gripper_led_mm(desired_mm)  # the cross: where the LED belongs
+        missed = [n for n, why in obs.reasons.items() if why]  # the eye's verdict at this look
         panels = []
         for i, (img, cam) in enumerate(zip(views, feedback.estimate_rig.cameras)):
             bgr = np.ascontiguousarray(img[..., ::-1])
@@ -83,7 +87,13 @@ class VideoRecorder:
                 if dets[i].ok:
                     uv = dets[i].uv_raw_px
                     colour = tuple(int(255 * c) for c in LED_RGB[name][::-1])
-                    cv2.circle(bgr, (int(round(uv[0])), int(round(uv[1]))), 9, colour, 1, cv2.LINE_AA)
+                    at = (int(round(uv[0])), int(round(uv[1])))
+                    cv2.circle(bgr, at, 9, colour, 1, cv2.LINE_AA)
+                    if name in missed:  # found here, but rejected: not what the controller got
+                        cv2.drawMarker(bgr, at, colour, cv2.MARKER_TILTED_CROSS, 18, 1, cv2.LINE_AA)
+            if missed:
+                cv2.putText(bgr, "missed: " + ", ".join(missed), (8, 40), cv2.FONT_HERSHEY_SIMPLEX,
+                            0.5, (0, 0, 200), 1, cv2.LINE_AA)
             d = cam.project(desired).reshape(-1)
             if np.all(np.isfinite(d)):
                 cv2.drawMarker(bgr, (int(round(d[0])), int(round(d[1]))), (200, 0, 200),

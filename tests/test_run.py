@@ -378,7 +378,7 @@ from itg_vision.errors import UserError
 from itg_vision.video import VideoRecorder
 rng = np.random.default_rng(0)
 views = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(2)]
-eye = SimpleNamespace(last_observation=SimpleNamespace(frames=lambda: views, detections={}),
+eye = SimpleNamespace(last_observation=SimpleNamespace(frames=lambda: views, detections={}, reasons={}),
                       estimate_rig=Rig.from_yaml(default_rig_path("two-link")),
                       arm=ArmSpec.from_args("two-link"))
 try:

@@ -34,14 +34,35 @@ def written(monkeypatch):
     return frames
 
 
-def _eye(detections):
-    """A two-link eye on the planar rig whose last look is two flat views."""
+def _eye(detections, reasons=None):
+    """A two-link eye on the planar rig whose last look is two flat views (``reasons``: why a
+    marker was missed at that look, as Observation.reasons)."""
     rig = Rig.from_yaml(default_rig_path("two-link"))
     W, H = rig.cameras[0].size
     views = tuple(np.full((H, W, 3), c, np.uint8) for c in BACKGROUND)
     return SimpleNamespace(arm=ArmSpec.from_args("two-link"), estimate_rig=rig,
                            last_observation=SimpleNamespace(frames=lambda: views,
-                                                            detections=detections))
+                                                            detections=detections,
+                                                            reasons=reasons or {}))
+
+
+def test_a_led_found_but_rejected_by_the_eye_is_crossed_out_and_named(written):
+    """A look whose gripper LED camera 1 found but the eye rejected (here: camera 2 missed it)
+    rang it like an accepted one: the video showed a look the controller never got. It is now
+    crossed out in its colour (an 18 px tilted cross over the ring) and named in the corner;
+    an accepted LED gets the ring alone."""
+    raw = np.array([100.0, 120.0])
+    dets = {"gripper": (Detection(True, raw, raw, 30.0),
+                        Detection(False, np.full(2, np.nan), np.full(2, np.nan)))}
+    colour = [255 * c for c in LED_RGB["gripper"][::-1]]
+    for why in ("", "not found by cameras[1] (right)"):
+        written.clear()
+        video.VideoRecorder("unused").frame(_eye(dets, {"gripper": why}), np.full(3, np.nan))
+        (frame,) = written
+        diagonal = frame[120 + 5, 100 + 5].astype(int)  # on the cross, inside the ring
+        assert (np.abs(diagonal - colour).max() < 80) == bool(why), (why, diagonal)
+        corner = frame[28:46, 8:150].astype(int)  # 'missed: gripper' under the camera's name
+        assert (np.abs(corner - BACKGROUND[0][::-1]).sum(axis=2) > 60).any() == bool(why)
 
 
 def test_a_frame_rings_each_led_at_its_raw_pixel_the_panels_in_camera_order(written):
@@ -88,7 +109,7 @@ def test_a_video_one_frame_short_is_an_error(tmp_path):
     rng = np.random.default_rng(0)
     views = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(2)]
     eye = _eye({})
-    eye.last_observation = SimpleNamespace(frames=lambda: views, detections={})
+    eye.last_observation = SimpleNamespace(frames=lambda: views, detections={}, reasons={})
     rec = video.VideoRecorder(tmp_path / "v")
     for _ in range(5):
         rec.frame(eye, np.full(3, np.nan))
