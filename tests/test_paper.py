@@ -87,6 +87,20 @@ def test_verdicts_follow_their_numbers(paper_run):
     late = copy.deepcopy(r)
     late["exp6"]["servo limit 2 deg/iteration, 5 iterations"]["e_max_setpoint"] = 150
     assert f"mm, at set point 150 of {lim['n_setpoints']})" in _row(paper.report(late, base), 6)
+    # 5a under the other readings of "radial angle" (polar about the centre, about the base):
+    # each verdict computed from its angles, as the stated one (under the parameter angle)
+    row = _row(paper.report(r, base), "5a")
+    assert row.endswith("| disagrees |")
+    ctr = "/".join(f"{v['second_lap_peaks_about_centre_deg'][0]:.0f}" for v in r["exp5"].values())
+    assert "lies at " + ctr.replace("/", ", ") + " deg about the ellipse's centre (" in row
+    turned = copy.deepcopy(r)
+    for v in turned["exp5"].values():
+        v["second_lap_peaks_about_base_deg"][0] = 90.0
+        v["second_lap_peaks_about_centre_deg"][0] = 179.0
+    row = _row(paper.report(turned, base), "5a")
+    assert "90, 90, 90 deg about the base's axis (disagrees under that reading)" in row
+    assert "179, 179, 179 deg about the ellipse's centre (agrees under that reading)" in row
+    assert row.endswith("| disagrees |")  # the stated verdict keeps the parameter angle
     # the two-link tie's paragraph calls the table above its run only under model feedback
     assert "RULE 4 fires at the first set point; the table above is that run." in text
     seen = paper.report(r, RunConfig(feedback="vision"))
