@@ -169,7 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the true rig that renders: cameras/<NAME>.yaml or a path "
                          "(default: planar)")
     ap.add_argument("--views", type=int, default=DEFAULT_VIEWS, metavar="N",
-                    help="board poses shown (default %(default)s; at least "
+                    help="board poses shown, 1..1000 (default %(default)s; at least "
                          f"{MIN_VIEWS} must show the board to both cameras)")
     ap.add_argument("--seed", type=int, default=0,
                     help="seed of the board poses, sensor noise and arm poses (default 0)")
@@ -186,15 +186,15 @@ def build_parser() -> argparse.ArgumentParser:
                          f"({', '.join(arm_names())}) or an arm file FILE.yaml (default: "
                          "three-link for the three-link rig, else two-link)")
     ap.add_argument("--tilt", type=float, default=45.0, metavar="DEG",
-                    help="largest board tilt about each in-plane axis (default %(default)s; "
+                    help="largest board tilt about each in-plane axis, 0..75 deg (default %(default)s; "
                          "0 shows the board fronto-parallel, which is degenerate)")
     ap.add_argument("--sensor-noise", type=float, metavar="SIGMA",
-                    help="override the rig's sensor noise (grey levels std) while rendering")
+                    help="override the rig's sensor noise (grey levels std, 0..100) while rendering")
     ap.add_argument("--true-links", metavar="L1,L2[,L3]",
                     help="model error: the simulated arm's link lengths in mm (the base frame "
                          "comes from the joint axes, not from the lengths: try 105,105)")
     ap.add_argument("--check-poses", type=int, default=20, metavar="N",
-                    help="arm poses for the LED triangulation check (default %(default)s)")
+                    help="arm poses for the LED triangulation check, 1..1000, two LEDs each (default %(default)s)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no table")
     return ap
 

@@ -670,8 +670,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="feedback of every run (default: model, the paper's setup)")
         ap.add_argument("--gain", type=float, default=PARAM_DEFAULTS["f"],
                         help="f in deg/mm (default %(default)s)")
-        ap.add_argument("--seed", type=int, default=0)
-        ap.add_argument("--quiet", action="store_true")
+        ap.add_argument("--seed", type=int, default=0,
+                        help="seed of the vision feedback's sensor noise, a whole number >= 0 "
+                             "(default 0; model and truth feedback draw nothing)")
+        ap.add_argument("--quiet", action="store_true",
+                        help="print nothing but errors (report.md, results.json and the figures "
+                             "are written to --out all the same)")
         args = ap.parse_args(argv)
         base = RunConfig(feedback=args.feedback, gain_deg_per_mm=args.gain, seed=args.seed)
         try:

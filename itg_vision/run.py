@@ -20,6 +20,7 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from . import outputs, plot, trajectory as traj
+from .arm import MAX_ITERATIONS
 from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
@@ -69,8 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--trajectory", metavar="NAME|PATH",
                     help="ellipse-t1, ellipse-t2, abcd, line-ab, line-ab-reach, arc, a file of "
                          "data/trajectories by name (peanut, helix, ...), or a CSV with "
-                         "header x_mm,y_mm[,z_mm][,t_s] (default: ellipse-t1 for two-link, "
-                         "line-ab-reach for three-link, arc for one-link)")
+                         "header x_mm,y_mm[,z_mm][,t_s] (default: the arm file's defaults.trajectory: "
+                         "ellipse-t1 for two-link, line-ab-reach for three-link, arc for one-link)")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help=f"number of set points of a named trajectory (2..{MAX_POINTS})")
     ap.add_argument("--rules", metavar="NAME|PATH",
@@ -82,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "open loop) or jacobian (vision-fed damped least squares)")
     add_rule_options(ap)
     ap.add_argument("--iterations", type=int, default=1,
-                    help="rule iterations per set point (default 1: the paper's one step ahead)")
+                    help=f"rule iterations per set point, 1..{MAX_ITERATIONS} (default 1: the paper's one step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",
                     help="servo rate limit: no joint moves more than DEG per iteration, whatever "
                          "the controller, in (0, 360] (default: none, as in the paper; the "
@@ -100,15 +101,16 @@ def build_parser() -> argparse.ArgumentParser:
                          "takes the arm file's limit). E_i is still measured from the set point "
                          "(README, 'Preview')")
     ap.add_argument("--laps", type=int, default=1,
-                    help="run a closed trajectory this many times (default %(default)s); the "
+                    help="run a closed trajectory this many times, 1..1000 (default %(default)s); the "
                          "tracking-phase metrics then cover the laps after the first")
     ap.add_argument("--feedback", default="vision", choices=FEEDBACKS,
                     help="vision (two cameras, LEDs), model (encoders + nominal kinematic model) "
                          "or truth (the simulator's marker positions) (default %(default)s)")
     ap.add_argument("--rig", metavar="NAME|PATH",
                     help="camera rig the estimator believes: cameras/<NAME>.yaml or a path; a "
-                         "calibrated rig renders with the true rig it names (default: planar or three-link)")
-    ap.add_argument("--noise-px", type=float, default=0.0, help="extra Gaussian centroid noise, px std")
+                         "calibrated rig renders with the true rig it names (default: the arm file's "
+                         "defaults.rig: planar, or three-link for the three-link arm)")
+    ap.add_argument("--noise-px", type=float, default=0.0, help="vision: extra Gaussian centroid noise, px std, >= 0 (default 0)")
     ap.add_argument("--noise-mm", type=float, default=0.0,
                     help="with --feedback truth: Gaussian noise added to each LED coordinate, mm std")
     ap.add_argument("--true-links", type=_links, metavar="L1,L2[,L3]",
@@ -118,7 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--joint-offset", type=_numbers("joint offsets in deg"), metavar="D1,D2[,D3]",
                     help="model error: the simulated joints sit this many degrees off their "
                          "commanded angles")
-    ap.add_argument("--dropout", type=float, default=0.0, help="probability that an LED detection is dropped")
+    ap.add_argument("--dropout", type=float, default=0.0, help="vision: probability in [0, 1] that an LED detection is dropped (default 0)")
     ap.add_argument("--strobe", action="store_true",
                     help="light one LED per frame (as active-marker systems do) instead of telling "
                          "them apart by colour; doubles the rendering")
@@ -129,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--full-frame", action="store_true",
                     help="vision: render whole frames instead of windows around the LEDs "
                          "(~10-50x slower; --video implies it)")
-    ap.add_argument("--seed", type=int, default=0, help="seed of every random thing (default %(default)s)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of every random thing, a whole number >= 0 (default %(default)s)")
     ap.add_argument("--allow-unseen", action="store_true",
                     help="run even if the cameras cannot see the arm along the trajectory (refused "
                          "by default, at start-up): to measure that failure")

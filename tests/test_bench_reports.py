@@ -143,3 +143,15 @@ def test_speed_out_refuses_a_folder_it_did_not_make_before_timing(tmp_path, caps
     rc, printed, err = _run(speed.main, ["--no-vision", "--out", str(other)], capsys)
     assert rc == 2 and printed == "" and err.count("\n") == 1 and "--out" in err, err
     assert {p.name: p.read_bytes() for p in other.iterdir()} == before
+
+
+def test_bench_help_says_what_each_benchmark_measures(capsys):
+    """`python -m itg_vision.bench --help` printed one usage line: it now names each benchmark
+    with what it measures."""
+    from itg_vision.bench import __main__ as bench
+
+    assert bench.main(["--help"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == bench.USAGE
+    for name in bench.NAMES:
+        assert sum(ln.split()[:1] == [name] and len(ln.split()) > 4 for ln in lines) == 1, name
