@@ -138,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0, help="seed of the poses and the noise, >= 0 "
                                                         "(default %(default)s)")
     ap.add_argument("--out", metavar="DIR",
-                    help="also save what is printed (report.txt) and the figures (results.json) "
+                    help="also save what is printed (report.txt) and its numbers (results.json) "
                          "as this folder; it replaces only a folder this benchmark made")
     ap.add_argument("--force", action="store_true",
                     help="let --out replace a folder this benchmark did not make (kept beside it "
