@@ -9,7 +9,9 @@ what the feedback measures. The episode ends with the trajectory.
 
 Observation (a dict of float64 arrays, mm): ``desired_mm`` (the current set point),
 ``gripper_mm`` and, for arms that carry one, ``elbow_mm`` (the feedback's estimates; a marker
-that was not measured keeps its last estimate, as in the loop). With ``images=True`` (vision
+that was not measured keeps its last estimate, as in the loop). On a planar arm the set point
+lies in the joints' plane (z = 0) while the LEDs sit ``led_standoff_mm`` (12 mm) above it:
+compare x and y there, as E_i (the reward) does. With ``images=True`` (vision
 feedback only) it also holds ``camera_images``: both cameras' whole frames (uint8 RGB, as the
 estimator saw them: distorted, noisy); the eye then renders whole frames instead of windows
 around the LEDs: the same rendered pixels there, but the sensor noise is drawn over the whole
