@@ -269,7 +269,7 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     """:func:`run_sweep` under its --out's lock."""
     n_vision = sum(s.vision for s in specs)
     store = Results(out / "results.csv")  # as the lock found it (a sweep may just have ended)
-    if outputs.read_manifest(out) is None:  # an earlier run's keeps what it wrote (kept_edits)
+    if outputs.read_manifest(out) is None:  # an earlier run's keeps its digests (keep_edits)
         outputs.write_json(out / outputs.MANIFEST, outputs.manifest(COMMAND))
     record_sweep_file(out, definition, options, specs)
     store.repair()
