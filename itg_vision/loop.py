@@ -310,7 +310,7 @@ class Session:
         controller (None: no limit).
     tracking_start : first set point of the tracking phase (default: the second half).
     progress : called with 1 when a set point is done.
-    recorder : optional video recorder (``frame(feedback, desired_mm)`` per set point).
+    recorder : optional video recorder (``frame(feedback, desired_mm, label)`` per set point, labelled ``k N`` as trace.csv).
     """
 
     def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool | None = None,
@@ -435,7 +435,7 @@ class Session:
 
     def _finish_set_point(self, truth: dict) -> None:
         if self.recorder is not None:
-            self.recorder.frame(self.feedback, self.desired_mm)
+            self.recorder.frame(self.feedback, self.desired_mm, label=f"k {self.k}")
         flags = (["out_of_reach"] if self._oor else []) + self._flags
         estimate = self._estimate if self._estimate is not None else Markers(
             np.full(3, np.nan), np.full(3, np.nan), tuple(truth))

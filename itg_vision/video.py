@@ -71,9 +71,10 @@ class VideoRecorder:
         self._stand_in: Path | None = None  # a temporary folder for a path OpenCV cannot take
         self.frames = 0  # frames written
 
-    def frame(self, feedback, desired_mm: np.ndarray) -> None:
+    def frame(self, feedback, desired_mm: np.ndarray, label: str = "") -> None:
         """One frame from ``feedback.last_observation`` (whole frames: the run forces
-        ``full_frame`` with ``--video``); nothing if it has none."""
+        ``full_frame`` with ``--video``); nothing if it has none. ``label`` (the set point,
+        ``k 12``: trace.csv's row) is written at the first panel's foot."""
         obs = feedback.last_observation
         views = obs.frames() if obs is not None else None
         if not views:
@@ -100,6 +101,10 @@ class VideoRecorder:
                                cv2.MARKER_CROSS, 14, 1, cv2.LINE_AA)
             cv2.putText(bgr, cam.name, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
             panels.append(bgr)
+        if label:
+            h = panels[0].shape[0]
+            cv2.putText(panels[0], label, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0),
+                        1, cv2.LINE_AA)
         frame = np.hstack(panels)
         if self._writer is None:
             h, w = frame.shape[:2]

@@ -116,3 +116,39 @@ def test_a_video_one_frame_short_is_an_error(tmp_path):
     rec.frames += 1  # the recorder believes one frame more than the file holds
     with pytest.raises(UserError, match="only 5 of its 6 frames"):
         rec.close(check=True)
+
+
+def test_each_frame_is_labelled_with_its_set_point_as_trace_csv_counts_them(written):
+    """A frame carries its set point (trace.csv's k) at the first panel's foot, so that a
+    moment of the video can be found in the trace; the loop hands the recorder k 0, k 1, ...
+    (a frame had no index)."""
+    from itg_vision.feedback import TruthFeedback
+    from itg_vision.loop import simulate
+    from itg_vision.world import World
+
+    for label in ("", "k 12"):
+        written.clear()
+        video.VideoRecorder("unused").frame(_eye({}), np.full(3, np.nan), label=label)
+        (frame,) = written
+        H = frame.shape[0]
+        foot = frame[H - 26:H - 4, 8:60].astype(int)
+        assert (np.abs(foot - BACKGROUND[0][::-1]).sum(axis=2) > 60).any() == bool(label)
+
+    class Labels:
+        seen: list = []
+
+        def frame(self, feedback, desired_mm, label=""):
+            self.seen.append(label)
+
+    class Hold:
+        uses_encoders = False
+
+        def step(self, desired_mm, markers, q_deg):
+            from itg_vision.contracts import Step
+            return Step(np.zeros(2))
+
+    rec = Labels()
+    with World(ArmSpec.from_args("two-link")) as world:
+        trace = simulate(world, Hold(), TruthFeedback(), np.array([[100.0, 0.0, 0.0]] * 4),
+                         iterations=2, recorder=rec)
+    assert rec.seen == ["k 0", "k 1", "k 2", "k 3"] == [f"k {k}" for k in range(len(trace.records))]
