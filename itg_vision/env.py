@@ -204,3 +204,12 @@ class TrackingEnv(gym.Env):
             obs["camera_images"] = tuple(np.ascontiguousarray(f, np.uint8)
                                          for f in self._feedback.last_observation.frames())
         return obs
+
+
+#: The id ``gymnasium.make`` knows the environment by, once this module is imported (``from
+#: itg_vision import TrackingEnv`` imports it), or in one call:
+#: ``gymnasium.make("itg_vision.env:itg_vision/Tracking-v0", arm="two-link", ...)``; the
+#: keyword arguments are the config's fields, as ``TrackingEnv`` takes them.
+ENV_ID = "itg_vision/Tracking-v0"
+if ENV_ID not in gym.registry:
+    gym.register(id=ENV_ID, entry_point="itg_vision.env:TrackingEnv")

@@ -356,3 +356,24 @@ def test_the_env_simulates_the_true_arm_not_the_model():
         assert obs["gripper_mm"][1] == pytest.approx(220.0, abs=1e-3)
     finally:
         env.close()
+
+
+def test_gymnasium_make_builds_the_env_by_its_id():
+    """`gymnasium.make("itg_vision.env:itg_vision/Tracking-v0", ...)` gives the env that
+    TrackingEnv(...) gives, with the same episode for the same seed and actions (there was no
+    id to make it by)."""
+    import gymnasium as gym
+
+    made = gym.make("itg_vision.env:itg_vision/Tracking-v0", feedback="truth", noise_mm=0.2,
+                    points=6, seed=3)
+    direct = TrackingEnv(feedback="truth", noise_mm=0.2, points=6, seed=3)
+    try:
+        assert isinstance(made.unwrapped, TrackingEnv)
+        rewards = []
+        for env in (made, direct):
+            env.reset(seed=7)
+            rewards.append([env.step(np.array([1.0, -2.0]))[1] for _ in range(6)])
+        assert rewards[0] == rewards[1]
+    finally:
+        made.close()
+        direct.close()
