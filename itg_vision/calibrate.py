@@ -80,7 +80,8 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
         except UserError as exc:
             if not force:
                 raise UserError(f"--out {out}: exists and is not a rig file ({exc}); choose "
-                                "another --out, or add --force to replace it") from None
+                                "another --out, or add --force to replace it (the old one is "
+                                "kept beside it as .replaced-N)") from None
         else:
             truth = old.true_rig and resolve_relative(old.true_rig, out)
             ours = bool(truth) and Path(truth).resolve() == Path(rig_path).resolve()
@@ -88,7 +89,7 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
                 what = (f"a calibration of {old.true_rig}, not of {rig_path}" if old.true_rig
                         else f"the rig file {old.name!r}, not a calibration of {rig_path}")
                 raise UserError(f"--out {out}: is {what}; choose another --out, or add --force "
-                                "to replace it")
+                                "to replace it (the old one is kept beside it as .replaced-N)")
     if pic.exists() and not ours and not force:
         raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "
                         "picture; choose another --out, or add --force")

@@ -326,7 +326,7 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
         if not (isinstance(recorded, list) and all(isinstance(e, str) for e in recorded)):
             raise UserError(f"{option} {out}: was made by an earlier itg_vision, whose manifest "
                             f"does not list what it wrote; choose another {option}, or add "
-                            "--force to replace it")
+                            "--force to replace it (the old one is kept beside it as .replaced-N)")
         try:
             foreign = _foreign(path, set(recorded))
         except OSError as exc:
@@ -345,11 +345,13 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
                         f"choose another {option}, or add --force to write there anyway (the folder is kept)")
     if made is not None:
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
-                        f"`{command}`; choose another {option}, or add --force to replace it")
+                        f"`{command}`; choose another {option}, or add --force to replace it (the "
+                        "old one is kept beside it as .replaced-N)")
     shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
     n = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
     raise UserError(f"{option} {out}: is a folder that {command} did not make ({n}: {shown}); "
-                    f"choose another {option}, or add --force to replace it")
+                    f"choose another {option}, or add --force to replace it (the old one is kept "
+                    "beside it as .replaced-N)")
 
 
 def _pid_alive(pid: int) -> bool:

@@ -236,7 +236,8 @@ def _check_default_out(out: Path, key: dict, force: bool) -> None:
     diff += [f"content of the {k} file" for k in sorted(key["inputs_sha256"])
              if old.get("inputs_sha256", {}).get(k) != key["inputs_sha256"][k]]
     raise UserError(f"{out} holds an earlier run with other settings ({', '.join(diff) or 'version'}"
-                    "); give --out, or --force to replace it")
+                    "); give --out, or --force to replace it (the old one is kept beside it as "
+                    ".replaced-N)")
 
 
 def main(argv: list[str] | None = None) -> int:
