@@ -96,7 +96,7 @@ PARAM_UNITS = {"f": "deg/mm", "S": "deg", "w": "mm"}
 PARAM_DEFAULTS = {"f": 0.5, "S": 2.0, "w": 0.5}
 PARAM_NAMES = ("f", "S", "w")
 #: The declaration that a rule base's S is the loop's servo limit (a line of its own).
-SERVO_STEP = re.compile(r"^[ \t]*#![ \t]*S is the servo limit[ \t]*$", re.M)  # indented too
+SERVO_STEP = re.compile(r"^[ \t]*#![ \t]*S is the servo limit[ \t\r]*$", re.M)  # indented too
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: A joint's name, q1..q9: what an action sets.
 JOINT_NAME = re.compile(r"q[1-9]")
@@ -292,7 +292,10 @@ class _Parser:
             return ": '=' is not a comparison, '==' is"
         if JOINT_NAME.fullmatch(tok.text) and after is not None \
                 and after.text in ("+=", "-=", "=", "HOLD") and (before is None or before.text != ","):
-            return ": the next action needs a ',' before it"
+            opened = next((t.text for t in reversed(self.t[:k]) if t.kind == "kw"
+                           and t.text in ("THEN", "RULE")), None)  # in the actions, or before?
+            return (": the next action needs a ',' before it" if opened == "THEN" else
+                    ": is 'THEN' missing before the actions?")
         for a, b in ((before, tok), (tok, after)):  # '||' or '**' written as in C or Python
             if a is not None and b is not None and a.text == b.text and a.text in ("|", "*") \
                     and (b.line, b.col) == (a.line, a.col + 1):
@@ -884,6 +887,11 @@ class RuleBase:
         lines = text.split("\n")  # the tokenizer's lines
         rules = [replace(r, text=lines[r.line - 1].strip()) for r in rules]
         servo_step = bool(SERVO_STEP.search(text))
+        for k, line in enumerate(text.split("\n"), 1):  # a '#!' line is the parser's: no slips
+            if line.lstrip().startswith("#!") and not SERVO_STEP.fullmatch(line.rstrip("\r")):
+                raise UserError(f"{source}:{k}: {clip(line.strip())!r} is not a declaration "
+                                "the parser knows (the only one: '#! S is the servo limit', "
+                                "a line of its own); a comment starts with '#' alone")
         if servo_step and "S" not in params:
             raise UserError(f"{source}: S is the servo limit here (its '#! S is the servo limit' "
                             "line): give S, the largest joint step per iteration in deg")

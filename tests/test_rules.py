@@ -77,6 +77,14 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q1 += F", ":1:31:", "unknown name 'F' (known: L, L1, L2, S, f, q1, "
      "q2, rd2, re2, rg2, w, xd, xe, xg, yd, ye, yg, zd, ze, zg); did you mean 'f'? names are "
      "case-sensitive\n"),
+    # an action right after the condition: THEN is missing, not a ','
+    ("RULE 1: IF 1 > 0 q1 += 1, q2 HOLD", ":1:18:", "(found 'q1'): is 'THEN' missing before the "
+     "actions?\n"),
+    # a '#!' line that is not the one declaration (it was read as a comment: S fell back to
+    # --step and the servo limit went unapplied, E_av 46 -> 225 mm on itg-plus-two-link)
+    ("#! S is the servo limit (deg)\nRULE 1: IF xd > xg THEN q1 += S", ":1: ", "'#! S is the "
+     "servo limit (deg)' is not a declaration the parser knows (the only one: '#! S is the "
+     "servo limit', a line of its own); a comment starts with '#' alone\n"),
     ("RULE 1: IF e > 0 THEN q1 += f\nLET e = xd - xg", ":1:12:", "unknown name 'e' here: the LET "
      "on line 2 defines it below, and a LET must come before the rules and LETs that use it\n"),
 ])
@@ -798,3 +806,14 @@ def test_a_rule_file_reads_alike_whatever_its_line_ends(tmp_path, newline):
     rb = RuleBase.from_file(path, 2, TWO)
     ref = RuleBase.from_text(text, 2, TWO)
     assert [(r.number, r.line, r.text) for r in rb.rules] == [(r.number, r.line, r.text) for r in ref.rules]
+
+
+def test_the_servo_limit_declaration_is_read_indented_and_spaced_but_not_misspelt():
+    """'#! S is the servo limit' is read with spaces around it, on a line of its own; a
+    misspelt one is an error (the previous test's table), never a silent comment."""
+    for line in ("#! S is the servo limit", "   #!   S is the servo limit   ",
+                 "#!\tS is the servo limit\r"):
+        rb = RuleBase.from_text(line + "\nRULE 1: IF xd > xg THEN q1 += S", 2, TWO, S=20.0)
+        assert rb.servo_step, line
+    assert not RuleBase.from_text("# S is the servo limit\nRULE 1: IF xd > xg THEN q1 += S", 2,
+                                  TWO, S=2.0).servo_step
