@@ -27,7 +27,7 @@ from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrat
 from .camera import Rig, resolve_rig
 from .errors import ConfigError, UserError, exit_status, run_main
 from .inputs import file_sha256
-from .outputs import check_path, keep_aside
+from .outputs import FORCE_REPLACES, check_path, keep_aside
 from .progress import progress
 
 # ---------------------------------------------------------------------------- command line
@@ -80,16 +80,15 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
         except UserError as exc:
             if not force:
                 raise UserError(f"--out {out}: exists and is not a rig file ({exc}); choose "
-                                "another --out, or add --force to replace it (the old one is "
-                                "kept beside it as .replaced-N)") from None
+                                f"another --out, or add {FORCE_REPLACES}") from None
         else:
             truth = old.true_rig and resolve_relative(old.true_rig, out)
             ours = bool(truth) and Path(truth).resolve() == Path(rig_path).resolve()
             if not ours and not force:
                 what = (f"a calibration of {old.true_rig}, not of {rig_path}" if old.true_rig
                         else f"the rig file {old.name!r}, not a calibration of {rig_path}")
-                raise UserError(f"--out {out}: is {what}; choose another --out, or add --force "
-                                "to replace it (the old one is kept beside it as .replaced-N)")
+                raise UserError(f"--out {out}: is {what}; choose another --out, or add "
+                                f"{FORCE_REPLACES}")
     if pic.exists() and not ours and not force:
         raise UserError(f"--out {out}: {pic} exists and would be replaced by the corner "
                         "picture; choose another --out, or add --force")

@@ -59,7 +59,7 @@ from .arm import ArmSpec
 from .loop import Session
 from .contracts import Step
 from .errors import ConfigError
-from .runner import CONTROLLERS, RunConfig, given_rule_params, prepare, start_up_geometry
+from .runner import RunConfig, given_rule_params, prepare, start_up_geometry
 from .world import World
 
 #: Bounds of the observed positions (mm): none. An arm file's links and a trajectory file's
@@ -96,9 +96,7 @@ class TrackingEnv(gym.Env):
         if set_:  # (a rule setting was accepted and unused: it read as in use)
             raise ConfigError(set_[0], "sets a controller; in the environment you are the "
                                        "controller")
-        if cfg.controller not in CONTROLLERS:  # not used, but a typo is not a setting
-            raise ConfigError("controller", f"unknown {cfg.controller!r} (choose from "
-                                            f"{', '.join(CONTROLLERS)})")
+        cfg.validate()  # as given: the controller it names is not used, but a typo is no setting
         if cfg.max_step_deg is None:  # an action space needs bounds: the arm file's limit
             cfg = dataclasses.replace(cfg, max_step_deg=ArmSpec.from_args(cfg.arm).benchmark[
                 "max_step_deg"])

@@ -179,6 +179,9 @@ def edited(folder: Path, made: dict) -> list[str]:
     return sorted(e for e, h in now.items() if h != recorded[e])
 
 
+#: How a refusal offers --force where it would replace an output (what --force does to it).
+FORCE_REPLACES = "--force to replace it (the old one is kept beside it as .replaced-N)"
+
 #: Files that file managers put into any folder they show (macOS Finder, Windows Explorer):
 #: never listed, so that looking at a result does not make it the user's.
 OS_METADATA = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
@@ -326,7 +329,7 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
         if not (isinstance(recorded, list) and all(isinstance(e, str) for e in recorded)):
             raise UserError(f"{option} {out}: was made by an earlier itg_vision, whose manifest "
                             f"does not list what it wrote; choose another {option}, or add "
-                            "--force to replace it (the old one is kept beside it as .replaced-N)")
+                            f"{FORCE_REPLACES}")
         try:
             foreign = _foreign(path, set(recorded))
         except OSError as exc:
@@ -345,13 +348,11 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
                         f"choose another {option}, or add --force to write there anyway (the folder is kept)")
     if made is not None:
         raise UserError(f"{option} {out}: holds the output of `{made.get('command')}`, not of "
-                        f"`{command}`; choose another {option}, or add --force to replace it (the "
-                        "old one is kept beside it as .replaced-N)")
+                        f"`{command}`; choose another {option}, or add {FORCE_REPLACES}")
     shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
     n = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
     raise UserError(f"{option} {out}: is a folder that {command} did not make ({n}: {shown}); "
-                    f"choose another {option}, or add --force to replace it (the old one is kept "
-                    "beside it as .replaced-N)")
+                    f"choose another {option}, or add {FORCE_REPLACES}")
 
 
 def _pid_alive(pid: int) -> bool:

@@ -96,7 +96,7 @@ PARAM_UNITS = {"f": "deg/mm", "S": "deg", "w": "mm"}
 PARAM_DEFAULTS = {"f": 0.5, "S": 2.0, "w": 0.5}
 PARAM_NAMES = ("f", "S", "w")
 #: The declaration that a rule base's S is the loop's servo limit (a line of its own).
-SERVO_STEP = re.compile(r"^[ \t]*#![ \t]*S is the servo limit[ \t\r]*$", re.M)  # indented too
+SERVO_STEP = re.compile(r"[ \t]*#![ \t]*S is the servo limit[ \t\r]*")  # indented too
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: A joint's name, q1..q9: what an action sets.
 JOINT_NAME = re.compile(r"q[1-9]")
@@ -886,12 +886,13 @@ class RuleBase:
         rules = parser.rules()
         lines = text.split("\n")  # the tokenizer's lines
         rules = [replace(r, text=lines[r.line - 1].strip()) for r in rules]
-        servo_step = bool(SERVO_STEP.search(text))
-        for k, line in enumerate(text.split("\n"), 1):  # a '#!' line is the parser's: no slips
-            if line.lstrip().startswith("#!") and not SERVO_STEP.fullmatch(line.rstrip("\r")):
+        declared = [(k, line) for k, line in enumerate(lines, 1) if line.lstrip().startswith("#!")]
+        for k, line in declared:  # a '#!' line is the parser's: no slips
+            if not SERVO_STEP.fullmatch(line):
                 raise UserError(f"{source}:{k}: {clip(line.strip())!r} is not a declaration "
                                 "the parser knows (the only one: '#! S is the servo limit', "
                                 "a line of its own); a comment starts with '#' alone")
+        servo_step = bool(declared)
         if servo_step and "S" not in params:
             raise UserError(f"{source}: S is the servo limit here (its '#! S is the servo limit' "
                             "line): give S, the largest joint step per iteration in deg")

@@ -236,8 +236,7 @@ def _check_default_out(out: Path, key: dict, force: bool) -> None:
     diff += [f"content of the {k} file" for k in sorted(key["inputs_sha256"])
              if old.get("inputs_sha256", {}).get(k) != key["inputs_sha256"][k]]
     raise UserError(f"{out} holds an earlier run with other settings ({', '.join(diff) or 'version'}"
-                    "); give --out, or --force to replace it (the old one is kept beside it as "
-                    ".replaced-N)")
+                    f"); give --out, or {outputs.FORCE_REPLACES}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -263,11 +262,10 @@ def main(argv: list[str] | None = None) -> int:
         note = traj.span_note(prep.trajectory, prep.true_arm.reach_mm()[1])
         if note:
             print(note, file=sys.stderr)
-        points = prep.trajectory.points_mm
-        n_in = sum(prep.true_arm.reachable(p) for p in points)
-        if 2 * n_in < len(points):  # in reach: as the metrics count them
-            print(f"note: {len(points) - n_in} of the {len(points)} set points are out of the "
-                  f"arm's reach: every metric rests on the {n_in} in reach", file=sys.stderr)
+        n, n_in = len(prep.trajectory), prep.n_in_reach
+        if 2 * n_in < n:
+            print(f"note: {n - n_in} of the {n} set points are out of the arm's reach: every "
+                  f"metric rests on the {n_in} in reach", file=sys.stderr)
         key = run_key(prep)
         if args.out is not None:  # '' is check_path's empty-path error, not the default folder
             out = outputs.check_path(args.out)

@@ -182,6 +182,7 @@ class Prepared:
     feedback_factory: object
     info: dict = field(default_factory=dict)
     preview: Preview | None = None  # the preview's plan (None: no preview)
+    n_in_reach: int = 0  # set points the simulated arm can reach: those the metrics count
 
 
 def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) -> Prepared:
@@ -215,7 +216,8 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
     if trajectory.planar and not model.planar:
         raise ConfigError(field, f"arm {model.name} needs a 3-D trajectory "
                                  f"(x_mm,y_mm,z_mm), but {trajectory.name} is planar")
-    if not any(true_arm.reachable(p) for p in trajectory.points_mm):
+    n_in_reach = sum(true_arm.reachable(p) for p in trajectory.points_mm)
+    if not n_in_reach:
         lo, hi = true_arm.reach_mm()
         if cfg.true_links_mm is not None and any(model.reachable(p) for p in trajectory.points_mm):
             field = "true_links_mm"  # the model reaches them: the simulated arm's lengths do not
@@ -275,7 +277,8 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
             return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,
                                   dropout=cfg.dropout, strobe=cfg.strobe,
                                   supersample=supersample, full_frame=cfg.full_frame)
-    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, planned)
+    return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, planned,
+                    n_in_reach)
 
 
 def given_rule_params(cfg: RunConfig) -> dict[str, float]:

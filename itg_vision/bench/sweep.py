@@ -507,6 +507,12 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
     return tuple(out)
 
 
+@functools.cache
+def _shipped_defaults(key: str) -> frozenset[str]:
+    """The rule bases the shipped arm files name in ``defaults[key]`` (read once)."""
+    return frozenset(ArmSpec.from_args(a).defaults[key] for a in arm_names())
+
+
 def controller_title(spec: RunSpec) -> str:
     """What a controller of the sweep is, for the report. A rule-based controller's title names
     the shipped arms' rule base (the paper's, or ITG+); an arm file of yours may name another
@@ -514,7 +520,7 @@ def controller_title(spec: RunSpec) -> str:
     if spec.controller in CONTROLLER_TITLES:
         title = CONTROLLER_TITLES[spec.controller]
         key = ALL_CONTROLLERS[spec.controller][3]
-        if key and spec.rules not in {ArmSpec.from_args(a).defaults[key] for a in arm_names()}:
+        if key and spec.rules not in _shipped_defaults(key):
             title += f"; here the rule base your arm file names instead (defaults.{key}: {spec.rules})"
         return title
     fed = ("vision (no model)" if spec.feedback == "vision"
@@ -630,18 +636,23 @@ def _file_sha(path: Path) -> str:
     return file_sha256(path)[:12]
 
 
-def inputs_sha(trajectory: str, vision: bool, arm: str | None = None) -> str:
-    """A hash of the files a run of ``trajectory`` reads besides its rule base and calibrated
-    rig: its arm file, the trajectory's file (a named trajectory is code) and, for a run fed by
-    vision, the arm's true rig (what renders the images). An edited file is a new run of
-    exactly the runs that read it."""
+def _read_files(trajectory: str, vision: bool, arm: str) -> list[Path]:
+    """The files a run of ``trajectory`` reads besides its rule base and calibrated rig: its
+    arm file, for a run fed by vision the arm's true rig (what renders the images), and the
+    trajectory's file (a named trajectory is code)."""
     from ..arm import arm_path
     from ..camera import default_rig_path
 
-    arm = arm or TRAJECTORIES[trajectory]
     files = [arm_path(arm)] + ([default_rig_path(arm)] if vision else [])
     if trajectory in TRAJECTORY_FILES or is_trajectory_file(trajectory):
         files.append(Path(trajectory_source(trajectory)))
+    return files
+
+
+def inputs_sha(trajectory: str, vision: bool, arm: str | None = None) -> str:
+    """A hash of :func:`_read_files`: an edited file is a new run of exactly the runs that
+    read it."""
+    files = _read_files(trajectory, vision, arm or TRAJECTORIES[trajectory])
     return hashlib.sha256("".join(_file_sha(f) for f in files).encode()).hexdigest()[:12]
 
 
@@ -649,19 +660,12 @@ def input_files(specs) -> dict[str, str]:
     """Every file the runs of ``specs`` read (arm files, rule bases, the rigs that render,
     trajectory files, calibrated rigs), by absolute path -> the start of its SHA-256: what
     sweep.json records, so that a resume refused for an edited file can name it."""
-    from ..arm import arm_path
-    from ..camera import default_rig_path
-
     files: dict[Path, None] = {}
     for arm, rules, vision, traj, rig in {(s.arm, s.rules, s.vision, s.trajectory, s.rig)
                                           for s in specs}:
-        files[arm_path(arm)] = None
+        files.update(dict.fromkeys(_read_files(traj, vision, arm)))
         if rules:
             files[resolve_rules_path(rules)] = None
-        if vision:
-            files[default_rig_path(arm)] = None
-        if traj in TRAJECTORY_FILES or is_trajectory_file(traj):
-            files[Path(trajectory_source(traj))] = None
         if rig == "calibrated":
             files[calibrated_rig_path(arm)] = None
     return {str(p.resolve()): _file_sha(p) for p in sorted(files)}
