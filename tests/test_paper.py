@@ -449,3 +449,23 @@ def test_the_tie_experiment_runs_the_links_it_reports(monkeypatch):
     rows = paper.tie_experiment()
     assert ran == [tuple(r["links_mm"]) for r in rows]
     assert set(ran) == set(paper.TIE_LINKS_MM)
+
+
+@pytest.mark.slow
+def test_experiment_5a_polar_readings_match_the_ellipse_closed_form(paper_run):
+    """The peaks' polar angles about T1's centre and about the base against the closed form of
+    the paper's ellipse at each peak's parameter angle t (centre (20, -30) mm, axes 130 and 80
+    mm, so semi-axes 65 and 40, turned -45 deg: c + R(-45) (65 cos t, 40 sin t)), not the points
+    the run read."""
+    _, r = paper_run
+    c, a, b, phi = np.array([20.0, -30.0]), 65.0, 40.0, np.radians(-45.0)
+    rot = np.array([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+    for v in r["exp5"].values():
+        for t, centre_deg, base_deg in zip(v["second_lap_peaks_deg"],
+                                           v["second_lap_peaks_about_centre_deg"],
+                                           v["second_lap_peaks_about_base_deg"]):
+            off = rot @ [a * np.cos(np.radians(t)), b * np.sin(np.radians(t))]
+            for got, vec in ((centre_deg, off), (base_deg, c + off)):
+                want = np.degrees(np.arctan2(vec[1], vec[0])) % 360
+                gap = abs(got - want) % 360
+                assert min(gap, 360 - gap) < 1e-6, (t, got, want)
