@@ -20,7 +20,8 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
-from .shipped import ARMS_DIR, TRAJECTORY_NAMES, rig_names, rule_names, trajectory_file_names
+from .shipped import (ARMS_DIR, TRAJECTORY_NAMES, or_a_path, rig_names, rule_names,
+                      trajectory_file_names)
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -200,8 +201,8 @@ def arm_path(name_or_path: str) -> Path:
         return Path(name_or_path)
     candidate = ARMS_DIR / f"{name_or_path}.yaml"
     if not candidate.exists():
-        raise UserError(f"unknown arm {name_or_path!r} (choose from {', '.join(arm_names())}, "
-                        "or give an arm file's path)")
+        raise UserError(f"unknown arm {name_or_path!r} (choose from {', '.join(arm_names())}; "
+                        f"{or_a_path(name_or_path, 'an arm file', '.yaml')})")
     return candidate
 
 

@@ -49,7 +49,7 @@ import yaml
 
 from .errors import UserError
 from .inputs import Fields, file_sha256, read_yaml, resolve_relative
-from .shipped import CAMERAS_DIR
+from .shipped import CAMERAS_DIR, or_a_path, rig_names
 
 _MM = 1e-3
 #: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
@@ -81,7 +81,11 @@ def resolve_rig(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or "/" in name_or_path or os.sep in name_or_path:
         return p
-    return CAMERAS_DIR / f"{name_or_path}.yaml"
+    shipped = CAMERAS_DIR / f"{name_or_path}.yaml"
+    if not shipped.exists():
+        raise UserError(f"unknown rig {name_or_path!r} (shipped: {', '.join(rig_names())}; "
+                        f"{or_a_path(name_or_path, 'a rig file', '.yaml')})")
+    return shipped
 
 
 def default_rig_path(arm, calibrated: bool = False) -> Path:

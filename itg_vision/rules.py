@@ -81,7 +81,7 @@ import numpy as np
 from .contracts import Step
 from .errors import UserError
 from .inputs import clip, is_real, is_whole, read_text
-from .shipped import RULES_DIR, rule_names
+from .shipped import RULES_DIR, or_a_path, rule_names
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
@@ -1164,7 +1164,7 @@ def resolve_rules_path(name_or_path: str) -> Path:
     if not candidate.exists():
         shipped = rule_names()
         raise UserError(f"unknown rule base {name_or_path!r} (shipped: {', '.join(shipped)}; "
-                        f"or give a path to a rule file: ./{name_or_path} for one in this folder)")
+                        f"{or_a_path(name_or_path, 'a rule file', '.rules')})")
     return candidate
 
 

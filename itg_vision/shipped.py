@@ -38,3 +38,13 @@ def rule_names() -> list[str]:
 def rig_names() -> list[str]:
     """The shipped rigs (``planar``, ``three-link``, ...; calibrations too)."""
     return sorted(p.name[:-len(".yaml")] for p in CAMERAS_DIR.glob("*.yaml"))
+
+
+def or_a_path(name: str, kind: str, suffix: str) -> str:
+    """The end of an 'unknown <kind>' message for a name that is not shipped: a file of that
+    name in the current folder, which a name does not reach (a name is always a shipped one),
+    given as the path that does; else how a path is told from a name."""
+    for candidate in (f"{name}{suffix}", name):
+        if Path(candidate).is_file():
+            return f"./{candidate} is in this folder: give it as a path, ./{candidate}"
+    return f"or give the path of {kind} (a name ending in {suffix} or holding a '/')"

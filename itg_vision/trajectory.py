@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import clip, read_text
-from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES, trajectory_file_names
+from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES, or_a_path, trajectory_file_names
 
 
 @dataclass(frozen=True)
@@ -171,8 +171,8 @@ def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
     """
     if name not in NAMES:
         raise UserError(f"unknown trajectory {name!r} (choose from {', '.join(NAMES)}; the "
-                        f"shipped files {', '.join(trajectory_file_names())}; or give a path "
-                        "to a CSV file)")
+                        f"shipped files {', '.join(trajectory_file_names())}; "
+                        f"{or_a_path(name, 'a CSV file', '.csv')})")
     n = DEFAULT_POINTS[name] if n_points is None else int(n_points)
     if n < 2 or (name == "abcd" and n % 2):
         raise ConfigError("points", f"{name} needs {'an even number of' if name == 'abcd' else 'at least 2'} "

@@ -420,7 +420,7 @@ def _camera_looking_away(tmp_path):
     (["--views", "6", "--rig", "AWAY"], "away.yaml: cameras[1] (right): never found the board in "
                                         "6 views: is it pointed at the workspace?"),
     (["--views", "0"], "--views"),
-    (["--rig", "no-such-rig"], "cannot read rig file"),
+    (["--rig", "no-such-rig"], "unknown rig 'no-such-rig' (shipped: planar,"),
 ])
 def test_failures_exit_2_with_one_line_and_keep_the_old_file(cli, tmp_path, args, expect):
     out = tmp_path / "old.calib.yaml"

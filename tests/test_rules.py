@@ -765,7 +765,8 @@ def test_a_file_or_folder_named_like_a_shipped_rule_base_does_not_replace_it(tmp
     (tmp_path / "mine.rules").write_text("")
     assert resolve_rules_path("./table1") == Path("./table1")
     assert resolve_rules_path("mine.rules") == Path("mine.rules")
-    with pytest.raises(UserError, match=r"unknown rule base 'mine' .*\./mine for one in this folder"):
+    with pytest.raises(UserError, match=r"unknown rule base 'mine' .*; \./mine\.rules is in this "
+                                        r"folder: give it as a path, \./mine\.rules\)$"):
         resolve_rules_path("mine")
 
 

@@ -676,3 +676,30 @@ def test_a_default_folder_for_a_long_file_name_is_shortened_and_written(main_in_
     assert res.returncode == 0, res.stderr
     (folder,) = (tmp_path / "runs").iterdir()
     assert (folder / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("option, name, local, shipped_kind", [
+    ("--rules", "mine", "mine.rules", "unknown rule base"),
+    ("--arm", "myarm", "myarm.yaml", "unknown arm"),
+    ("--rig", "myrig", "myrig.yaml", "unknown rig"),
+    ("--trajectory", "mypath", "mypath.csv", "unknown trajectory"),
+])
+def test_a_name_that_is_not_shipped_points_to_the_file_of_that_name_here(
+        tmp_path, monkeypatch, capsys, option, name, local, shipped_kind):
+    """A bare name is always a shipped one; a user's file of that name in the current folder
+    is named in the error as the path that reaches it (`--rig myrig` used to say that the
+    project's cameras/myrig.yaml could not be read, `--rules mine` to suggest ./mine for a
+    mine.rules), and without one the error says how a path is told from a name."""
+    from itg_vision.run import main
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    assert main([option, name, "--points", "10", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {shipped_kind} '{name}' (") and "\n" not in err
+    assert err.endswith("or holding a '/'))") and "is in this folder" not in err
+    (tmp_path / local).write_text("")
+    assert main([option, name, "--points", "10", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"; ./{local} is in this folder: give it as a path, ./{local})")
+    assert not out.exists()
