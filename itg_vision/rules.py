@@ -966,8 +966,9 @@ class RuleBase:
             self._check_names([r.condition] + [a.step for a in r.actions], known | above)
             for a in r.actions:
                 if a.kind != "out" and not 1 <= a.joint <= self.n_joints:
-                    raise UserError(f"{self.source}:{a.where[0]}:{a.where[1]}: RULE {r.number} moves q{a.joint}, "
-                                    f"but the arm has {self.n_joints} joint(s)")
+                    raise UserError(f"{self.source}:{a.where[0]}:{a.where[1]}: RULE {r.number} "
+                                    f"{'holds' if a.kind == 'hold' else 'moves'} q{a.joint}, but "
+                                    f"the arm has {self.n_joints} joint(s)")
             if r.out_of_reach and len(r.actions) > 1:
                 out = next(a for a in r.actions if a.kind == "out")
                 raise UserError(f"{self.source}:{out.where[0]}:{out.where[1]}: OUT_OF_REACH must be "

@@ -38,7 +38,8 @@ def table2(f=0.5):
      "at line 1, column 12) (found 'THEN')"),
     ("RULE 1: IF (xd - xg) * > 1 THEN q1 += S", ":1:24:", "expected a number, a name"),
     ("RULE 1: IF xd > xg THEN q3 += S", ":1:25:", "moves q3, but the arm has 2 joint(s)"),
-    ("RULE 1: IF xd > xg THEN q1 += S, q3 HOLD", ":1:34:", "moves q3"),
+    ("RULE 1: IF xd > xg THEN q3 HOLD", ":1:25:", "holds q3, but the arm has 2 joint(s)"),
+    ("RULE 1: IF xd > xg THEN q1 += S, q3 HOLD", ":1:34:", "holds q3"),
     ("RULE 1: IF xd > xg THEN q1 += S, OUT_OF_REACH", ":1:34:", "OUT_OF_REACH must be"),
     ("RULE 1: IF xd > xg THEN q1 += f * sin(xd - xg)", ":1:35:", "'sin(' reads as a function "
      "call, and the rule language has none"),
