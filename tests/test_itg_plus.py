@@ -525,11 +525,11 @@ RADIAL_RULES = {"two-link": {13, 14, 15}, "three-link": {10, 11, 12}}
 
 @pytest.mark.parametrize("name", ["two-link", "three-link"])
 def test_the_straight_start_dead_band_ends_4w_from_the_arms_line(name):
-    """The dead band of the singular rules, (a . (u x w))^2 <= (4 w)^2 |e - s|^2 (two-link:
+    """The dead band of the singular rules, (a . (u x v))^2 <= (4 w)^2 |e - s|^2 (two-link:
     C^2 <= 16 w^2 re2; a the joint axis, z for the planar arm; s the base or the shoulder; u = g -
-    e, w = g - s), at the straight start, where a . (u x w) = 0. The gripper observed moved by
+    e, v = g - s; w the tolerance), at the straight start, where a . (u x v) = 0. The gripper observed moved by
     delta along n = a x (e - s) / |a x (e - s)| (in the arm's plane, square to the
-    base/shoulder-elbow line) makes a . (u x w) = delta |a x (e - s)|, so the band ends at
+    base/shoulder-elbow line) makes a . (u x v) = delta |a x (e - s)|, so the band ends at
     delta* = 4 w |e - s| / |a x (e - s)|: 4 w = 2 mm on the two-link arm (e - s in the plane of
     motion); on the three-link arm the stand-off h = 12 mm along a lengthens |e - s| but not
     the lever, delta* = 4 w sqrt(100^2 + 12^2) / 100 = 2.014 mm. Observed 0.01 mm inside the edge
