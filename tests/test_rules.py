@@ -243,6 +243,28 @@ def test_three_link_rule0_uses_distance_from_shoulder():
     assert rb.step(np.array([250.0, 200.0, 400.0]), m, [0, 90, 0]).out_of_reach  # paper's B
 
 
+def test_three_link_set_point_level_with_the_shoulder_or_gripper_fires_no_pitch_rule():
+    """The file's comment: RULES 4 and 5 need zd's side of L1, so zd = L1 fires neither and moves
+    no q2 however far the radii differ, and zd = zg fires neither of RULES 6 and 7 (which need
+    zd's side of zg); a millimetre either way fires one and moves the joint."""
+    arm = ArmSpec.from_args("three-link")
+    L1 = arm.links_mm[0]
+    q = np.array([20.0, 40.0, -60.0])
+    m = forward_kinematics(arm, q)
+    g, e = m["gripper"], m["elbow"]
+    rb = load_rules("three-link", 3, arm.links_mm, f=0.05)
+    far = g * [1.1, 1.1, 0]  # radius 10 % larger (188 mm, in reach): rd2 > rg2
+    for dz, moves in ((0.0, False), (1.0, True), (-1.0, True)):
+        s = rb.step(far + [0, 0, L1 + dz], markers(g, e), q)
+        assert not s.out_of_reach and bool(s.dq_deg[1] != 0) is moves, (dz, s)
+        assert bool({4, 5} & set(s.fired)) is moves
+    level = np.array([g[0] - 30.0, g[1], g[2]])  # 30 mm nearer the base, at the gripper's height
+    for dz, moves in ((0.0, False), (1.0, True), (-1.0, True)):
+        s = rb.step(level + [0, 0, dz], markers(g, e), q)
+        assert not s.out_of_reach and bool(s.dq_deg[2] != 0) is moves, (dz, s)
+        assert bool({6, 7} & set(s.fired)) is moves
+
+
 @pytest.mark.parametrize("q", [(20, 40, -60), (60, 25, -30), (-30, 50, -90)])
 def test_three_link_vertical_plane_corrections_reduce_errors(q):
     arm = ArmSpec.from_args("three-link")
