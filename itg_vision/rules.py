@@ -116,6 +116,11 @@ _TOKEN = re.compile(r"""
 """, re.VERBOSE)
 
 
+#: A number run into letters, digits, '_' or a '.' ('1_000', '0x10', '1e', '5mm', '1.5.2').
+_GLUED = re.compile(r"[A-Za-z_0-9.]")
+_GLUED_WORD = re.compile(r"[A-Za-z_0-9.]+")
+
+
 @dataclass(frozen=True)
 class Token:
     kind: str  # num, name, kw, op, end
@@ -144,6 +149,11 @@ def tokenize(text: str, source: str = "<rules>") -> list[Token]:
         elif kind == "bad":
             hint = ": '&&' is not an operator here, AND is" if s == "&" else ""
             raise RuleSyntaxError(f"{source}:{line}:{col}: unexpected character {s!r}{hint}")
+        elif kind == "num" and _GLUED.match(text, m.end()):
+            word = _GLUED_WORD.match(text, m.start()).group()
+            raise RuleSyntaxError(f"{source}:{line}:{col}: {clip(word)!r} is not a number: write "
+                                  "digits, an optional '.' and exponent (1000, 0.5, 2.5e-3), and a "
+                                  "product with its * (2 * S)")
         elif kind == "num" and not math.isfinite(float(s)):
             raise RuleSyntaxError(f"{source}:{line}:{col}: number {clip(s)} is out of range "
                                   "(the largest is about 1.8e308)")

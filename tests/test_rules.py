@@ -86,6 +86,12 @@ def table2(f=0.5):
     ("#! S is the servo limit (deg)\nRULE 1: IF xd > xg THEN q1 += S", ":1: ", "'#! S is the "
      "servo limit (deg)' is not a declaration the parser knows (the only one: '#! S is the "
      "servo limit', a line of its own); a comment starts with '#' alone\n"),
+    # a number run into other characters is named whole, not read as two operands
+    ("RULE 1: IF xd > 1_000 THEN q1 += S", ":1:17:", "'1_000' is not a number: write digits"),
+    ("RULE 1: IF xd > 0x10 THEN q1 += S", ":1:17:", "'0x10' is not a number"),
+    ("RULE 1: IF xd > 5mm THEN q1 += S", ":1:17:", "'5mm' is not a number"),
+    ("RULE 1: IF xd > 1.5.2 THEN q1 += S", ":1:17:", "'1.5.2' is not a number"),
+    ("RULE 1: IF xd > 2e THEN q1 += S", ":1:17:", "'2e' is not a number"),
     ("RULE 1: IF e > 0 THEN q1 += f\nLET e = xd - xg", ":1:12:", "unknown name 'e' here: the LET "
      "on line 2 defines it below, and a LET must come before the rules and LETs that use it\n"),
 ])
