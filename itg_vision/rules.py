@@ -961,9 +961,18 @@ class RuleBase:
         known = self.known_names
         defined: dict[str, int] = {}  # LET name -> its line
         for d in self.definitions:
+            own = next((tok for name, tok in _names_in(d.expr) if name == d.name), None)
+            if own is not None and d.name not in known and d.name not in defined:
+                raise UserError(f"{self.source}:{own.line}:{own.col}: LET {d.name} uses "
+                                f"{d.name!r} itself: a name has one value, from one expression, "
+                                "and rules keep nothing between iterations; give the new value "
+                                "a new name")
             self._check_names([d.expr], known | set(defined))
             if d.name in known or d.name in defined or re.fullmatch(r"q\d+|L\d+", d.name):
-                first = f"LET on line {defined[d.name]}" if d.name in defined else "a built-in name"
+                first = (f"LET on line {defined[d.name]}" if d.name in defined else
+                         "a built-in name" if d.name in known else
+                         f"reserved: {d.name[0]}N names {'joint' if d.name[0] == 'q' else 'link'} "
+                         "N's " + ("angle" if d.name[0] == "q" else "length"))
                 raise UserError(f"{self.source}:{d.line}:{d.col}: {d.name!r} is already {first}")
             defined[d.name] = d.line
         seen: dict[int, int] = {}
@@ -1001,6 +1010,9 @@ class RuleBase:
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is link "
                                 f"{name[1:]}'s length, but only {len(self.links_mm)} link "
                                 f"length(s) were given (links_mm)")
+            if name not in known and re.fullmatch(r"q\d+", name):
+                raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is joint "
+                                f"{name[1:]}'s angle, but the arm has {self.n_joints} joint(s)")
             if name not in known:
                 later = next((d for d in self.definitions if d.name == name), None)
                 if later is not None:  # defined, but below its use

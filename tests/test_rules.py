@@ -86,6 +86,17 @@ def table2(f=0.5):
     ("#! S is the servo limit (deg)\nRULE 1: IF xd > xg THEN q1 += S", ":1: ", "'#! S is the "
      "servo limit (deg)' is not a declaration the parser knows (the only one: '#! S is the "
      "servo limit', a line of its own); a comment starts with '#' alone\n"),
+    # a joint the arm lacks: the same words in a LET's name and in use
+    ("LET q4 = xd\nRULE 1: IF xd > xg THEN q1 += S", ":1:5:", "'q4' is already reserved: qN names "
+     "joint N's angle\n"),
+    ("RULE 1: IF q4 > 0 THEN q1 += S", ":1:12:", "'q4' is joint 4's angle, but the arm has 2 "
+     "joint(s)\n"),
+    ("LET L7 = xd\nRULE 1: IF xd > xg THEN q1 += S", ":1:5:", "'L7' is already reserved: LN names "
+     "link N's length\n"),
+    # a LET of its own name: not "defined below" (it is the same line)
+    ("LET A = xd - xg\nLET B = B + A\nRULE 1: IF B > 0 THEN q1 += S", ":2:9:", "LET B uses 'B' "
+     "itself: a name has one value, from one expression, and rules keep nothing between "
+     "iterations; give the new value a new name\n"),
     # a number run into other characters is named whole, not read as two operands
     ("RULE 1: IF xd > 1_000 THEN q1 += S", ":1:17:", "'1_000' is not a number: write digits"),
     ("RULE 1: IF xd > 0x10 THEN q1 += S", ":1:17:", "'0x10' is not a number"),
