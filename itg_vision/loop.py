@@ -136,6 +136,9 @@ class Trace:
     n_at_last_aim: int = 0
     n_held: int = 0
     timing_ms: dict = field(default_factory=dict)
+    #: the largest joint increment applied in one iteration (deg, after the servo limit), its
+    #: joint and set point (1-based): a run can say that a step turned a joint a full turn
+    largest_step: tuple[float, int, int] = (0.0, 0, 0)
 
     def record(self, rec: SetPointRecord) -> None:
         self.records.append(rec)
@@ -388,6 +391,9 @@ class Session:
                              f"expected, got shape {dq.shape}")
         if self.max_step_deg is not None:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
+        j = int(np.argmax(np.abs(dq)))
+        if abs(dq[j]) > self.trace.largest_step[0]:  # NaN: the check below stops the run
+            self.trace.largest_step = (float(abs(dq[j])), j + 1, self.k + 1)
         # in Python floats: an overflow is inf without a warning (finite steps whose sum is not:
         # rules like q1 += q1), and the check costs what set_q's own does
         q = [a + b for a, b in zip(self.world.q_deg.tolist(), dq.tolist())]

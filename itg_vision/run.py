@@ -290,6 +290,11 @@ def main(argv: list[str] | None = None) -> int:
                                         "nominal model's lengths instead)") from None
                 finally:
                     bar.close()
+            big, joint, k = trace.largest_step
+            if big >= 360:
+                print(f"note: q{joint} turned {big:.6g} deg in one iteration (set point {k}): a "
+                      "full turn or more, which no servo does (--max-step bounds the steps)",
+                      file=sys.stderr)
             if args.video:
                 summary["video"] = recorder.path.name
                 summary["video_codec"] = recorder.codec_note

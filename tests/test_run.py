@@ -703,3 +703,24 @@ def test_a_name_that_is_not_shipped_points_to_the_file_of_that_name_here(
     err = capsys.readouterr().err.strip()
     assert err.endswith(f"; ./{local} is in this folder: give it as a path, ./{local})")
     assert not out.exists()
+
+
+def test_a_step_of_a_full_turn_or_more_is_said_once_naming_joint_and_set_point(tmp_path, capsys):
+    """`run` has no servo limit unless given: a rule's step of 100 / xg at the start (xg a few
+    mm) turned q1 by thousands of degrees in one iteration, silently. It is said once, with
+    the joint, the set point and the way out; under --max-step the step is bounded and
+    nothing is said."""
+    from itg_vision.run import main
+
+    rules = tmp_path / "big.rules"
+    rules.write_text("LET A = 100 / xg\nRULE 1: IF xd > xg THEN q1 += A\n"
+                     "RULE 2: IF xd > 0 THEN q2 HOLD\n")
+    base = ["--rules", str(rules), "--points", "10", "--quiet"]
+    assert main(base + ["--out", str(tmp_path / "a")]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "full turn" in ln]
+    assert len(notes) == 1 and re.match(r"note: q1 turned \d+(\.\d+)? deg in one iteration "
+                                        r"\(set point 1\): a full turn or more", notes[0]), notes
+    trace = np.genfromtxt(tmp_path / "a" / "trace.csv", delimiter=",", names=True)
+    assert float(notes[0].split()[3]) >= 360 and abs(trace["q1_deg"][0]) >= 360
+    assert main(base + ["--max-step", "20", "--out", str(tmp_path / "b")]) == 0
+    assert "full turn" not in capsys.readouterr().err
