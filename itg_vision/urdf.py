@@ -20,6 +20,10 @@ LED_RGB: dict[str, tuple[float, float, float]] = {
 LED_RADIUS_MM = 6.0
 ARM_RGB = (0.35, 0.36, 0.40)
 LINK_WIDTH_MM = 8.0
+#: The radius of the post that holds each LED (grey, the arm's colour). On the three-link arm
+#: the posts lie across the cameras' view and hide part of their own LED's image: the eye's
+#: centroid error there is the post's (README, "The eye's accuracy").
+LED_POST_RADIUS_MM = 1.5
 
 _MM = 1e-3
 
@@ -52,7 +56,7 @@ def _led_link(name: str, standoff_mm: float, post_axis: str = "z") -> str:
     if h > 0:
         xyz, rpy = ((0, 0, -h / 2), (0, 0, 0)) if post_axis == "z" else ((0, h / 2, 0), (1.5707963, 0, 0))
         post = (f'<visual><origin xyz="{xyz[0]:g} {xyz[1]:g} {xyz[2]:g}" rpy="{rpy[0]:g} {rpy[1]:g} {rpy[2]:g}"/>'
-                f'<geometry><cylinder radius="{0.0015:g}" length="{h:g}"/></geometry>'
+                f'<geometry><cylinder radius="{LED_POST_RADIUS_MM * _MM:g}" length="{h:g}"/></geometry>'
                 f'<material name="arm"/></visual>')
     return (
         f'<link name="{name}_led"><visual><geometry><sphere radius="{r:g}"/></geometry>'
