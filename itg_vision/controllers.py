@@ -166,6 +166,11 @@ def pitch_axis(g_mm, e_mm, standoff_mm: float, previous=None) -> np.ndarray:
     return np.array([a[0], a[1], 0.0])
 
 
+#: The Jacobian tracker's damping lambda (mm) unless given (``run --damping``). On the two-link
+#: ellipses it gives DLS its lowest clean tracking median of 0.5-20 mm; 0.5-2 mm give smaller
+#: clean maxima there but far larger ones near the base (README, "The baselines' settings").
+DEFAULT_DAMPING_MM = 5.0
+
 class JacobianTracker:
     """Damped least squares on a Jacobian built from measured marker positions only.
 
@@ -208,7 +213,8 @@ class JacobianTracker:
     name = "jacobian"
     uses_encoders = False  # the Jacobian is built from the markers alone
 
-    def __init__(self, geometry, planar: bool, n_joints: int, damping_mm: float = 5.0,
+    def __init__(self, geometry, planar: bool, n_joints: int,
+                 damping_mm: float = DEFAULT_DAMPING_MM,
                  max_step_deg: float | None = None):
         self.planar = planar
         self.n = n_joints
@@ -260,14 +266,17 @@ class JacobianTracker:
         return Step(dq, (), False)
 
 
-def make_controller(name: str, model: ArmSpec, geometry=None, max_step_deg: float | None = None):
+def make_controller(name: str, model: ArmSpec, geometry=None, max_step_deg: float | None = None,
+                    damping_mm: float | None = None):
     """A baseline by name: ``ik`` (nominal model) or ``jacobian`` (``geometry``: what was
-    measured at start-up, the nominal geometry if None; ``max_step_deg``: the servo limit)."""
+    measured at start-up, the nominal geometry if None; ``max_step_deg``: the servo limit;
+    ``damping_mm``: its lambda, None for :data:`DEFAULT_DAMPING_MM`)."""
     if name == "ik":
         return InverseKinematics(model)
     if name == "jacobian":
         from .identify import nominal_geometry
 
         return JacobianTracker(geometry or nominal_geometry(model), model.planar, model.n_joints,
+                               DEFAULT_DAMPING_MM if damping_mm is None else damping_mm,
                                max_step_deg=max_step_deg)
     raise UserError(f"unknown controller {name!r} (choose from itg, ik, jacobian)")

@@ -91,7 +91,8 @@ class TrackingEnv(gym.Env):
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)
-        set_ = [n for n, default in (("correction", 1.0), ("preview", False), ("rules", None))
+        set_ = [n for n, default in (("correction", 1.0), ("preview", False), ("rules", None),
+                                     ("damping_mm", None))
                 if getattr(cfg, n) != default] + list(given_rule_params(cfg))
         if set_:  # (a rule setting was accepted and unused: it read as in use)
             raise ConfigError(set_[0], "sets a controller; in the environment you are the "

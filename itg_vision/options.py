@@ -15,7 +15,7 @@ RULE_OPTIONS = {"gain": "f", "step": "S", "tolerance": "w"}
 #: RunConfig field -> the option that sets it (errors name the option).
 OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", "points": "--points",
            "controller": "--controller", "rules": "--rules", "gain_deg_per_mm": "--gain",
-           "step_deg": "--step", "tolerance_mm": "--tolerance", "iterations": "--iterations",
+           "step_deg": "--step", "tolerance_mm": "--tolerance", "damping_mm": "--damping", "iterations": "--iterations",
            "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
            "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
            "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",

@@ -25,6 +25,7 @@ from .camera import MAX_SUPERSAMPLE
 from .errors import (MAX_POINTS, ArgumentParser, ConfigError, UserError, exit_status, points_arg,
                      run_main)
 from .feedback import DEFAULT_SUPERSAMPLE
+from .controllers import DEFAULT_DAMPING_MM
 from .inputs import FILE_TYPES, file_sha256
 from .loop import DIVERGED_MM
 from .progress import progress
@@ -36,7 +37,7 @@ from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, pre
 
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"),
-          *RULE_OPTIONS.items(), ("iterations", "it"), ("max_step", "maxstep"),
+          *RULE_OPTIONS.items(), ("damping", "damping"), ("iterations", "it"), ("max_step", "maxstep"),
           ("laps", "laps"), ("noise_px", "noise"), ("noise_mm", "noisemm"), ("dropout", "dropout"),
           ("strobe", "strobe"), ("supersample", "ss"), ("full_frame", "fullframe"),
           ("true_links", "truelinks"), ("joint_offset", "offset"),
@@ -82,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="itg (the rules), or a baseline: ik (closed-form inverse kinematics, "
                          "open loop) or jacobian (vision-fed damped least squares)")
     add_rule_options(ap)
+    ap.add_argument("--damping", type=float, metavar="MM",
+                    help="the jacobian controller's damping lambda in mm, in (0, 1e4] (default "
+                         f"{DEFAULT_DAMPING_MM:g})")
     ap.add_argument("--iterations", type=int, default=1,
                     help=f"rule iterations per set point, 1..{MAX_ITERATIONS} (default 1: the paper's one step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",
@@ -245,6 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = RunConfig(arm=args.arm, links_mm=args.links, trajectory=args.trajectory,
                         points=args.points, controller=args.controller, rules=args.rules,
                         gain_deg_per_mm=args.gain, step_deg=args.step, tolerance_mm=args.tolerance,
+                        damping_mm=args.damping,
                         iterations=args.iterations, max_step_deg=args.max_step, laps=args.laps,
                         feedback=args.feedback, rig=args.rig, noise_px=args.noise_px,
                         noise_mm=args.noise_mm, dropout=args.dropout, strobe=args.strobe,

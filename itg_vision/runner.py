@@ -68,6 +68,7 @@ class RunConfig:
     gain_deg_per_mm: float | None = None
     step_deg: float | None = None
     tolerance_mm: float | None = None
+    damping_mm: float | None = None  # the Jacobian tracker's lambda (None: DEFAULT_DAMPING_MM)
     iterations: int = 1
     max_step_deg: float | None = None
     laps: int = 1
@@ -91,10 +92,11 @@ class RunConfig:
         def positive(v):
             return v is None or (math.isfinite(v) and v > 0)
 
-        for name in ("gain_deg_per_mm", "step_deg", "tolerance_mm", "max_step_deg", "noise_px",
-                     "noise_mm", "dropout", "correction"):  # from code: a number, not text
+        for name in ("gain_deg_per_mm", "step_deg", "tolerance_mm", "damping_mm", "max_step_deg",
+                     "noise_px", "noise_mm", "dropout", "correction"):  # a number, not text
             v = getattr(self, name)
-            optional = name in ("gain_deg_per_mm", "step_deg", "tolerance_mm", "max_step_deg")
+            optional = name in ("gain_deg_per_mm", "step_deg", "tolerance_mm", "damping_mm",
+                                "max_step_deg")
             if not ((v is None and optional)
                     or (isinstance(v, numbers.Real) and not isinstance(v, bool))):
                 raise ConfigError(name, f"must be a number, got {v!r}")
@@ -113,6 +115,11 @@ class RunConfig:
             ("tolerance_mm", self.tolerance_mm is None or (
                 math.isfinite(self.tolerance_mm) and 0 <= self.tolerance_mm <= 1e4),
              f"must be in [0, 1e4] mm, got {self.tolerance_mm}"),
+            ("damping_mm", positive(self.damping_mm) and (
+                self.damping_mm is None or self.damping_mm <= 1e4),
+             f"must be in (0, 1e4] mm, got {self.damping_mm}"),
+            ("damping_mm", self.damping_mm is None or self.controller == "jacobian",
+             "is the jacobian controller's lambda; the others take none"),
             ("max_step_deg", positive(self.max_step_deg) and (
                 self.max_step_deg is None or self.max_step_deg <= MAX_ANGLE_DEG),
              f"must be in (0, {MAX_ANGLE_DEG:g}] deg per iteration (as an arm file's "
@@ -246,7 +253,8 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         if cfg.rules is not None:
             raise ConfigError("rules", f"the {cfg.controller} controller takes no rule base "
                                        "(rules are for --controller itg)")
-        controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step_deg)
+        controller = make_controller(cfg.controller, model, max_step_deg=cfg.max_step_deg,
+                                     damping_mm=cfg.damping_mm)
         info["controller_params"] = controller.params()
     planned = _preview(cfg, model, trajectory) if cfg.preview else None
 
@@ -422,6 +430,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
         **prep.info,
         **{k: shown_path(prep.info[k]) for k in ("rules", "estimate_rig", "render_rig")
            if k in prep.info},
+        "controller_params": controller.params(),  # the controller that ran (bound at start-up)
     }
     return trace, summary
 
@@ -464,7 +473,7 @@ def bind_geometry(controller, geometry, model, max_step_deg=None):
     if isinstance(controller, RuleBase):
         return controller.with_links(geometry.links_mm, geometry.base_axis_mm)
     if isinstance(controller, JacobianTracker):
-        return make_controller("jacobian", model, geometry, max_step_deg)
+        return make_controller("jacobian", model, geometry, max_step_deg, controller.damping)
     return controller  # open-loop IK: the nominal model by definition
 
 

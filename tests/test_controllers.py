@@ -516,3 +516,28 @@ def test_a_three_link_arm_without_stand_off_starts_with_the_simulators_jacobian(
         J = tracker.jacobian(m["gripper"], m["elbow"], tracker.axis)
         J_fd = simulator_jacobian(world, np.asarray(q, float), 3)
     assert np.linalg.norm(J - J_fd) <= 0.01 * np.linalg.norm(J_fd), (J, J_fd)
+
+
+def test_the_jacobian_trackers_damping_is_the_one_given_and_recorded(tmp_path):
+    """`run --damping L` builds the tracker with lambda = L (the start-up's rebuild with the
+    measured geometry keeps it) and records it; the step it takes is the damped solve's,
+    J^T (J J^T + L^2 I)^-1 e: for a 1 mm error across a 100 mm lever the step's size is
+    100 / (100^2 + L^2) rad, whose ratio between L = 1 and L = 50 mm is 1.25 (closed form)."""
+    from itg_vision.contracts import Markers
+    from itg_vision.controllers import make_controller
+
+    for lam in (1.0, 50.0):
+        prep = prepare(RunConfig(controller="jacobian", damping_mm=lam, points=10,
+                                 feedback="truth", max_step_deg=20))
+        assert prep.controller.damping == lam
+        _, summary = execute(prep)
+        assert summary["controller_params"]["damping_mm"] == lam
+    one = ArmSpec.from_args("one-link")
+    steps = []
+    for lam in (1.0, 50.0):
+        c = make_controller("jacobian", one, damping_mm=lam)
+        g = np.array([100.0, 0.0, 12.0])
+        s = c.step(np.array([100.0, 1.0, 0.0]), Markers(g, np.full(3, np.nan)), [0.0])
+        steps.append(s.dq_deg[0])
+        assert s.dq_deg[0] == pytest.approx(np.degrees(100 / (100**2 + lam**2)), rel=1e-12)
+    assert steps[0] / steps[1] == pytest.approx((100**2 + 50**2) / (100**2 + 1), rel=1e-12)

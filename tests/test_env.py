@@ -128,7 +128,8 @@ def test_images_on_request_are_the_frames_the_estimate_came_from():
 
 @pytest.mark.parametrize("aim", [{"correction": 0.5}, {"preview": True},
                                  {"rules": "itg-plus-two-link"}, {"gain_deg_per_mm": 0.3},
-                                 {"step_deg": 2.0}, {"tolerance_mm": 1.0}])
+                                 {"step_deg": 2.0}, {"tolerance_mm": 1.0},
+                                 {"damping_mm": 1.0}])
 def test_env_refuses_a_controller_setting_it_would_not_apply(aim):
     """A rule base or its f, S, w given to the environment was accepted and never used (it
     read as in use); the memory and the preview aim a controller the environment lacks."""

@@ -146,6 +146,10 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--arm", "three-link", "--trajectory", "ellipse-t1"], "--trajectory: arm three-link needs "
      "a 3-D trajectory (x_mm,y_mm,z_mm), but ellipse-t1 is planar"),
     (["--gain", "-1"], "--gain"),
+    (["--damping", "2"], "--damping: is the jacobian controller's lambda; the others take none\n"),
+    (["--controller", "ik", "--damping", "2"], "--damping: is the jacobian controller's lambda"),
+    (["--controller", "jacobian", "--damping", "0"], "--damping: must be in (0, 1e4] mm, got 0.0\n"),
+    (["--controller", "jacobian", "--damping", "nan"], "--damping: must be in (0, 1e4] mm"),
     (["--controller", "ik", "--rules", "table2"], "--rules: the ik controller takes no rule base"),
     (["--controller", "jacobian", "--rules", "itg-plus-two-link"],
      "--rules: the jacobian controller takes no rule base"),
