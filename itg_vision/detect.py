@@ -96,7 +96,7 @@ def score_image(image: np.ndarray, rgb) -> np.ndarray:
     return cv2.subtract(planes[c], cv2.max(o1, o2))
 
 
-def blob_centroid(score: np.ndarray, method: str = "coverage"
+def blob_centroid(score: np.ndarray, method: str = "coverage", aspect: float = 1.0
                   ) -> tuple[np.ndarray, float, float, str]:
     """Find the single LED blob in a score image and its sub-pixel centroid.
 
@@ -105,12 +105,15 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     score : uint8, shape (h, w).
     method : "coverage" (weights min(score, 0.7 peak)), "binary" (mask at peak/2) or
         "intensity" (weights = score, from :data:`WEIGHT_FLOOR`).
+    aspect : the camera's fy / fx: a pixel's height over its width in the scene, by which a
+        round LED's image is stretched along v (its roundness is judged with it undone).
 
     Returns
     -------
     uv : ndarray (2,), centroid in the coordinates of ``score`` (NaN if none).
     area_px : float, pixels at or above half the peak.
-    roundness : float, minor/major axis ratio of that half-peak mask (1 for a disc).
+    roundness : float, minor/major axis ratio of that half-peak mask, v scaled by 1 / aspect
+        (1 for a disc seen by any camera).
     reason : "" if a single blob was found, else why not.
     """
     mask = (score >= MIN_SCORE).view(np.uint8)
@@ -146,7 +149,7 @@ def blob_centroid(score: np.ndarray, method: str = "coverage"
     uv = np.array([m["m10"] / m["m00"] + x0, m["m01"] / m["m00"] + y0])
     mc = cv2.moments(core, binaryImage=True)
     area = float(mc["m00"])
-    rnd = _roundness(mc)
+    rnd = _roundness(mc, aspect)
     if x == 0 or y == 0 or x + w >= score.shape[1] or y + h >= score.shape[0]:
         return uv, area, rnd, _BORDER
     return uv, area, rnd, ""
@@ -161,14 +164,16 @@ def _moments(weights: np.ndarray) -> dict:
     return cv2.moments(weights)
 
 
-def _roundness(m: dict) -> float:
+def _roundness(m: dict, aspect: float = 1.0) -> float:
     """Minor/major axis ratio of a pixel set's second moments (1 for a disc), from its
-    ``cv2.moments``; each pixel's own extent (1/12 px^2 per axis) included."""
+    ``cv2.moments``; each pixel's own extent (1/12 px^2 per axis) included; v divided by
+    ``aspect`` (fy / fx: with non-square pixels a sphere images as an ellipse of that ratio)."""
     n = m["m00"]
     if n < 3:
         return 0.0
     # the sample covariance (n - 1), as np.cov
     a, b, c = m["mu20"] / (n - 1) + 1 / 12, m["mu02"] / (n - 1) + 1 / 12, m["mu11"] / (n - 1)
+    b, c = b / aspect**2, c / aspect
     mean, d = 0.5 * (a + b), np.hypot(0.5 * (a - b), c)
     return float(np.sqrt(max(mean - d, 0.0) / (mean + d)))
 
@@ -179,8 +184,8 @@ def expected_area_px(camera: Camera, X_mm, radius_mm: float) -> float:
     return float(np.pi * camera.fx * camera.fy * (radius_mm / z) ** 2)
 
 
-def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 0.75
-               ) -> Detection:
+def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 0.75,
+               aspect: float = 1.0) -> Detection:
     """Find one LED in a window of the frame, without undistorting it.
 
     Parameters
@@ -189,6 +194,7 @@ def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 
     rgb : the LED colour.
     method : centroid weighting, see :func:`blob_centroid`.
     min_roundness : reject blobs less round than this (partly hidden LEDs).
+    aspect : the camera's fy / fx (:func:`blob_centroid`).
 
     Returns
     -------
@@ -198,7 +204,7 @@ def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 
     the window border" (the window was placed to hold the whole LED with a margin).
     """
     score = score_image(patch.image, rgb)
-    uv, area, rnd, cause = blob_centroid(score, method)
+    uv, area, rnd, cause = blob_centroid(score, method, aspect)
     uv = uv + np.asarray(patch.origin_px, float)
     reason = cause
     if cause == _BORDER:
@@ -224,7 +230,8 @@ def locate_led_near(patch, rgb, predicted_uv, *, half_window: int = HALF_WINDOW_
                     **locate) -> Detection:
     """:func:`locate_led` in a window of ``half_window`` px around ``predicted_uv`` (frame
     pixels) first (if given and finite), the whole ``patch`` (a frame or a window of one) if
-    the LED is not found there; ``locate``: its options (``method``, ``min_roundness``)."""
+    the LED is not found there; ``locate``: its options (``method``, ``min_roundness``,
+    ``aspect``)."""
     if predicted_uv is not None and np.all(np.isfinite(predicted_uv)):
         (ox, oy), img = patch.origin_px, patch.image
         h, w = img.shape[:2]
@@ -261,5 +268,5 @@ def find_led(image: np.ndarray, camera: Camera, rgb, *, predicted_uv=None,
     """
     H, W = image.shape[:2]
     d = locate_led_near(Patch(image, (0, 0), (W, H)), rgb, predicted_uv, half_window=half_window,
-                        method=method, min_roundness=min_roundness)
+                        method=method, min_roundness=min_roundness, aspect=camera.fy / camera.fx)
     return replace(d, uv_px=camera.undistort(d.uv_raw_px)) if d.ok else d

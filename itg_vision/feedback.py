@@ -226,7 +226,7 @@ class VisionFeedback:
                 pred = None
                 if patch.full_frame and np.all(np.isfinite(self._last[name])):
                     pred = cam.project(self._last[name])
-                dets.append(locate_led_near(patch, LED_RGB[name], pred))
+                dets.append(locate_led_near(patch, LED_RGB[name], pred, aspect=cam.fy / cam.fx))
             if all(d.ok for d in dets) and self.dropout > 0 and self.rng.random() < self.dropout:
                 dets = [Detection(False, np.full(2, np.nan), d.uv_raw_px, d.area_px, DROPPED,
                                   DROPPED) for d in dets]

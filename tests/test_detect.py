@@ -262,3 +262,32 @@ def test_a_half_hidden_led_is_not_round_by_default():
     d = locate_led(Patch(img, (100, 50), (640, 480)), LED_RGB["gripper"])
     assert expected < 0.6
     assert not d.ok and d.reason.startswith("not round"), d
+
+
+@pytest.mark.parametrize("aspect", [0.6, 1.5])
+def test_roundness_is_judged_in_the_scene_not_in_pixels(aspect):
+    """With non-square pixels (fy / fx = aspect) a sphere images as an ellipse whose v axis is
+    aspect times its u axis; judged in pixels its roundness was min(aspect, 1 / aspect) and
+    every LED of a 600 / 450 camera was 'not round' (an auditor's rig lost 57 of 160
+    detections). Judged with the aspect undone it is a disc's, 1 to within the pixel grid's
+    sampling (above 0.9, far from the 0.75 gate); the same ellipse is still rejected by a camera with square pixels, and half of
+    it (a link over the other half) by this one: 0.53, the half disc's closed form."""
+    s, r, (H, W), (u0, v0) = 8, 7.0, (120, 160), (80.3, 60.6)
+    jj, ii = np.mgrid[0:H * s, 0:W * s]
+    du, dv = ii - ((u0 + 0.5) * s - 0.5), jj - ((v0 + 0.5) * s - 0.5)
+    inside = (du / (r * s)) ** 2 + (dv / (r * aspect * s)) ** 2 <= 1
+    big = np.full((H * s, W * s, 3), 245, np.uint8)
+    big[inside] = (230, 10, 10)  # as _disc_image draws the red LED
+    img = cv2.resize(big, (W, H), interpolation=cv2.INTER_AREA)
+    _, _, rnd, cause = blob_centroid(score_image(img, RED), "intensity", aspect)
+    # the half-peak mask samples a 4.2 px semi-axis (aspect 0.6) on the pixel grid: 0.956
+    assert cause == "" and rnd > 0.9, rnd
+    d = locate_led(Patch(img, (0, 0), (W, H)), RED, aspect=aspect)
+    assert d.ok and np.allclose(d.uv_raw_px, (u0, v0), atol=0.05), d
+    assert not locate_led(Patch(img, (0, 0), (W, H)), RED).ok  # square pixels: not round
+    half = big.copy()
+    half[dv > 0] = 245
+    img = cv2.resize(half, (W, H), interpolation=cv2.INTER_AREA)
+    _, _, rnd, _ = blob_centroid(score_image(img, RED), "intensity", aspect)
+    assert abs(rnd - np.sqrt(1 - 64 / (9 * np.pi**2))) < 0.05, rnd
+    assert not locate_led(Patch(img, (0, 0), (W, H)), RED, aspect=aspect).ok
