@@ -17,10 +17,13 @@ def code_hash() -> str:
     A run's ``summary.json`` and each row of a benchmark's ``results.csv`` record it
     (``code``)."""
     package = Path(__file__).resolve().parent
-    files = sorted(package.rglob("*.py")) + sorted(ARMS_DIR.glob("*.yaml")) \
-        + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(RULES_DIR.glob("*.rules")) \
-        + sorted(TRAJECTORIES_DIR.glob("*.csv"))
+    # each file named as in the source tree (itg_vision/..., data/..., cameras/...), so that an
+    # installed package and its clone give one hash
+    files = [(f, f.relative_to(package.parent)) for f in sorted(package.rglob("*.py"))]
+    files += [(f, f.relative_to(ROOT)) for f in sorted(ARMS_DIR.glob("*.yaml"))
+              + sorted(CAMERAS_DIR.glob("*.yaml")) + sorted(RULES_DIR.glob("*.rules"))
+              + sorted(TRAJECTORIES_DIR.glob("*.csv"))]
     h = hashlib.sha256()
-    for f in files:
-        h.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
+    for f, name in files:
+        h.update(str(name.as_posix()).encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()[:12]

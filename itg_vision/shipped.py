@@ -10,7 +10,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+_PACKAGE = Path(__file__).resolve().parent
+#: Where ``data/`` and ``cameras/`` are: in an installed package, the package itself
+#: (pyproject.toml maps them to ``itg_vision/data`` and ``itg_vision/cameras`` in a wheel), else
+#: the project folder above it (a clone, an editable install).
+ROOT = _PACKAGE if (_PACKAGE / "data").is_dir() else _PACKAGE.parent
 #: The shipped data: arms, rules, trajectories.
 DATA_DIR = ROOT / "data"
 #: The shipped arm files (``<name>.yaml``).
