@@ -22,8 +22,9 @@ def project_pinhole(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
                      camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], axis=1)
 
 
-def projection_jacobian(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
-    """Derivative of the pinhole projection with respect to the world point.
+def projection_jacobian(camera: Camera, X_mm: np.ndarray, distort: bool = False) -> np.ndarray:
+    """Derivative of the pinhole projection with respect to the world point, or of the lens's
+    projection (``distort``: the pixels as captured, where a centroid's noise arises).
 
     Parameters
     ----------
@@ -33,6 +34,10 @@ def projection_jacobian(camera: Camera, X_mm: np.ndarray) -> np.ndarray:
     -------
     J : ndarray, shape (n, 2, 3), px per mm.
     """
+    if distort:  # OpenCV's own derivative: d(uv)/d(t) is d(uv)/d(camera point), as X_c = R X + t
+        _, jac = cv2.projectPoints(np.asarray(X_mm, float).reshape(-1, 1, 3), camera.rvec,
+                                   camera.t_mm, camera.K, camera.dist_coeffs)
+        return jac[:, 3:6].reshape(-1, 2, 3) @ camera.R
     Xc = camera.to_camera(np.asarray(X_mm, float).reshape(-1, 3))
     x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
     n = Xc.shape[0]
@@ -51,7 +56,7 @@ def _residuals(rig: Rig, X: np.ndarray, uv1: np.ndarray, uv2: np.ndarray) -> np.
 
 
 def _jacobian(rig: Rig, X: np.ndarray) -> np.ndarray:
-    """Stacked projection Jacobian of both cameras, shape (n, 4, 3)."""
+    """Stacked pinhole projection Jacobian of both cameras, shape (n, 4, 3)."""
     c1, c2 = rig.cameras
     return np.concatenate([projection_jacobian(c1, X), projection_jacobian(c2, X)], axis=1)
 
@@ -119,8 +124,17 @@ def triangulate(rig: Rig, uv1_px, uv2_px, *, refine_steps: int = 3, method: str 
     return (X[0], float(rms[0])) if single else (X, rms)
 
 
-def predicted_covariance(rig: Rig, X_mm, sigma_px: float) -> np.ndarray:
-    """First-order covariance of a triangulated point: ``sigma^2 (J^T J)^-1``.
+def predicted_covariance(rig: Rig, X_mm, sigma_px: float, distort: bool = False) -> np.ndarray:
+    """First-order covariance of a triangulated point: ``sigma^2 (J^T J)^-1``, J the stacked
+    pinhole Jacobian of both cameras, for noise on undistorted pixels.
+
+    ``distort``: the noise is on the pixels as captured (the eye's centroids), and the
+    undistortion carries it to pinhole pixels through the lens's inverse, M^-1 (M = d captured
+    / d pinhole pixels, 2 x 2 per camera: the lens's Jacobian over the pinhole one, which share
+    the ray as their null space). The triangulation fits the pinhole pixels unweighted, so its
+    covariance is the sandwich P J^T W J P, P = (J^T J)^-1, W = sigma^2 M^-1 M^-T per camera.
+    A pinhole prediction of it erred by 12-13 % where a lens with k1 = -0.3 magnifies a fifth
+    less (tests), and by ~1 % on the shipped rigs.
 
     Parameters
     ----------
@@ -132,13 +146,25 @@ def predicted_covariance(rig: Rig, X_mm, sigma_px: float) -> np.ndarray:
     cov : ndarray, shape (3, 3) or (n, 3, 3), mm^2.
     """
     X = np.asarray(X_mm, float)
-    J = _jacobian(rig, X.reshape(-1, 3))
-    cov = sigma_px**2 * np.linalg.inv(np.einsum("nki,nkj->nij", J, J))
+    X2 = X.reshape(-1, 3)
+    J = _jacobian(rig, X2)
+    P = np.linalg.inv(np.einsum("nki,nkj->nij", J, J))
+    if not distort:
+        cov = sigma_px**2 * P
+    else:
+        W = np.zeros((len(X2), 4, 4))
+        for k, cam in enumerate(rig.cameras):
+            Jk = J[:, 2 * k:2 * k + 2]
+            Mi = np.linalg.inv(projection_jacobian(cam, X2, distort=True) @ np.linalg.pinv(Jk))
+            W[:, 2 * k:2 * k + 2, 2 * k:2 * k + 2] = sigma_px**2 * Mi @ np.swapaxes(Mi, 1, 2)
+        JP = J @ P
+        cov = np.swapaxes(JP, 1, 2) @ W @ JP
     return cov[0] if X.ndim == 1 else cov
 
 
-def predicted_rms_error_mm(rig: Rig, X_mm, sigma_px: float) -> np.ndarray | float:
+def predicted_rms_error_mm(rig: Rig, X_mm, sigma_px: float, distort: bool = False
+                           ) -> np.ndarray | float:
     """Predicted RMS 3-D error (mm): ``sqrt(trace(cov))``, shape () or (n,)."""
-    cov = predicted_covariance(rig, X_mm, sigma_px)
+    cov = predicted_covariance(rig, X_mm, sigma_px, distort)
     out = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
     return float(out) if np.ndim(out) == 0 else out

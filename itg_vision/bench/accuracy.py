@@ -30,6 +30,9 @@ from ..world import World
 TARGET_CENTROID_PX, TARGET_GRIPPER_MM, TARGET_RATIO = 0.04, 0.1, 1.1
 #: The name --out's manifest gives this benchmark (what it may replace).
 COMMAND = "bench accuracy"
+#: The targets are judged only when at most this fraction of the marker looks (zero added
+#: noise) was missed: the errors of the looks taken are then the rig's, not a chosen few's.
+MAX_MISSED_FRACTION = 0.05
 #: Fewest and most random poses measured (the tails need a few; each renders 8 stereo pairs).
 MIN_POSES, MAX_POSES = 5, 100_000
 #: Zero-noise settings compared: (label, supersample, full_frame).
@@ -68,14 +71,14 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
     """
     rng, noise_seeds = streams(seed, n_poses)
     poses = arm.random_poses(n_poses, rng)
-    centroid_err, pts, errs = [], [], {s: [] for s in sigmas}
+    centroid_err, errs = [], {s: [] for s in sigmas}
+    seen = {s: [] for s in sigmas}  # the true points of the estimates in errs (none missed)
     by_marker: dict[str, list] = {n: [] for n in arm.marker_names}
     missed = 0
     with World(arm) as world:
         for k, q in enumerate(poses):
             world.set_q(q)
             truth = world.true_markers()
-            pts += [truth[n] for n in arm.marker_names]
             for s in sigmas:
                 fb = VisionFeedback(rig, rig, arm, noise_px=s, supersample=supersample,
                                     full_frame=full_frame)
@@ -88,6 +91,7 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
                         continue
                     e = float(np.linalg.norm(m.get(name) - truth[name]))
                     errs[s].append(e)
+                    seen[s].append(truth[name])
                     if s == 0:
                         by_marker[name].append(e)
                         for cam, d in zip(rig.cameras, fb.last_observation.detections[name]):
@@ -109,16 +113,17 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
            "marker_p95_mm": {n: t[1] for n, t in tails.items()},
            "marker_max_mm": {n: t[2] for n, t in tails.items()},
            "rows": []}
-    pts = np.array(pts)
-    # the ratio's sampling error: the RMS of independent Gaussian errors of covariances C_j has
+    # the noise (the rendering's and the added) is on the pixels as captured: the prediction
+    # goes through the lens (distort), at the points whose estimates were measured.
+    # The ratio's sampling error: the RMS of independent Gaussian errors of covariances C_j has
     # relative standard error sqrt(2 sum tr(C_j^2)) / (2 sum tr(C_j)) (the C_j's scale cancels)
-    cov = predicted_covariance(rig, pts, 1.0)
+    cov = predicted_covariance(rig, np.array(seen[0.0]), 1.0, distort=True)
     tr, tr2 = np.trace(cov, axis1=1, axis2=2), np.einsum("nij,nji->n", cov, cov)
     out["ratio_se"] = float(np.sqrt(2 * tr2.sum()) / (2 * tr.sum()))
     for s in sigmas:
         e = np.array(errs[s])
         pred = float(np.sqrt(np.mean(predicted_rms_error_mm(
-            rig, pts, float(np.hypot(s, sigma_render))) ** 2)))
+            rig, np.array(seen[s]), float(np.hypot(s, sigma_render)), distort=True) ** 2)))
         meas = float(np.sqrt(np.mean(e**2)))
         out["rows"].append({"sigma_px": s, "measured_rms_mm": meas, "predicted_rms_mm": pred,
                             "ratio": meas / pred, "n": int(e.size)})
@@ -191,7 +196,13 @@ def main(argv: list[str] | None = None) -> int:
             say(f"{row['sigma_px']:>15.2f}{row['measured_rms_mm']:>13.4f}{row['predicted_rms_mm']:>14.4f}"
                 f"{row['ratio']:>8.3f}{row['n']:>6}")
 
+        looks = args.poses * len(names)
+        few_missed = r["n_missed"] <= MAX_MISSED_FRACTION * looks
+
         def verdict(ok):
+            if not few_missed:  # judged on the looks the eye kept: a biased few
+                return (f"undecided: {r['n_missed']} of {looks} marker looks missed, more than "
+                        f"{MAX_MISSED_FRACTION:.0%}")
             return "met" if ok else "NOT met"
 
         ratios = [row["ratio"] for row in r["rows"] if 0.1 <= row["sigma_px"] <= 1.0]
@@ -206,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
         enough = 2 * se <= TARGET_RATIO - 1  # the band holds two standard errors
         # too few samples to judge the band: no verdict either way (their scatter alone could
         # put a ratio in or out of it)
-        judged = verdict(max(worst, 1 / worst) <= TARGET_RATIO) if enough else "undecided"
+        judged = (verdict(max(worst, 1 / worst) <= TARGET_RATIO) if enough or not few_missed
+                  else "undecided")
         say(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
             + ", ".join(f"{x:.3f}" for x in ratios)
             + f" ({judged}; each ratio from {n} 3-D "
