@@ -432,7 +432,7 @@ def test_the_conclusion_counts_ties_within_5_percent_plus_0_01_mm_and_names_the_
     compared = [line for line in lines if "vs `ik`" in line]
     assert len(compared) == 3  # E_av, tracking mean, tracking max
     for line in compared:
-        assert ("vs `ik`: lower in 1 of 5 cells, higher in 2, within 5 % + 0.01 mm in 2 "
+        assert ("vs `ik`: lower in 1 of 5 cells, higher in 2, within 5 % of the larger + 0.01 mm in 2 "
                 "(largest loss: rig-perturbed-cams on ellipse-t1, 2 against 1 mm, 2x).") in line
 
 

@@ -52,7 +52,7 @@ def test_a_tie_is_within_five_percent_of_the_larger_plus_a_hundredth():
     rows = [_row(k, "clean", s, **{c: v for c in COLUMNS})
             for k, v in (("itg-vision", 1.0), ("ik", 1.062)) for s in range(3)]
     text = "\n".join(_conclusion(rows, ["clean"], ["itg-vision", "ik"]))
-    assert "lower in 0 of 1 cells, higher in 0, within 5 % + 0.01 mm in 1" in text
+    assert "lower in 0 of 1 cells, higher in 0, within 5 % of the larger + 0.01 mm in 1" in text
 
 
 def test_the_largest_loss_is_the_largest_ratio_not_the_largest_difference():
@@ -89,3 +89,14 @@ def test_a_single_diverged_run_is_listed():
     rows = [_row("itg-vision", "clean", s, diverged=s == 0) for s in range(3)]
     assert "itg-vision clean on ellipse-t1: 1 of 3" in "\n".join(
         _conclusion(rows, ["clean"], ["itg-vision"]))
+
+
+def test_a_model_error_change_that_rounds_to_zero_has_no_minus_sign():
+    """A median 0.001 mm lower under links+5% printed '-0.00' (an audit); a change that rounds
+    to zero is +0.00, and one that does not keeps its sign."""
+    rows = [_row("itg-vision", c, s, track_median_mm=med)
+            for c, med in (("clean", 1.0), ("links+5%", 0.999), ("offset-1deg", 0.98))
+            for s in range(3)]
+    line = next(line for line in _conclusion(rows, ["clean", "links+5%", "offset-1deg"],
+                                             ["itg-vision"]) if "Model error on" in line)
+    assert "links+5% +0.00" in line and "offset-1deg -0.02" in line and "-0.00" not in line

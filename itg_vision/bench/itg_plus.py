@@ -478,6 +478,11 @@ def speed_target(costs: dict) -> Target:
     if costs.get("native_error"):
         note += f"; C not built: {costs['native_error']}"
     ratio, compiled = itg_plus_speed(costs)
+    passes = costs.get("passes_us", {})
+    step = "itg_plus_native_us" if compiled == "C" else "itg_plus_compiled_us"
+    if "ik_pybullet_us" in passes and step in passes:  # how much the machine moved it
+        per = [a / b for a, b in zip(passes["ik_pybullet_us"], passes[step])]
+        note += f"; the ratio pass by pass {min(per):.3g}-{max(per):.3g}x ({len(per)} passes)"
     return Target("PyBullet IK / compiled ITG+ step (time per decision)",
                   f"two-link, compiled to {compiled}", ratio, ">=", SPEED_FACTOR, "x",
                   note + f"; Table 2 compiled to Python {costs['rules_compiled_us']:.2f} us")

@@ -42,6 +42,11 @@ def _fmt_mm(v: float) -> str:
     return f"{v:.3g}" if abs(v) < 100 else f"{v:.0f}"
 
 
+def _signed(d: float) -> str:
+    """A change to two decimals with its sign; one that rounds to zero is +0.00, never -0.00."""
+    return f"{d + 0.0:+.2f}" if round(d, 2) != 0 else "+0.00"
+
+
 def _ratio(a: float, b: float) -> str:
     """How many times ``a`` is ``b`` (both errors in mm), for prose."""
     if not (math.isfinite(a) and math.isfinite(b)):
@@ -132,7 +137,7 @@ def _grid(summary, traj, conds, ctrls, cell) -> list[str]:
 
 
 def _table(summary, traj, conds, ctrls, metric) -> list[str]:
-    """Median [IQR] over seeds of one per-run statistic."""
+    """Median [first quartile, third quartile] over seeds of one per-run statistic."""
     def cell(s):
         if not s["n"]:
             return _no_start_cell(s)
@@ -192,7 +197,7 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
             if not n:
                 continue
             text = (f"vs `{other}`: lower in {len(wins)} of {n} cells, higher in "
-                    f"{len(losses)}, within 5 % + 0.01 mm in {len(ties)}")
+                    f"{len(losses)}, within 5 % of the larger + 0.01 mm in {len(ties)}")
             if losses:
                 t, c, a, b = max(losses, key=lambda w: w[2] / max(w[3], 1e-9))
                 text += (f" (largest loss: {c} on {t}, {_fmt_mm(a)} against {_fmt_mm(b)} mm, "
@@ -208,7 +213,7 @@ def conclusion(summary, trajs, conds, ctrls, subject: str = "itg-vision") -> lis
                 base = summary.get((t, "clean", k))
                 if base is None or not complete(base) or not math.isfinite(base["track_median"][0]):
                     continue
-                deltas = [f"{c} {summary[(t, c, k)]['track_median'][0] - base['track_median'][0]:+.2f}"
+                deltas = [f"{c} {_signed(summary[(t, c, k)]['track_median'][0] - base['track_median'][0])}"
                           for c in model_conds if (t, c, k) in summary
                           and complete(summary[(t, c, k)])
                           and math.isfinite(summary[(t, c, k)]["track_median"][0])]
@@ -322,7 +327,11 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
           "rendered with the true rig.", "",
           "Vision-only conditions (noise, dropout, rig) cannot affect the `-model` controllers and `ik` "
           "(no rendering): they are run anyway, a few ms each, so every cell comes from real "
-          "runs (their numbers equal clean). `ik` is deterministic: its IQR is zero.", "",
+          "runs (their numbers equal clean). `ik` is deterministic: its quartiles equal its median.", "",
+          "Over seeds: the median and, in brackets, the first and third quartiles (numpy's "
+          "linear interpolation between the sorted seeds: with 2 seeds the median is their mean "
+          "and the quartiles lie a quarter of the way in from each, so [q1, q3] spans half their "
+          "range; use more seeds for a spread).", "",
           "E_i = distance from the set point to the true gripper after the set point's "
           "iterations (x-y for planar arms). E_av and E_max: mean and maximum over all set "
           "points in reach (the paper's definition, start transient included). Tracking phase: "
@@ -340,7 +349,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
                 summary, trajs, conds, ctrls, subject=k) + [""]
     for t in trajs:
         lim = _limits_line(specs, t)
-        L += [f"## {t}: E_av (mm), median [IQR] over seeds", "", lim, ""] \
+        L += [f"## {t}: E_av (mm), median [q1, q3] over seeds", "", lim, ""] \
             + _table(summary, t, conds, ctrls, "e_av") + [""]
         L += [f"## {t}: tracking phase (mm): median / mean / p95 / max of E_i (worst seed's max)",
               "", lim, ""] + _tail_table(summary, t, conds, ctrls) + [""]

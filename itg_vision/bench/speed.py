@@ -34,8 +34,9 @@ from ..world import IK_JOINT_DAMPING, World
 def _per_call_us(methods: dict, repeat: int) -> dict:
     """Median over ``repeat`` passes of the mean time per call (microseconds) of each method
     (name -> (function, argument tuples)), and beside it the mean over the passes
-    (``<name>_mean``) and the slowest pass's (``<name>_max``). The passes interleave the
-    methods, so a slow patch of the machine falls on all of them alike and their ratios hold."""
+    (``<name>_mean``) and the slowest pass's (``<name>_max``); ``passes_us``: each method's time
+    per call in each pass, for ratios pass by pass. The passes interleave the methods, so a slow
+    patch of the machine falls on all of them alike and their ratios hold."""
     times: dict = {name: [] for name in methods}
     for _ in range(repeat):
         for name, (fn, args_list) in methods.items():
@@ -45,7 +46,8 @@ def _per_call_us(methods: dict, repeat: int) -> dict:
             times[name].append((time.perf_counter() - t0) / len(args_list))
     out = {name: float(np.median(t) * 1e6) for name, t in times.items()}
     return (out | {f"{name}_mean": float(np.mean(t) * 1e6) for name, t in times.items()}
-            | {f"{name}_max": float(np.max(t) * 1e6) for name, t in times.items()})
+            | {f"{name}_max": float(np.max(t) * 1e6) for name, t in times.items()}
+            | {"passes_us": {name: [x * 1e6 for x in t] for name, t in times.items()}})
 
 
 #: Interleaved passes of the decision timings (``--passes`` is the stereo loop's).
