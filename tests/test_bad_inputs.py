@@ -529,6 +529,18 @@ def test_every_help_exits_0(command, capsys):
     assert "usage" in out.out and "Traceback" not in out.err
 
 
+@pytest.mark.parametrize("module", ["itg_vision.run", "itg_vision.calibrate", "itg_vision.paper",
+                                    "itg_vision.bench speed", "itg_vision.bench accuracy",
+                                    "itg_vision.bench noise"])
+def test_every_help_in_a_fresh_process_starts_with_its_usage(cli, module):
+    """`bench speed --help` printed PyBullet's build-time banner above its usage (an import of
+    pybullet in a fresh process); every command's help is its usage alone."""
+    name, *sub = module.split()
+    res = cli(name, *sub, "--help")
+    assert res.returncode == 0 and res.stdout.startswith("usage: "), res.stdout[:200]
+    assert res.stderr == ""
+
+
 def test_cli_exit_status_and_one_line_in_a_real_process(cli, tmp_path):
     """The same contract through `python -m` (status, streams)."""
     bad = tmp_path / "bad.rules"

@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pybullet
 
 from ..arm import ArmSpec, forward_kinematics
 from ..camera import Rig, default_rig_path
@@ -29,6 +28,8 @@ from ..feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 from ..rules import RuleBase, load_rules
 from .. import native, outputs, trajectory as traj
 from ..world import IK_JOINT_DAMPING, World
+
+import pybullet  # noqa: E402 (after world, which imports it without its build-time banner)
 
 
 def _per_call_us(methods: dict, repeat: int) -> dict:
