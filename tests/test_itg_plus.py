@@ -101,7 +101,7 @@ def test_let_names_a_quantity_computed_once_before_the_rules():
 @pytest.mark.parametrize("text, where, what", [
     ("LET C = 1\nLET C = 2\nRULE 1: IF 1 > 0 THEN q1 += C", ":2:5", "'C' is already LET on line 1"),
     ("LET xg = 1\nRULE 1: IF 1 > 0 THEN q1 += xg", ":1:5", "'xg' is already a built-in name"),
-    ("LET q3 = 1\nRULE 1: IF 1 > 0 THEN q1 += q3", ":1:5", "built-in name"),
+    ("LET q3 = 1\nRULE 1: IF 1 > 0 THEN q1 += q3", ":1:5", "'q3' is already reserved: qN names joint N's angle"),
     ("RULE 1: IF 1 > 0 THEN q1 += C\nLET C = 1", ":1:29", "unknown name 'C'"),
     ("LET C = D\nLET D = 1\nRULE 1: IF 1 > 0 THEN q1 += C", ":1:9", "unknown name 'D'"),
     ("LET C 1\nRULE 1: IF 1 > 0 THEN q1 += C", ":1:7", "expected '=' after LET C"),
