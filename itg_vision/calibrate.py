@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .arm import ArmSpec, arm_names
-from .calibration import (DEFAULT_VIEWS, MIN_VIEWS, Result, arm_of_rig, calibrate,
-                          picture_path, progress_steps, write_result)
+from .calibration import (DEFAULT_VIEWS, MAX_STEREO_EXCESS_PX, MIN_VIEWS, Result, arm_of_rig,
+                          calibrate, picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
 from .errors import ConfigError, UserError, exit_status, run_main
 from .inputs import file_sha256
@@ -135,12 +135,18 @@ def summary_table(r: dict, tail=()) -> str:
              + (f", outlier views dropped {r['views_dropped']}" if r["views_dropped"] else "")),
             ("board tilt span (deg)", "{:.0f} x {:.0f}".format(*r["tilt_span_deg"])),
             ("stereo RMS (px)", f"{r['stereo_rms_px']:.3f}"),
+            *([] if "stereo_excess_px" not in r else [  # (since the check: older files)
+                ("stereo excess over the cameras' RMS / bound (px)",
+                 f"{r['stereo_excess_px']:.3f} / {MAX_STEREO_EXCESS_PX:.2f}")]),
             ("baseline error (mm)", f"{e['baseline_mm']:+.3f}"),
             ("relative rotation error (deg)", f"{e['relative_rotation_deg']:.4f}"),
             ("base frame error: origin (mm), rotation (deg)",
              f"{e['base_frame']['origin_mm']:.2f}, {e['base_frame']['rotation_deg']:.3f}"),
             ("base frame: joint-axis circle fits RMS (mm)",
              f"{r['base_frame']['fit_rms_mm']:.3f} ({measured_links(r['base_frame'])})"),
+            *([] if "worst_fit" not in r["base_frame"] else [  # (since the check: older files)
+                ("worst circle fit / its LED-noise bound (mm)",
+                 "{rms_mm:.3f} / {bound_mm:.3f} ({fit})".format(**r["base_frame"]["worst_fit"]))]),
             ("LED triangulation RMS (mm)", f"true rig {led['true_rig_rms_mm']:.3f}, calibrated "
                                            f"{led['calibrated_rig_rms_mm']:.3f}, ratio "
                                            f"{led['ratio']:.2f} ({led['points']} points)"),

@@ -12,7 +12,8 @@ The board, its poses, views and corners: :mod:`itg_vision.board`. From the corne
    Degenerate pose sets (board normals spanning too little tilt about either axis, or a focal
    length whose standard deviation exceeds 1 %) are refused.
 2. **Stereo.** ``cv2.stereoCalibrate`` with ``CALIB_FIX_INTRINSIC`` on the views in which both
-   cameras found the full board: camera 2 relative to camera 1 (R, T).
+   cameras found the full board: camera 2 relative to camera 1 (R, T). A stereo RMS the
+   cameras' own does not explain refuses the calibration (:data:`MAX_STEREO_EXCESS_PX`).
 3. **Base frame.** Stereo calibration leaves the rig floating in camera 1's frame. It is tied to
    the robot's base by what the LEDs trace when one joint moves at a time
    (:func:`base_frame_from_axes`): the LEDs are detected by the tracker's own eye
@@ -23,7 +24,9 @@ The board, its poses, views and corners: :mod:`itg_vision.board`. From the corne
    arm's base height places the unseen floor), so a wrong nominal model cannot move the frame;
    a joint-zero offset of q1 turns it (that is what q1 = 0 means). Its error: the fits' RMS
    residual (``base_frame.fit_rms_mm``) and, since the truth is known, the cameras' rotation
-   and position errors (:func:`rig_errors`).
+   and position errors (:func:`rig_errors`). A fit worse than the LEDs' noise allows through
+   the calibrated pair refuses the calibration (:func:`check_circle_fits`): wrong intrinsics
+   bend the LEDs' paths off their circles.
 4. **Check.** At other seeded arm poses the LEDs are triangulated with the true rig and with the
    calibrated rig from the same images; both RMS errors against the simulator's LED positions
    and their ratio are reported.
@@ -62,6 +65,33 @@ MIN_TILT_SPAN_DEG = 40.0
 MAX_FOCAL_STD = 0.01
 #: Default number of board views.
 DEFAULT_VIEWS = 60
+#: The LED centroid error (RMS length of the 2-D error, px) that the base tie's circle fits are
+#: judged against: the largest this eye (the tracker's own, :class:`itg_vision.feedback.
+#: VisionFeedback`, as the calibration uses it) is measured to make, 0.144 px on the three-link
+#: arm, whose LED posts hide a strip of each sphere (``bench accuracy --arm three-link``, 250
+#: poses; the planar arm's is 0.024 px). Sensor noise adds little: an intensity centroid over
+#: a flat disc of contrast C grey levels has a per-axis std of sigma_gray / (2 sqrt(pi) C)
+#: whatever its size, 0.003 px at the rigs' 2 grey levels (C ~ 200).
+LED_CENTROID_RMS_PX = 0.15
+#: How far a circle fit's RMS residual may exceed what that centroid error predicts for it
+#: (:func:`circle_fit_bound_mm`). With the right rig the residuals are the triangulation noise:
+#: the mean square of the 2n residual components of n >= 16 points (3/4 of a 21-25 pose sweep)
+#: then exceeds 4x its expectation (2x in RMS) with probability < 1e-12 (chi-square, 32 degrees
+#: of freedom, an upper bound as the fit absorbs some of them). The rest of the factor covers
+#: errors that are not Gaussian (the posts' crescents are systematic). A calibration whose
+#: intrinsics sit in a wrong minimum warps the triangulated paths off their circles: 1.4 to 5.3
+#: mm RMS on the far-principal-point rig, 2.3 to 9 times this bound (0.56 to 0.59 mm there);
+#: right calibrations measured 0.037 to 0.19 mm, 0.06 to 0.23 of it.
+FIT_RMS_FACTOR = 2.0
+#: The most the stereo fit's reprojection error may exceed the cameras' own (px, RMS length,
+#: :func:`stereo_excess_px`). The stereo fit reprojects the same corners as the two mono fits
+#: with one board pose per view instead of two: with consistent cameras its mean square exceeds
+#: theirs only by the parameters it drops (6 of ~216 coordinates per view, ~3 %: 0.02-0.04 px
+#: of excess measured). What exceeds that is the two lens models disagreeing about where the
+#: board, and so an LED, is: it shifts an LED's two images against each other as centroid
+#: error does, so it is held to the LEDs' bound: FIT_RMS_FACTOR x LED_CENTROID_RMS_PX. The
+#: far-principal-point rig's local minimum: 0.61 px (stereo 0.66 against 0.25 px).
+MAX_STEREO_EXCESS_PX = FIT_RMS_FACTOR * LED_CENTROID_RMS_PX
 
 def arm_of_rig(rig_name: str) -> str:
     """The arm whose LEDs tie a shipped rig to the base: of the arms that use the rig by
@@ -256,7 +286,8 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
     Raises
     ------
     UserError : a camera never found the board, too few views with the board in both cameras,
-        or degenerate poses.
+        degenerate poses, or a stereo fit that the cameras' intrinsics do not explain
+        (:data:`MAX_STEREO_EXCESS_PX`).
     """
     n = len(views.corners)
     where = f"{source}: " if source else ""
@@ -307,11 +338,25 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
         [views.corners[k][1] for k in both],
         K1, d1, K2, d2, sizes[0], flags=cv2.CALIB_FIX_INTRINSIC,  # size unused: intrinsics fixed
         criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    excess = stereo_excess_px(srms, (rms1, rms2))
+    if not excess <= MAX_STEREO_EXCESS_PX:
+        raise UserError(f"{where}calibration inconsistent: the pair reprojects the board with "
+                        f"RMS {srms:.3f} px against its cameras' {rms1:.3f} and {rms2:.3f} px, an "
+                        f"excess of {excess:.2f} px, over the {MAX_STEREO_EXCESS_PX:.2f} px the "
+                        "LEDs' centroid error allows: the cameras' intrinsics disagree (at least "
+                        "one is wrong)")
     return StereoCalibration((K1, K2), (d1.ravel(), d2.ravel()), R, T.ravel(),
                              (float(rms1), float(rms2)), float(srms), (pv1, pv2),
                              (u1, u2), both, sorted(dropped), std_rel, spans,
                              (len(seen[0]), len(seen[1])), (sd1[:4], sd2[:4]), n_found_both,
                              (st1, st2))
+
+
+def stereo_excess_px(stereo_rms_px: float, mono_rms_px) -> float:
+    """How much the stereo fit's reprojection error exceeds the cameras' own (px): the square
+    root of the difference of the mean squares (the mono RMS pooled), 0 if it does not.
+    Bounded by :data:`MAX_STEREO_EXCESS_PX`."""
+    return float(np.sqrt(max(stereo_rms_px**2 - float(np.mean(np.square(mono_rms_px))), 0.0)))
 
 
 def rig_in_camera1_frame(true_rig: Rig, cal: StereoCalibration, name: str) -> Rig:
@@ -418,6 +463,71 @@ def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names, source: str = "") ->
     return out
 
 
+def circle_fit_bound_mm(rig: Rig, fit: dict) -> float:
+    """The largest RMS residual (mm) a joint's circle fit may have if ``rig`` is right: the
+    residual the LED centroid error :data:`LED_CENTROID_RMS_PX` predicts, times
+    :data:`FIT_RMS_FACTOR`.
+
+    A point's distance from its circle has two components, radial (in the circle's plane) and
+    along the axis; the third, along the circle, slides the point on it and costs nothing. With
+    centroid noise sigma per image axis the triangulated point's covariance is
+    sigma^2 (J^T J)^-1 (:func:`itg_vision.triangulate.predicted_covariance`, through ``rig``),
+    so the expected mean square residual is the mean over the fit's points of
+    e_r^T C e_r + a^T C a (e_r radial, a the axis), an upper bound (the fit absorbs its six
+    parameters' worth).
+
+    Parameters
+    ----------
+    rig : the pair the points were triangulated with (camera-1 frame).
+    fit : one LED's fit from :func:`_joint_fits` (``points`` (n, 3), ``centre``, ``axis``).
+    """
+    from .triangulate import predicted_covariance
+
+    X = np.asarray(fit["points"], float)
+    a = np.asarray(fit["axis"], float)
+    C = predicted_covariance(rig, X, LED_CENTROID_RMS_PX / math.sqrt(2))  # per image axis
+    d = X - fit["centre"]
+    radial = d - np.outer(d @ a, a)
+    radial /= np.linalg.norm(radial, axis=1)[:, None]
+    ms = np.einsum("ni,nij,nj->n", radial, C, radial) + np.einsum("i,nij,j->n", a, C, a)
+    return FIT_RMS_FACTOR * float(np.sqrt(np.mean(ms)))
+
+
+def check_circle_fits(rig_c1: Rig, fits: dict, source: str = "") -> dict:
+    """Refuse a calibration whose joint-axis circle fits are worse than the LED noise allows.
+
+    Every fit's RMS residual is compared with :func:`circle_fit_bound_mm`. A rig that is right
+    triangulates each LED's path on its circle to within the eye's noise; one whose intrinsics
+    are wrong (a principal point in a local minimum, 100 px off) bends the path off it by
+    millimetres, where the board's reprojection RMS only doubles.
+
+    Parameters
+    ----------
+    fits : {joint: {marker: fit}} from :func:`_joint_fits`.
+
+    Returns
+    -------
+    The worst fit against its bound: {"fit", "rms_mm", "bound_mm"} (for the record).
+
+    Raises
+    ------
+    UserError : one line naming the rig file, the fit, its RMS and its bound.
+    """
+    rows = [(f"q{j + 1} {n}", f["rms_mm"], circle_fit_bound_mm(rig_c1, f))
+            for j, fj in sorted(fits.items()) for n, f in fj.items()]
+    name, rms, bound = max(rows, key=lambda r: r[1] / r[2])
+    if not rms <= bound:
+        where = f"{source}: " if source else ""
+        joint, led = name.split()
+        raise UserError(
+            f"{where}calibration inconsistent: base frame: the {led} LED's circle about joint "
+            f"{joint} fits with RMS {rms:.2f} mm, over the {bound:.2f} mm its noise allows "
+            f"({FIT_RMS_FACTOR:g} x what {LED_CENTROID_RMS_PX} px of centroid error predicts "
+            "through the calibrated pair): the calibrated lenses bend the LEDs' paths, their "
+            "intrinsics are wrong")
+    return {"fit": name, "rms_mm": rms, "bound_mm": bound}
+
+
 def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,
                          source: str = "") -> tuple[np.ndarray, np.ndarray, dict]:
     """World (base) frame in camera-1 coordinates from the joint axes the LEDs trace.
@@ -442,7 +552,8 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,
     Raises
     ------
     UserError : an LED seen by both cameras in fewer than 3/4 of a sweep's poses (one line
-        naming the rig file, the arm, the joint, the LED and the count needed).
+        naming the rig file, the arm, the joint, the LED and the count needed); a circle fit
+        worse than the LED noise allows (:func:`check_circle_fits`).
 
     Returns
     -------
@@ -452,6 +563,7 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,
 
     fits = {j: _joint_fits(rig_c1, arm, j, shots, names, source)
             for j, (shots, names) in sweeps.items()}
+    worst = check_circle_fits(rig_c1, fits, source)
     base = fits[0]
     z = np.sum([f["axis"] for f in base.values()], axis=0)
     z /= np.linalg.norm(z)
@@ -460,7 +572,8 @@ def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,
               "arm": arm.name,
               "sweeps": {f"q{j + 1}": {"poses": len(shots), "markers": list(names)}
                          for j, (shots, names) in sweeps.items()},
-              "fit_rms_mm": max(f["rms_mm"] for fj in fits.values() for f in fj.values())}
+              "fit_rms_mm": max(f["rms_mm"] for fj in fits.values() for f in fj.values()),
+              "worst_fit": worst}
     if arm.planar:
         on_link1 = base["elbow"] if "elbow" in base else base["gripper"]
         x = zero_direction(c, z, on_link1["points"], on_link1["angles_deg"])
@@ -679,6 +792,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         "reprojection_rms_px": {c1.name: cal.rms_px[0], c2.name: cal.rms_px[1]},
         "intrinsics_start": {c1.name: cal.start[0], c2.name: cal.start[1]},
         "stereo_rms_px": cal.stereo_rms_px,
+        "stereo_excess_px": stereo_excess_px(cal.stereo_rms_px, cal.rms_px),
         "per_view_rms_px": {c1.name: cal.per_view_rms_px[0], c2.name: cal.per_view_rms_px[1]},
         "base_frame": base_record,
         "error_vs_true": rig_errors(true_rig, rig),
