@@ -326,12 +326,17 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
                         f"dropping outliers {sorted(dropped)}; need at least {min_views}")
     spans = tilt_spans_deg(res[0][1][3])
     std_rel = tuple(float(r[5][0] / r[1][0, 0]) for _, r in res)
-    if min(spans) < MIN_TILT_SPAN_DEG or max(std_rel) > MAX_FOCAL_STD \
-            or not all(np.isfinite(r[0]) for _, r in res):
+    if min(spans) < MIN_TILT_SPAN_DEG or not all(np.isfinite(r[0]) for _, r in res):
         raise UserError(f"{where}degenerate board poses: the board's tilt spans only "
                         f"{spans[0]:.0f} x {spans[1]:.0f} deg over {len(res[0][0])} views (need "
                         f"{MIN_TILT_SPAN_DEG:.0f} about two axes; focal std "
                         f"{100 * max(std_rel):.2f} %): tilt the board more")
+    if max(std_rel) > MAX_FOCAL_STD:  # tilted enough, and still not pinned down
+        raise UserError(f"{where}degenerate board poses: the focal length's std is "
+                        f"{100 * max(std_rel):.2f} % (at most {100 * MAX_FOCAL_STD:g} %) over "
+                        f"{len(res[0][0])} views whose tilt spans {spans[0]:.0f} x {spans[1]:.0f} "
+                        "deg, enough: the corners are too noisy or too few (more views, or the "
+                        "board nearer the cameras)")
     (u1, (rms1, K1, d1, _, pv1, sd1, st1)), (u2, (rms2, K2, d2, _, pv2, sd2, st2)) = res
     srms, K1, d1, K2, d2, R, T, _, _ = cv2.stereoCalibrate(
         [obj_board] * len(both), [views.corners[k][0] for k in both],
