@@ -564,6 +564,20 @@ def test_three_link_targets_count_every_condition_and_the_runs_with_an_led_unsee
     assert "runs with an LED unseen: ITG+ 1, DLS 0" in med.note
 
 
+def test_three_link_median_note_counts_the_runs_that_flail_without_diverging():
+    """A run that tracks (median 0.37 mm: not diverged) with a tracking max of 35 mm moves
+    neither pooled verdict (an audit: 4 of 21 helix seeds under links +5 % and a 1 deg offset);
+    the median target's note counts the runs whose max exceeds the two-link max target, 3 mm
+    (3.0 itself is not over it)."""
+    k = itg_plus
+    rows = [_row(k.SUBJECT_3, s, "helix", track_max_mm=m, track_median_mm=0.37)
+            for s, m in enumerate((0.5, 35.2, 3.0, 8.5))]
+    rows += [_row(k.DLS_3, s, "helix", track_max_mm=0.6, track_median_mm=0.3) for s in range(4)]
+    div, med = k.three_link_targets(rows, ["helix"])
+    assert div.measured == 0 and med.met
+    assert med.note.endswith("; runs whose tracking max exceeds 3 mm: ITG+ 2, DLS 0")
+
+
 def test_the_preview_target_reads_the_clean_runs_and_the_same_run_check_every_column():
     """The tracking max with preview is the clean runs' (1 mm; the 1 px runs' 5 mm is a
     note); a run with preview that differs from its twin in its tracking max alone is found."""

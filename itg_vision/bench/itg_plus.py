@@ -457,11 +457,16 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
         med, med_dls = _median(mine, "track_median_mm"), _median(dls, "track_median_mm")
         missed = {LABELS[k]: sum(int(_f(r.get("n_missed", 0)) > 0) for r in rs)
                   for k, rs in ((SUBJECT_3, mine), (DLS_3, dls))}
+        # the tail the pooled median and the divergence count (a median rule) cannot see: a
+        # run that tracks but flails for a while
+        flail = {LABELS[k]: sum(_f(r["track_max_mm"]) > TRACK_MAX_MM for r in rs)
+                 for k, rs in ((SUBJECT_3, mine), (DLS_3, dls))}
         out.append(Target("three-link tracking median E_i (median over runs)", t, med, "<=",
                           MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}; "
                           + _tails(mine, SUBJECT_3) + "; " + _tails(dls, DLS_3)
-                          + f"; runs with an LED unseen: ITG+ {missed['ITG+']}, DLS {missed['DLS']}",
-                          gone + gone_dls))
+                          + f"; runs with an LED unseen: ITG+ {missed['ITG+']}, DLS {missed['DLS']}"
+                          + f"; runs whose tracking max exceeds {TRACK_MAX_MM:g} mm: ITG+ "
+                          f"{flail['ITG+']}, DLS {flail['DLS']}", gone + gone_dls))
     return out
 
 
