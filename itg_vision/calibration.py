@@ -322,8 +322,11 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
     n_found_both = len(both)
     both = [k for k in both if k not in dropped]
     if len(both) < min_views:
-        raise UserError(f"{where}only {len(both)} views with the board in both cameras are left after "
-                        f"dropping outliers {sorted(dropped)}; need at least {min_views}")
+        raise UserError(f"{where}only {len(both)} of the {n_found_both} views with the board in "
+                        f"both cameras are left after dropping each camera's outliers "
+                        f"{sorted(dropped)} (reprojection RMS over 3x its median and 0.3 px: a "
+                        "board seen too obliquely, as by cameras facing it from very different "
+                        f"directions, or blurred); need at least {min_views}")
     spans = tilt_spans_deg(res[0][1][3])
     std_rel = tuple(float(r[5][0] / r[1][0, 0]) for _, r in res)
     if min(spans) < MIN_TILT_SPAN_DEG or not all(np.isfinite(r[0]) for _, r in res):

@@ -774,8 +774,10 @@ def test_too_few_views_left_after_each_camera_drops_its_outliers_is_a_user_error
         c = list(views.corners[k])
         c[i] = (c[i] + rng.normal(0, 1.0, c[i].shape)).astype(np.float32)
         views.corners[k] = tuple(c)
-    with pytest.raises(UserError, match=r"only 6 views with the board in both cameras are left "
-                                        r"after dropping outliers \[0, 1\]; need at least 7"):
+    with pytest.raises(UserError, match=r"only 6 of the 8 views with the board in both cameras "
+                                        r"are left after dropping each camera's outliers \[0, 1\] "
+                                        r"\(reprojection RMS over 3x its median and 0.3 px: a "
+                                        r"board seen too obliquely, .*\); need at least 7$"):
         cal.calibrate_views(views, board, tuple(c.size for c in rig.cameras), min_views=7)
 
 
