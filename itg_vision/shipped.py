@@ -1,5 +1,7 @@
-"""What ships beside the package: the folders of arm files, rigs, rule bases and trajectory
-files, and the names a user may give for each (``--arm two-link``, ``--rules table2``...).
+"""What ships with the package: the folders of arm files, rigs, rule bases and trajectory
+files (``data/`` and ``cameras/`` beside the package in a clone, inside it once installed from a
+wheel: :data:`ROOT`), and the names a user may give for each (``--arm two-link``, ``--rules
+table2``...).
 
 The modules that read these files (arm, camera, rules, trajectory) take their folder from here,
 so that an arm file's ``defaults`` can be checked against the shipped names without the arm
