@@ -521,19 +521,18 @@ def check_circle_fits(rig_c1: Rig, fits: dict, source: str = "") -> dict:
     ------
     UserError : one line naming the rig file, the fit, its RMS and its bound.
     """
-    rows = [(f"q{j + 1} {n}", f["rms_mm"], circle_fit_bound_mm(rig_c1, f))
+    rows = [(f"q{j + 1}", n, f["rms_mm"], circle_fit_bound_mm(rig_c1, f))
             for j, fj in sorted(fits.items()) for n, f in fj.items()]
-    name, rms, bound = max(rows, key=lambda r: r[1] / r[2])
+    joint, led, rms, bound = max(rows, key=lambda r: r[2] / r[3])
     if not rms <= bound:
         where = f"{source}: " if source else ""
-        joint, led = name.split()
         raise UserError(
             f"{where}calibration inconsistent: base frame: the {led} LED's circle about joint "
             f"{joint} fits with RMS {rms:.2f} mm, over the {bound:.2f} mm its noise allows "
             f"({FIT_RMS_FACTOR:g} x what {LED_CENTROID_RMS_PX} px of centroid error predicts "
             "through the calibrated pair): the calibrated lenses bend the LEDs' paths, their "
             "intrinsics are wrong")
-    return {"fit": name, "rms_mm": rms, "bound_mm": bound}
+    return {"fit": f"{joint} {led}", "rms_mm": rms, "bound_mm": bound}
 
 
 def base_frame_from_axes(rig_c1: Rig, arm, sweeps: dict, *,

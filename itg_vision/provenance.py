@@ -25,5 +25,5 @@ def code_hash() -> str:
               + sorted(TRAJECTORIES_DIR.glob("*.csv"))]
     h = hashlib.sha256()
     for f, name in files:
-        h.update(str(name.as_posix()).encode() + b"\0" + f.read_bytes() + b"\0")
+        h.update(name.as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()[:12]

@@ -116,6 +116,8 @@ _TOKEN = re.compile(r"""
 """, re.VERBOSE)
 
 
+#: What a name qN or LN stands for, whether or not the arm has joint or link N.
+_RESERVED = {"q": "joint N's angle", "L": "link N's length"}
 #: A number run into letters, digits, '_' or a '.' ('1_000', '0x10', '1e', '5mm', '1.5.2').
 _GLUED = re.compile(r"[A-Za-z_0-9.]")
 _GLUED_WORD = re.compile(r"[A-Za-z_0-9.]+")
@@ -971,8 +973,7 @@ class RuleBase:
             if d.name in known or d.name in defined or re.fullmatch(r"q\d+|L\d+", d.name):
                 first = (f"LET on line {defined[d.name]}" if d.name in defined else
                          "a built-in name" if d.name in known else
-                         f"reserved: {d.name[0]}N names {'joint' if d.name[0] == 'q' else 'link'} "
-                         "N's " + ("angle" if d.name[0] == "q" else "length"))
+                         f"reserved: {d.name[0]}N names {_RESERVED[d.name[0]]}")
                 raise UserError(f"{self.source}:{d.line}:{d.col}: {d.name!r} is already {first}")
             defined[d.name] = d.line
         seen: dict[int, int] = {}

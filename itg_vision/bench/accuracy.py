@@ -199,10 +199,12 @@ def main(argv: list[str] | None = None) -> int:
         looks = args.poses * len(names)
         few_missed = r["n_missed"] <= MAX_MISSED_FRACTION * looks
 
-        def verdict(ok):
+        def verdict(ok, enough_samples=True):
             if not few_missed:  # judged on the looks the eye kept: a biased few
                 return (f"undecided: {r['n_missed']} of {looks} marker looks missed, more than "
                         f"{MAX_MISSED_FRACTION:.0%}")
+            if not enough_samples:  # their scatter alone could put a ratio in or out of a band
+                return "undecided"
             return "met" if ok else "NOT met"
 
         ratios = [row["ratio"] for row in r["rows"] if 0.1 <= row["sigma_px"] <= 1.0]
@@ -215,10 +217,7 @@ def main(argv: list[str] | None = None) -> int:
             f"({verdict(g <= TARGET_GRIPPER_MM)})")
         n, se = min(row["n"] for row in r["rows"]), r["ratio_se"]
         enough = 2 * se <= TARGET_RATIO - 1  # the band holds two standard errors
-        # too few samples to judge the band: no verdict either way (their scatter alone could
-        # put a ratio in or out of it)
-        judged = (verdict(max(worst, 1 / worst) <= TARGET_RATIO) if enough or not few_missed
-                  else "undecided")
+        judged = verdict(max(worst, 1 / worst) <= TARGET_RATIO, enough)
         say(f"  triangulation RMS / first-order prediction within {TARGET_RATIO}x for 0.1..1 px: "
             + ", ".join(f"{x:.3f}" for x in ratios)
             + f" ({judged}; each ratio from {n} 3-D "

@@ -455,12 +455,15 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
                           f"of {len(mine)}: {seeds} seeds x {len(conds)} conditions; DLS "
                           f"{sum(r['diverged'] == '1' for r in dls)}", gone))
         med, med_dls = _median(mine, "track_median_mm"), _median(dls, "track_median_mm")
-        missed = {LABELS[k]: sum(int(_f(r.get("n_missed", 0)) > 0) for r in rs)
-                  for k, rs in ((SUBJECT_3, mine), (DLS_3, dls))}
+
+        def count(ran):  # runs of ITG+ and of DLS for which ran(row) holds
+            return {LABELS[k]: sum(bool(ran(r)) for r in rs) for k, rs in ((SUBJECT_3, mine),
+                                                                          (DLS_3, dls))}
+
+        missed = count(lambda r: _f(r.get("n_missed", 0)) > 0)
         # the tail the pooled median and the divergence count (a median rule) cannot see: a
         # run that tracks but flails for a while
-        flail = {LABELS[k]: sum(_f(r["track_max_mm"]) > TRACK_MAX_MM for r in rs)
-                 for k, rs in ((SUBJECT_3, mine), (DLS_3, dls))}
+        flail = count(lambda r: _f(r["track_max_mm"]) > TRACK_MAX_MM)
         out.append(Target("three-link tracking median E_i (median over runs)", t, med, "<=",
                           MEDIAN_FACTOR * med_dls, "mm", f"{MEDIAN_FACTOR:g} x DLS {med_dls:.3g}; "
                           + _tails(mine, SUBJECT_3) + "; " + _tails(dls, DLS_3)
@@ -473,7 +476,7 @@ def three_link_targets(rows: list[dict], trajectories) -> list[Target]:
 def speed_target(costs: dict) -> Target:
     """PyBullet's IK against the ITG+ step compiled to C (``bench speed``; the step compiled to
     Python beside it), or compiled to Python where no C compiler could build it."""
-    from .speed import SPEED_FACTOR, itg_plus_speed  # (speed imports the renderer: only when timed)
+    from .speed import SPEED_FACTOR, itg_plus_speed, itg_plus_step  # (speed imports the renderer)
 
     ik, py = costs["ik_pybullet_us"], costs["itg_plus_compiled_us"]
     c = costs.get("itg_plus_native_us")
@@ -484,7 +487,7 @@ def speed_target(costs: dict) -> Target:
         note += f"; C not built: {costs['native_error']}"
     ratio, compiled = itg_plus_speed(costs)
     passes = costs.get("passes_us", {})
-    step = "itg_plus_native_us" if compiled == "C" else "itg_plus_compiled_us"
+    step = itg_plus_step(costs)[0]
     if "ik_pybullet_us" in passes and step in passes:  # how much the machine moved it
         per = [a / b for a, b in zip(passes["ik_pybullet_us"], passes[step])]
         note += f"; the ratio pass by pass {min(per):.3g}-{max(per):.3g}x ({len(per)} passes)"

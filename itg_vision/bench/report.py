@@ -44,7 +44,8 @@ def _fmt_mm(v: float) -> str:
 
 def _signed(d: float) -> str:
     """A change to two decimals with its sign; one that rounds to zero is +0.00, never -0.00."""
-    return f"{d + 0.0:+.2f}" if round(d, 2) != 0 else "+0.00"
+    text = f"{d:+.2f}"
+    return "+0.00" if text == "-0.00" else text
 
 
 def _ratio(a: float, b: float) -> str:

@@ -160,13 +160,19 @@ SPEED_FACTOR = 50.0
 COMMAND = "bench speed"
 
 
+def itg_plus_step(costs: dict) -> tuple[str, str]:
+    """(the key of the compiled ITG+ step's time in ``costs``, what it was compiled to): the
+    step compiled to C, or compiled to Python where no C compiler could build it."""
+    if costs.get("itg_plus_native_us") is None:
+        return "itg_plus_compiled_us", "Python"
+    return "itg_plus_native_us", "C"
+
+
 def itg_plus_speed(costs: dict) -> tuple[float, str]:
-    """(PyBullet IK's time over the compiled ITG+ step's, which compiled step): the step
-    compiled to C, or compiled to Python where no C compiler could build it."""
-    c = costs.get("itg_plus_native_us")
-    if c is None:
-        return costs["ik_pybullet_us"] / costs["itg_plus_compiled_us"], "Python"
-    return costs["ik_pybullet_us"] / c, "C"
+    """(PyBullet IK's time over the compiled ITG+ step's, which compiled step):
+    :func:`itg_plus_step`'s."""
+    key, compiled = itg_plus_step(costs)
+    return costs["ik_pybullet_us"] / costs[key], compiled
 
 
 def replay_states(arm, rules, points_mm, settle: int, frames: int) -> list:
