@@ -274,8 +274,13 @@ class Trace:
 
 
 def _fmt(v) -> str:
+    """A trace value at 4 decimals; one that rounds to zero is "0.0000", never "-0.0000" (a
+    -6e-15 of cos 90 deg, whose sign another maths library may not share)."""
     v = float(v)
-    return "" if not np.isfinite(v) else f"{v:.4f}"
+    if not np.isfinite(v):
+        return ""
+    text = f"{v:.4f}"
+    return text[1:] if text == "-0.0000" else text
 
 
 def _checked(step):

@@ -243,6 +243,14 @@ def _check_default_out(out: Path, key: dict, force: bool) -> None:
                     f"); give --out, or {outputs.FORCE_REPLACES}")
 
 
+
+def _seconds(t: float) -> str:
+    """A time for trace.csv: to the microsecond whatever its size (an epoch time keeps its
+    milliseconds, where 6 significant digits dropped them), no trailing zeros, never "-0"."""
+    text = f"{t:.6f}".rstrip("0").rstrip(".")
+    return "0" if text == "-0" else text
+
+
 def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         args = build_parser().parse_args(argv)
@@ -307,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
             if prep.trajectory.t_s is not None:  # the file's times (laps go on by a period)
                 cols.insert(1, "t_s")
                 for row, t in zip(rows, prep.trajectory.t_s, strict=True):
-                    row.insert(1, f"{t:.6g}")
+                    row.insert(1, _seconds(t))
             outputs.write_text(tmp / "trace.csv", outputs.csv_text(cols, rows))
             outputs.write_json(tmp / "summary.json", summary)
             title = plot_title(summary)

@@ -333,6 +333,36 @@ def test_a_timed_files_times_are_a_column_of_the_trace(main_in_process, tmp_path
             assert "t_s" not in rows[0]
 
 
+def test_an_epoch_time_keeps_its_milliseconds_in_the_trace(main_in_process, tmp_path):
+    """Times of a robot log (epoch seconds, 20 ms apart) reach trace.csv to the microsecond:
+    6 significant digits made every one 1.7334e+09. Rounding to zero is "0", never "-0"."""
+    import csv
+
+    from itg_vision.run import _seconds
+
+    log = tmp_path / "log.csv"
+    log.write_text("x_mm,y_mm,t_s\n" + "".join(f"{100 + k},{50 + (k % 2)},{1733400000 + 0.02 * k:.2f}\n"
+                                              for k in range(5)))
+    out = tmp_path / "out"
+    res = main_in_process("itg_vision.run", "--trajectory", log, "--feedback", "model",
+                          "--out", out, "--quiet")
+    assert res.returncode == 0, res.stderr
+    with open(out / "trace.csv", newline="") as f:
+        times = [r["t_s"] for r in csv.DictReader(f)]
+    assert times == ["1733400000", "1733400000.02", "1733400000.04", "1733400000.06",
+                     "1733400000.08"]
+    assert (_seconds(-1e-9), _seconds(0.5), _seconds(2.5000000000000004)) == ("0", "0.5", "2.5")
+
+
+def test_no_trace_value_is_written_minus_zero():
+    """A value that rounds to zero is written "0.0000": cos 90 deg's -6e-15 mm has a sign that
+    another maths library may not share, and wrote "-0.0000" (the straight-up start)."""
+    from itg_vision.loop import _fmt
+
+    assert [_fmt(v) for v in (-6e-15, -0.00004, 0.0, -0.00005, -1.25, float("nan"))] == [
+        "0.0000", "0.0000", "0.0000", "-0.0001", "-1.2500", ""]
+
+
 @pytest.mark.slow
 def test_vision_tracking_meets_the_bound_against_truth():
     """Issue bound: E_av(vision) <= 1.5 E_av(truth) + 0.5 mm on ellipse-t1, same rules/gain.
