@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, UserError
+from .errors import MAX_POINTS, ConfigError, UserError
 from .inputs import clip, read_text
 from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES, or_a_path, trajectory_file_names
 
@@ -64,6 +64,10 @@ class Trajectory:
         """
         if laps < 1 or laps > 1000:
             raise ConfigError("laps", f"must be in 1..1000, got {laps}")
+        if laps > 1 and not self.closed and len(self.points_mm) < 4:
+            raise ConfigError("laps", f"trajectory {self.name} has {len(self.points_mm)} set "
+                                      "points; a path run in laps needs at least 4 (to tell "
+                                      "that it closes)")
         if laps > 1 and not self.closed:
             raise ConfigError("laps", f"trajectory {self.name} is not a closed path (its last "
                                       "point is not next to its first): it can run only once")
@@ -205,14 +209,21 @@ MAX_COORD_MM = 1e6
 DECIMAL = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 
 
+#: The largest trajectory CSV read (bytes): room for MAX_POINTS rows of x, y, z and t_s written
+#: at numpy's full precision (~100 bytes a row), not the 1 MiB of a rule or rig file, which
+#: refused a 12000-row robot log with times.
+MAX_CSV_BYTES = 16 << 20
+
+
 def read_csv(path: str | Path) -> Trajectory:
     """A user trajectory: header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm``, optional ``t_s`` column.
 
-    UTF-8 text of at most :data:`itg_vision.inputs.MAX_FILE_BYTES` (a spreadsheet's byte-order
-    mark is dropped); every problem is one `UserError` naming the file, line and field.
+    UTF-8 text of at most :data:`MAX_CSV_BYTES` (a spreadsheet's byte-order mark is dropped)
+    and :data:`itg_vision.errors.MAX_POINTS` set points; every problem is one `UserError`
+    naming the file, line and field.
     """
     path = Path(path)
-    text = read_text(path, "trajectory CSV")
+    text = read_text(path, "trajectory CSV", limit=MAX_CSV_BYTES)
     reader = csv.reader(re.split(r"\r\n|\r|\n", text), strict=True)  # \f is no line end
     rows, starts = [], []  # each row, and the line it starts on (a quoted field may go on)
     while True:
@@ -263,6 +274,9 @@ def read_csv(path: str | Path) -> Trajectory:
     if len(values) < 2:
         raise UserError(f"{path}: {len(values) or 'no'} set point{'' if len(values) == 1 else 's'} "
                         "after the header; a trajectory needs at least 2 (as --points)")
+    if len(values) > MAX_POINTS:
+        raise UserError(f"{path}: {len(values)} set points; a trajectory holds at most "
+                        f"{MAX_POINTS} (as --points)")
     arr = np.array(values)
     cols = {h: arr[:, i] for i, h in enumerate(header)}
     planar = "z_mm" not in cols

@@ -367,3 +367,32 @@ def test_the_arc_lies_on_the_one_link_leds_circle_of_any_length():
     t = T.named("arc", arm=arm)
     r = np.hypot(*forward_kinematics(arm, [12.0])["gripper"][:2])
     np.testing.assert_allclose(np.hypot(t.points_mm[:, 0], t.points_mm[:, 1]), r, atol=1e-9)
+
+
+def test_a_short_csv_path_asked_for_laps_says_it_is_too_short(tmp_path):
+    """Fewer than 4 set points cannot tell a closed path: laps are refused for that, not with
+    "its last point is not next to its first" (false for a point written twice); a named
+    closed path of 3 points still laps."""
+    f = tmp_path / "two.csv"
+    f.write_text("x_mm,y_mm\n100,100\n100,100\n")
+    with pytest.raises(ConfigError, match=r"has 2 set points; a path run in laps needs at least 4"):
+        T.read_csv(f).repeated(2)
+    assert len(T.named("ellipse-t1", 3).repeated(2).points_mm) == 6
+
+
+def test_a_robot_log_over_a_mebibyte_is_read_and_one_over_max_points_is_refused(tmp_path):
+    """A 12000-row x, y, z, t log at numpy's full precision (1.2 MB) is a trajectory; the limit
+    is MAX_POINTS set points (as --points), said with its number, not a file size."""
+    from itg_vision.errors import MAX_POINTS
+
+    k = np.arange(12000)
+    log = np.column_stack([100 + 20 * np.cos(k / 100), 20 * np.sin(k / 100), 150 + k * 1e-3, k * 0.01])
+    big = tmp_path / "log.csv"
+    np.savetxt(big, log, delimiter=",", header="x_mm,y_mm,z_mm,t_s", comments="")
+    assert big.stat().st_size > 1 << 20
+    assert len(T.read_csv(big).points_mm) == 12000
+    many = tmp_path / "many.csv"
+    many.write_text("x_mm,y_mm\n" + "1,2\n" * (MAX_POINTS + 1))
+    with pytest.raises(UserError, match=rf"many.csv: {MAX_POINTS + 1} set points; a trajectory "
+                                        rf"holds at most {MAX_POINTS} \(as --points\)"):
+        T.read_csv(many)
