@@ -7,6 +7,7 @@ import errno
 import os
 import signal
 import sys
+import threading
 from typing import Callable
 
 
@@ -78,6 +79,23 @@ _REFUSED_PATH = {errno.ENAMETOOLONG, errno.ENOSPC, errno.EDQUOT, errno.EFBIG, er
                  errno.EACCES, errno.EPERM, errno.ENOTDIR, errno.EISDIR, errno.ELOOP}
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP (``timeout``, a batch scheduler, ``docker stop``, a closed terminal),
+    raised where the command is, as Ctrl-C is: what it was writing is cleaned up the same way."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _terminate(signum, frame):
+    raise Terminated(signum)
+
+
+#: The signals a command turns into :class:`Terminated` (where the platform has them).
+TERMINATING = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
 def run_main(body: Callable[[], int]) -> int:
     """Run a command body; turn a `UserError` into one line on stderr and status 2.
 
@@ -96,11 +114,21 @@ def run_main(body: Callable[[], int]) -> int:
         print("error: the current folder no longer exists (cd to another folder)",
               file=sys.stderr)
         return 2
+    # SIGTERM / SIGHUP end the body as Ctrl-C does (their default kills the process on the
+    # spot, leaving a staging folder behind); only where nobody else handles them
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in TERMINATING:
+            if signal.getsignal(sig) is signal.SIG_DFL:
+                previous[sig] = signal.signal(sig, _terminate)
     try:
         return body()
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except Terminated as exc:
+        print(f"\nterminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130
@@ -113,6 +141,9 @@ def run_main(body: Callable[[], int]) -> int:
         where = f"{os.fsdecode(exc.filename)}: " if exc.filename is not None else ""
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def exit_status(status: int) -> int:

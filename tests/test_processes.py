@@ -225,6 +225,35 @@ def test_ctrl_c_of_bench_noise_says_how_far_it_got_and_how_to_resume(tmp_path):
     assert "Traceback" not in err and "Exception ignored" not in err
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP"])
+def test_a_terminated_run_cleans_up_as_ctrl_c_does(tmp_path, sig):
+    """SIGTERM (timeout, a batch scheduler, docker stop) and SIGHUP end a run as Ctrl-C does:
+    one line, status 128 + the signal, its staging folder gone;
+    by default they killed the process and left the staging folder behind."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = tmp_path / "r"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.run", "--points", "100000",
+                             "--feedback", "truth", "--out", str(out / "run")],
+                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not list(out.glob(".run.staging-*")):
+            time.sleep(0.05)
+        assert list(out.glob(".run.staging-*")), "no staging folder within 60 s"
+        proc.send_signal(getattr(signal, sig))
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + getattr(signal, sig), err
+    assert err.splitlines()[-1] == f"terminated ({sig})", err
+    assert "Traceback" not in err
+    assert list(out.iterdir()) == []  # no staging folder, no half result
+
+
 def test_after_an_interruption_a_further_ctrl_c_is_ignored_while_exiting():
     from itg_vision.errors import exit_status
 
