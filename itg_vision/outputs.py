@@ -522,9 +522,9 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
     SHA-256: a later run of the same command may replace those, and nothing else. Readers of
     ``out`` see either the old results or the new ones, never a mix; commands swapping into
     the same ``out`` at once take turns (:func:`flocked` on its parent folder). Whatever goes wrong before the
-    swap (a bad input, an error, a full disk, Ctrl-C, a file the user put into ``out``
-    meanwhile) leaves ``out`` as it was and no staging folder behind, and a file that could not
-    be written is named under ``out``, not under the staging folder. A swap the system refuses
+    swap (a bad input, an error, a full disk, Ctrl-C) leaves ``out`` as it was and no staging
+    folder behind, and a file that could not be written is named under ``out``, not under the
+    staging folder. A file the user put into ``out`` meanwhile, or a swap the system refuses,
     leaves ``out`` as it was and the new results beside it (``<name>.new-N``), said in one line.
     """
     path = check_path(out, option)
@@ -549,7 +549,12 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         except OSError as exc:
             raise _named_under(exc, tmp, out, option) from None
         with flocked(out.parent):
-            check_out_dir(out, command, force=force, option=option)  # changed meanwhile?
+            try:
+                check_out_dir(out, command, force=force, option=option)  # changed meanwhile?
+            except UserError as exc:  # the user's files stay; so do the results: beside them
+                new = _free_name(out, "new")
+                os.replace(tmp, new)
+                raise UserError(f"{exc}; the new results are in {new}") from None
             keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(out, command))
             old = _swap(out, tmp, keep, command, option)
     except BaseException:

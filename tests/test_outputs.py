@@ -4,6 +4,7 @@ import io
 import json
 import math
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -325,15 +326,20 @@ def test_a_file_managers_own_files_do_not_make_a_result_the_users(tmp_path):
 
 
 def test_a_file_the_user_puts_in_while_the_command_works_is_kept(tmp_path):
+    """The user's file stays in --out, with the old results; the new results are not thrown
+    away but kept whole beside it as r.new-1 (they were deleted), and the line says where."""
     out = tmp_path / "r"
     _make(out, text="old")
-    with pytest.raises(UserError, match="first: notes.txt"):
+    with pytest.raises(UserError, match=rf"first: notes.txt\).*; the new results are in "
+                                        rf"{re.escape(str(tmp_path / 'r.new-1'))}$"):
         with outputs.staged_dir(out, "run") as tmp:
             (tmp / "result.txt").write_text("new")
             (out / "notes.txt").write_text("written meanwhile")
     assert (out / "notes.txt").read_text() == "written meanwhile"
     assert (out / "result.txt").read_text() == "old"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+    assert (tmp_path / "r.new-1" / "result.txt").read_text() == "new"
+    assert outputs.read_manifest(tmp_path / "r.new-1")["entries"]  # a whole result, listed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r", "r.new-1"]
 
 
 @pytest.mark.parametrize("taken_by", ["a folder", "a dangling link"])
