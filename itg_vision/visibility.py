@@ -142,6 +142,13 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
                         f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()
     gripper, elbows = led_points(arm, points_mm)
+    # the set points led_points kept (those in reach), by their index: trace.csv's k
+    kept = [i for i, p in enumerate(np.asarray(points_mm, float).reshape(-1, 3))
+            if arm.reachable(p)]
+
+    def at(k: int) -> str:
+        return "at the start pose" if k == 0 else f"at set point k = {kept[k - 1]} (trace.csv's k)"
+
     where = rig.source or rig.name
     for i, cam in enumerate(rig.cameras):
         who = f"{where}: cameras[{i}] ({cam.name})"
@@ -158,14 +165,14 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
         bad = [k for k, w in enumerate(why) if w]
         if bad:
             k = bad[0]
-            what = "at the start pose" if k == 0 else f"at set point {k} of those in reach"
+            what = at(k)
             raise UserError(f"{who}: cannot see the gripper LED at {len(bad)} of {len(why)} "
                             f"positions; {what}, {tuple(round(float(v), 1) for v in gripper[k])} mm "
                             f"{why[k]}{hint}")
         for k, branches in enumerate(elbows):
             whys = _visible(cam, branches, near_mm, far_mm)
             if all(whys):
-                what = "at the start pose" if k == 0 else f"at set point {k} of those in reach"
+                what = at(k)
                 raise UserError(f"{who}: cannot see the elbow LED {what}: "
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
                                 f"{whys[0]}{hint}")

@@ -169,8 +169,13 @@ def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
     p = np.array([[0.0, 150.0, 0.0]])
     check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], p)
     with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the elbow LED at set "
-                                        r"point 1 of those in reach: \(66.1, 75.0, 12.0\) mm"):
+                                        r"point k = 0 \(trace.csv's k\): \(66.1, 75.0, 12.0\) mm"):
         check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2], p)
+    # the set point is named by its index in the trajectory (trace.csv's k), out-of-reach points
+    # before it counted (it said "set point 1 of those in reach", the count among those kept)
+    with pytest.raises(UserError, match=r"elbow LED at set point k = 2 \(trace.csv's k\)"):
+        check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2],
+                      np.vstack([[[500.0, 0.0, 0.0], [0.0, 300.0, 0.0]], p]))
     check_visible(*_two_link(_down(-35.0, 130.0, 600.0))[:2], p)  # the - branch alone, as well
 
 
