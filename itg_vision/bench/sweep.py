@@ -259,7 +259,7 @@ class RunSpec:
     step_deg: float | None = None
     tolerance_mm: float | None = None
 
-    @property
+    @functools.cached_property  # asked several times per run by a sweep's planning
     def run_id(self) -> str:
         # a rule parameter not given is left out: the ids of runs without any are those they
         # had before the parameters were added (a sweep resumes)
