@@ -66,6 +66,30 @@ def _reach_marks(trace) -> list[tuple[np.ndarray, str, str, str]]:
         if w.any()]
 
 
+#: Up to this many laps each gets a colour of its own and a legend entry; more share a
+#: colour map (first lap to last), and only the first and the last are named.
+MAX_NAMED_LAPS = 10
+
+
+def lap_style(k: int, laps: int, what: str = "actual gripper") -> tuple:
+    """Colour and legend label of lap ``k`` (from 0) of ``laps``: a label per lap up to
+    :data:`MAX_NAMED_LAPS`, beyond them the first and the last only (None: no entry)."""
+    if laps <= 1:
+        return "C0", what
+    if laps <= MAX_NAMED_LAPS:
+        return f"C{k}", f"{what}, lap {k + 1}"
+    color = plt.get_cmap("viridis")(k / (laps - 1))
+    return color, (f"{what}, lap {k + 1} (of {laps}; laps between in the colours between)"
+                   if k == 0 else f"{what}, lap {k + 1}" if k == laps - 1 else None)
+
+
+def marked_laps(laps: int) -> range:
+    """The laps after the first whose start the error figure marks: each, up to
+    :data:`MAX_NAMED_LAPS`; beyond them about ten, evenly (1000 marks drew a black band)."""
+    step = max(1, -(-laps // MAX_NAMED_LAPS))
+    return range(step, laps, step)
+
+
 def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
     """Desired against actual path (x-y for planar arms, 3-D with equal scales for the
     three-link arm). The actual gripper is drawn as dots, a colour per lap; the desired path as
@@ -73,13 +97,13 @@ def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
     d = np.asarray(trace.desired_mm)
     g = np.asarray(trace.gripper_mm)
     marks = _reach_marks(trace)
-    many = laps > 1
     if trace.planar:
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
         ax.plot(0, 0, "^", color="0.55", ms=7, zorder=1, label="base")
         for k, part in enumerate(lap_slices(len(g), laps)):
-            ax.plot(g[part, 0], g[part, 1], ".", ms=4, color=f"C{k % 10}", zorder=2,
-                    label=f"actual gripper, lap {k + 1}" if many else "actual gripper")
+            color, label = lap_style(k, laps)
+            ax.plot(g[part, 0], g[part, 1], ".", ms=4, color=color, zorder=2,
+                    label=label or "_nolegend_")
         ax.plot(d[:, 0], d[:, 1], "-", color="k", lw=0.7, zorder=3, label="desired")
         for which, marker, color, label in marks:
             ax.plot(d[which, 0], d[which, 1], marker, color=color, zorder=4, label=label)
@@ -91,8 +115,9 @@ def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
         ax = fig.add_subplot(projection="3d")
         ax.plot([0], [0], [0], "^", color="0.55", ms=7, label="base")
         for k, part in enumerate(lap_slices(len(g), laps)):
-            ax.plot(g[part, 0], g[part, 1], g[part, 2], ".", ms=4, color=f"C{k % 10}",
-                    label=f"actual gripper, lap {k + 1}" if many else "actual gripper")
+            color, label = lap_style(k, laps)
+            ax.plot(g[part, 0], g[part, 1], g[part, 2], ".", ms=4, color=color,
+                    label=label or "_nolegend_")
         ax.plot(d[:, 0], d[:, 1], d[:, 2], "-", color="k", lw=0.7, label="desired")
         for which, marker, color, label in marks:
             ax.plot(d[which, 0], d[which, 1], d[which, 2], marker, color=color, label=label)
@@ -126,9 +151,10 @@ def error_figure(trace, title: str, path, *, laps: int = 1) -> None:
     if missed.any():
         ax.plot(np.flatnonzero(missed), e[missed], "o", mfc="none", ms=4, color="C1",
                 label=f"a marker missed ({missed.sum()} set points)")
-    for k, part in enumerate(lap_slices(len(e), laps)[1:], start=2):
-        ax.axvline(part.start - 0.5, color="0.6", ls=":", lw=0.8)
-        ax.annotate(f"lap {k}", (part.start, 0), xycoords=("data", "axes fraction"),
+    parts = lap_slices(len(e), laps)
+    for k in marked_laps(laps):
+        ax.axvline(parts[k].start - 0.5, color="0.6", ls=":", lw=0.8)
+        ax.annotate(f"lap {k + 1}", (parts[k].start, 0), xycoords=("data", "axes fraction"),
                     xytext=(2, 3), textcoords="offset points", fontsize=7, color="0.4")
     m = trace.metrics()  # the summary's numbers, not a second computation of them
     tracked = m["track_max_mm"] is not None
@@ -242,8 +268,9 @@ def paths_figure(panels: list, title: str, path, *, laps: int = 1) -> None:
     for ax, (sub, trace, *jumps) in zip(axes[0], panels):
         d, g = np.asarray(trace.desired_mm), np.asarray(trace.gripper_mm)
         for k, part in enumerate(lap_slices(len(g), laps)):
-            ax.plot(g[part, 0], g[part, 1], ".", ms=4, zorder=2, color=f"C{k % 10}",
-                    label=f"actual, lap {k + 1}" if laps > 1 else "actual")
+            color, label = lap_style(k, laps, "actual")
+            ax.plot(g[part, 0], g[part, 1], ".", ms=4, zorder=2, color=color,
+                    label=label or "_nolegend_")
         cuts = sorted(i for i, _, _ in (jumps[0] if jumps else ()))
         first = True
         for part in np.split(np.arange(len(d)), [i + 1 for i in cuts]):

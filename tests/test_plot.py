@@ -87,6 +87,26 @@ def test_a_curve_is_not_joined_to_a_value_drawn_at_the_floor(figures):
     assert ik.get_marker() != x.get_marker()
 
 
+def test_many_laps_share_a_colour_map_and_name_only_the_first_and_last(figures):
+    """Past MAX_NAMED_LAPS laps the legend names the first and the last lap only (100 laps
+    made a 2019 px tall legend, and colours repeated every 10), each lap still drawn in its own
+    colour of a map; the error figure marks about ten lap starts, not 999."""
+    a = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    lap = np.c_[100 + 50 * np.cos(a), 50 * np.sin(a), np.zeros(8)]
+    d = np.vstack([lap] * 100)
+    plot.path_figure(_trace(d, d + [0.5, 0, 0]), "t", "x.png", laps=100)
+    ax = figures[0].axes[0]
+    named = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert [n for n in named if n.startswith("actual")] == [
+        "actual gripper, lap 1 (of 100; laps between in the colours between)",
+        "actual gripper, lap 100"]
+    dots = [ln for ln in ax.lines if ln.get_marker() == "."]
+    assert len(dots) == 100 and len({tuple(np.round(ln.get_color(), 6)) for ln in dots}) == 100
+    assert list(plot.marked_laps(1000)) == list(range(100, 1000, 100))
+    assert list(plot.marked_laps(4)) == [1, 2, 3]  # each lap after the first, as before
+    assert plot.lap_style(3, 4) == ("C3", "actual gripper, lap 4")
+
+
 def test_log_ticks_are_plain_decimals(figures):
     plot.lines_figure({"a": ([1, 2], [0.002, 60.0])}, "s", "E (mm)", "t", "x.png", logy=True)
     fmt = figures[0].axes[0].yaxis.get_major_formatter()
