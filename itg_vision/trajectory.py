@@ -301,7 +301,7 @@ def span_note(trajectory: Trajectory, reach_mm: float) -> str | None:
     small path elsewhere, or one set point held, is in millimetres: no note.)"""
     p = np.asarray(trajectory.points_mm, float)
     far = float(np.max(np.linalg.norm(p, axis=1)))
-    if far >= SMALL_SPAN_FRACTION * reach_mm:
+    if far >= SMALL_SPAN_FRACTION * reach_mm or np.all(p == p[0]):  # held: no scale to judge
         return None
     return (f"note: trajectory {trajectory.name} lies within {far:.3g} mm of the base, under "
             f"{100 * SMALL_SPAN_FRACTION:g} % of the arm's {reach_mm:g} mm reach: its "

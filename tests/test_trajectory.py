@@ -396,3 +396,15 @@ def test_a_robot_log_over_a_mebibyte_is_read_and_one_over_max_points_is_refused(
     with pytest.raises(UserError, match=rf"many.csv: {MAX_POINTS + 1} set points; a trajectory "
                                         rf"holds at most {MAX_POINTS} \(as --points\)"):
         T.read_csv(many)
+
+
+def test_a_point_held_at_the_base_gets_no_metres_note(tmp_path):
+    """span_note's rule: a path within 1 % of the reach of the base may be in metres; a point
+    held (every set point the same) has no scale to judge, even at the base itself (it said
+    the path 'lies within 0 mm of the base'); a tiny path about the base still gets the note."""
+    held = tmp_path / "held.csv"
+    held.write_text("x_mm,y_mm\n0,0\n0,0\n0,0\n")
+    assert T.span_note(T.read_csv(held), 200.0) is None
+    tiny = tmp_path / "tiny.csv"
+    tiny.write_text("x_mm,y_mm\n0.1,0\n0,0.1\n-0.1,0\n")
+    assert T.span_note(T.read_csv(tiny), 200.0).startswith("note: trajectory ")
