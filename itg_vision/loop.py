@@ -27,6 +27,7 @@ import numpy as np
 from .contracts import MARKERS, Controller, Markers, Step
 from .errors import UserError
 from .inputs import is_real, is_whole
+from .outputs import unsigned_zero
 
 #: The marker whose lost look (the feedback then hands on its last estimate) the loop answers
 #: with the last decision's aim: the gripper is taken to be where that decision asked it to go.
@@ -274,13 +275,9 @@ class Trace:
 
 
 def _fmt(v) -> str:
-    """A trace value at 4 decimals; one that rounds to zero is "0.0000", never "-0.0000" (a
-    -6e-15 of cos 90 deg, whose sign another maths library may not share)."""
+    """A trace value at 4 decimals; one that rounds to zero is "0.0000", never "-0.0000"."""
     v = float(v)
-    if not np.isfinite(v):
-        return ""
-    text = f"{v:.4f}"
-    return text[1:] if text == "-0.0000" else text
+    return "" if not np.isfinite(v) else unsigned_zero(f"{v:.4f}")
 
 
 def _checked(step):

@@ -121,6 +121,15 @@ def write_json(path: str | Path, obj) -> None:
     write_text(path, json_text(obj))
 
 
+def unsigned_zero(text: str, sign: str = "") -> str:
+    """A formatted number that reads as zero without its minus sign (``sign`` in its place):
+    "-0.0000" -> "0.0000", "-0" -> "0", with ``sign="+"`` "-0.00" -> "+0.00". A -6e-15 (cos 90
+    deg) has a sign another maths library may not share; the text must not depend on it."""
+    if text.startswith("-") and not re.search(r"[1-9]", text):
+        return sign + text[1:]
+    return text
+
+
 def csv_text(columns: list[str], rows: list[list]) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -552,9 +561,8 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
             try:
                 check_out_dir(out, command, force=force, option=option)  # changed meanwhile?
             except UserError as exc:  # the user's files stay; so do the results: beside them
-                new = _free_name(out, "new")
-                os.replace(tmp, new)
-                raise UserError(f"{exc}; the new results are in {new}") from None
+                raise UserError(f"{exc}; the new results are in {_set_beside(out, tmp)}") \
+                    from None
             keep = force and (out.is_symlink() or out.is_dir() and not _replaceable(out, command))
             old = _swap(out, tmp, keep, command, option)
     except BaseException:
@@ -600,14 +608,20 @@ def _swap(out: Path, tmp: Path, keep: bool, command: str, option: str) -> Path |
             os.replace(old, out)
         if not isinstance(exc, OSError):
             raise
-        new = _free_name(out, "new")
-        os.replace(tmp, new)  # a whole result of ours, its manifest kept
         raise UserError(f"{option} {out}: could not be replaced ({exc.strerror or exc}); it is "
-                        f"as it was, and the new results are in {new}") from None
+                        f"as it was, and the new results are in {_set_beside(out, tmp)}") from None
     if keep and old is not None:  # --force over what this command did not make (or a link)
         why = "was a symbolic link" if old.is_symlink() else f"held what {command} did not write"
         print(f"note: {option} {out}: {why}; kept as {old}", file=sys.stderr)
     return old
+
+
+def _set_beside(out: Path, tmp: Path) -> Path:
+    """Keep the staging folder ``tmp``, a whole result of ours with its manifest, beside ``out``
+    as ``<name>.new-N`` (``out`` could not take it); returns that name."""
+    new = _free_name(out, "new")
+    os.replace(tmp, new)
+    return new
 
 
 def _replaceable(out: Path, command: str) -> bool:

@@ -70,11 +70,17 @@ def _prepare(base: RunConfig, exact: bool, in_plane: bool = False, **kw):
     ``in_plane``: :func:`in_plane_model`, unless the feedback is vision (the cameras need the
     LEDs on their posts)."""
     prep = prepare(replace(base, **kw))
-    if in_plane and prep.config.feedback != "vision":
+    if in_plane and _paper_model_feeds(prep.config.feedback):
         prep = in_plane_model(prep)
     if exact:
         prep.feedback_factory = lambda: ExactModel(prep.model)
     return prep
+
+
+def _paper_model_feeds(feedback: str) -> bool:
+    """Whether experiment 6 tracks the paper's in-plane points under ``feedback``: model and
+    truth do; vision tracks the LEDs on their posts, which the cameras need."""
+    return feedback != "vision"
 
 
 def in_plane_model(prep):
@@ -430,8 +436,9 @@ def tie_experiment(max_step_deg: float = 2.0, iterations: int = 5) -> list[dict]
 
 def _where_tracked(base: RunConfig) -> str:
     """The three-link point experiment 6 tracks and measures, for the report and the titles."""
-    return ("the LEDs on their 12 mm posts beside the arm's plane (the cameras' view)"
-            if base.feedback == "vision" else "gripper and elbow in the arm's plane (the paper's equations)")
+    return ("gripper and elbow in the arm's plane (the paper's equations)"
+            if _paper_model_feeds(base.feedback)
+            else "the LEDs on their 12 mm posts beside the arm's plane (the cameras' view)")
 
 
 EXP6_RUNS = (("as the paper (1 iteration, no servo limit)", {}),
@@ -446,7 +453,7 @@ def exp6(base, out) -> dict:
     t_full, s_full = _run(base, in_plane=True, arm="three-link", trajectory="line-ab")
     res["line-ab"] = {"n_out_of_reach": s_full["n_out_of_reach"], "n_flagged": s_full["n_flagged"],
                       "n_setpoints": s_full["n_setpoints"], "e_av_mm": s_full["e_av_mm"]}
-    if base.feedback != "vision":
+    if _paper_model_feeds(base.feedback):
         res["line-ab, LEDs on their posts"] = {"e_av_mm": _run(base, arm="three-link",
                                                                trajectory="line-ab")[1]["e_av_mm"]}
     e_full = t_full.error_mm()

@@ -243,12 +243,10 @@ def _check_default_out(out: Path, key: dict, force: bool) -> None:
                     f"); give --out, or {outputs.FORCE_REPLACES}")
 
 
-
 def _seconds(t: float) -> str:
     """A time for trace.csv: to the microsecond whatever its size (an epoch time keeps its
     milliseconds, where 6 significant digits dropped them), no trailing zeros, never "-0"."""
-    text = f"{t:.6f}".rstrip("0").rstrip(".")
-    return "0" if text == "-0" else text
+    return outputs.unsigned_zero(f"{t:.6f}".rstrip("0").rstrip("."))
 
 
 def main(argv: list[str] | None = None) -> int:

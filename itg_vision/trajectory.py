@@ -64,12 +64,11 @@ class Trajectory:
         """
         if laps < 1 or laps > 1000:
             raise ConfigError("laps", f"must be in 1..1000, got {laps}")
-        if laps > 1 and not self.closed and len(self.points_mm) < 4:
+        if laps > 1 and not self.closed:
             raise ConfigError("laps", f"trajectory {self.name} has {len(self.points_mm)} set "
                                       "points; a path run in laps needs at least 4 (to tell "
-                                      "that it closes)")
-        if laps > 1 and not self.closed:
-            raise ConfigError("laps", f"trajectory {self.name} is not a closed path (its last "
+                                      "that it closes)" if len(self.points_mm) < 4 else
+                                      f"trajectory {self.name} is not a closed path (its last "
                                       "point is not next to its first): it can run only once")
         if laps == 1:
             return self

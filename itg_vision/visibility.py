@@ -53,17 +53,25 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
         pose (one), then per set point in reach its inverse-kinematics branches (two; one of
         them must be seen). Empty for an arm without an elbow LED.
     """
+    return _led_points(arm, points_mm)[:2]
+
+
+def _led_points(arm: ArmSpec, points_mm: np.ndarray):
+    """:func:`led_points`, and for each of its gripper and elbow rows the index of its set
+    point in ``points_mm`` (trace.csv's k; None for the start pose)."""
     from .controllers import three_link_ik, two_link_ik
 
     nominal = arm.with_joint_offset((0.0,) * arm.n_joints)
     start = forward_kinematics(arm, arm.start_q_deg)
     pts = np.asarray(points_mm, float).reshape(-1, 3)
-    reach = [p for p in pts if arm.reachable(p)]
-    gripper = [start["gripper"]]
+    gripper, g_k = [start["gripper"]], [None]
     has_elbow = "elbow" in arm.marker_names
-    elbows = [start["elbow"][None]] if has_elbow else []
-    for p in reach:
+    elbows, e_k = ([start["elbow"][None]], [None]) if has_elbow else ([], [])
+    for k, p in enumerate(pts):
+        if not arm.reachable(p):
+            continue
         gripper.append(arm.gripper_led_mm(p))
+        g_k.append(k)
         if not has_elbow:
             continue
         if arm.planar:
@@ -74,7 +82,8 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np
         e = [forward_kinematics(nominal, q)["elbow"] for q in qs]
         if e:
             elbows.append(np.array(e))
-    return np.array(gripper), elbows
+            e_k.append(k)
+    return np.array(gripper), elbows, g_k, e_k
 
 
 #: How far (px) undistorting a point's distorted pixel may land from its pinhole pixel for the
@@ -141,13 +150,10 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
                         f"--links), is shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): "
                         f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()
-    gripper, elbows = led_points(arm, points_mm)
-    # the set points led_points kept (those in reach), by their index: trace.csv's k
-    kept = [i for i, p in enumerate(np.asarray(points_mm, float).reshape(-1, 3))
-            if arm.reachable(p)]
+    gripper, elbows, g_k, e_k = _led_points(arm, points_mm)
 
-    def at(k: int) -> str:
-        return "at the start pose" if k == 0 else f"at set point k = {kept[k - 1]} (trace.csv's k)"
+    def at(k: int | None) -> str:
+        return "at the start pose" if k is None else f"at set point k = {k} (trace.csv's k)"
 
     where = rig.source or rig.name
     for i, cam in enumerate(rig.cameras):
@@ -165,14 +171,14 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
         bad = [k for k, w in enumerate(why) if w]
         if bad:
             k = bad[0]
-            what = at(k)
+            what = at(g_k[k])
             raise UserError(f"{who}: cannot see the gripper LED at {len(bad)} of {len(why)} "
                             f"positions; {what}, {tuple(round(float(v), 1) for v in gripper[k])} mm "
                             f"{why[k]}{hint}")
         for k, branches in enumerate(elbows):
             whys = _visible(cam, branches, near_mm, far_mm)
             if all(whys):
-                what = at(k)
+                what = at(e_k[k])
                 raise UserError(f"{who}: cannot see the elbow LED {what}: "
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
                                 f"{whys[0]}{hint}")

@@ -44,8 +44,7 @@ def _fmt_mm(v: float) -> str:
 
 def _signed(d: float) -> str:
     """A change to two decimals with its sign; one that rounds to zero is +0.00, never -0.00."""
-    text = f"{d:+.2f}"
-    return "+0.00" if text == "-0.00" else text
+    return outputs.unsigned_zero(f"{d:+.2f}", "+")
 
 
 def _ratio(a: float, b: float) -> str:
