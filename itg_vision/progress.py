@@ -2,8 +2,9 @@
 
 tqdm redraws its bar in place with carriage returns; written to a file or a pipe (a log, CI)
 that becomes one ever-growing line. So when stderr is not a terminal, :func:`progress` prints a
-line like ``run two-link-ellipse-t1: 90/180 pt (50%), 12 s`` at every tenth of the way (at most
-one a second, at least one a minute while something moves) and a last one when done.
+line like ``run two-link-ellipse-t1: 90/180 pt (50%), 12 s, about 12 s left`` at every tenth of
+the way (at most one a second, at least one a minute while something moves) and a last one when
+done. The time left assumes the rest goes at the average pace so far.
 """
 
 from __future__ import annotations
@@ -30,7 +31,10 @@ class LineProgress:
         pct = f"{100 * self.n / self.total:.0f}%" if self.total else ""
         done = f"{self.n}/{self.total} {self.unit} ({pct})" if self.unit else pct
         post = f", {self.postfix}" if self.postfix else ""
-        return f"{self.desc}: {done}{post}, {time.monotonic() - self.t0:.0f} s"
+        elapsed = time.monotonic() - self.t0
+        left = f", about {_duration(elapsed * (self.total - self.n) / self.n)} left" \
+            if 0 < self.n < self.total else ""
+        return f"{self.desc}: {done}{post}, {elapsed:.0f} s{left}"
 
     def _emit(self) -> None:
         print(self._line(), file=self.file, flush=True)
@@ -56,6 +60,13 @@ class LineProgress:
             self.closed = True
             if (self.n, self.postfix) != (self._last_n, self._last_postfix):  # the last word
                 self._emit()
+
+
+def _duration(s: float) -> str:
+    """``45 s``, ``12 min``, ``3.5 h``: the estimate's own precision, no more."""
+    if s < 120:
+        return f"{s:.0f} s"
+    return f"{s / 60:.0f} min" if s < 7200 else f"{s / 3600:.1f} h"
 
 
 class _Off:

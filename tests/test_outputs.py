@@ -974,7 +974,27 @@ def test_a_log_says_something_at_least_once_a_minute(monkeypatch):
     assert log.getvalue() == ""
     now[0] += 31.0
     bar.update(1)  # still not a tenth, but over a minute since the start
-    assert log.getvalue() == "run x: 2/1000 pt (0%), 61 s\n"
+    assert log.getvalue() == "run x: 2/1000 pt (0%), 61 s, about 8.5 h left\n"
+
+
+def test_a_log_line_says_how_long_the_rest_takes_at_the_pace_so_far(monkeypatch):
+    """The time left is the time so far scaled by the share still to do (30 s for a quarter:
+    90 s more), in the unit a reader wants (seconds, minutes, hours); none once done."""
+    from itg_vision import progress as progress_mod
+
+    now = [0.0]
+    monkeypatch.setattr(progress_mod.time, "monotonic", lambda: now[0])
+    log = io.StringIO()
+    bar = progress_mod.LineProgress(100, "sweep", unit="", file=log)
+    for dt, n in ((30.0, 25), (270.0, 25), (3300.0, 40), (1.0, 10)):
+        now[0] += dt
+        bar.update(n)
+    assert log.getvalue().splitlines() == [
+        "sweep: 25%, 30 s, about 90 s left",         # 30 s * 75 / 25
+        "sweep: 50%, 300 s, about 5 min left",       # 300 s * 50 / 50
+        "sweep: 90%, 3600 s, about 7 min left",      # 3600 s * 10 / 90 = 400 s
+        "sweep: 100%, 3601 s"]
+    assert progress_mod._duration(7200 * 1.25) == "2.5 h"
 
 
 def test_a_file_the_user_puts_in_while_the_command_works_is_kept_whatever_its_name(tmp_path):
