@@ -1,10 +1,10 @@
 """The calibration target: a checkerboard, where it is shown, and its corners in the images.
 
 1. **Board** (:class:`Board`). A checkerboard (default 9 x 6 inner corners, 15 mm squares, 15 mm
-   white margin) is drawn with numpy into a PNG and put on a two-sided textured quad (an OBJ
-   with UVs, made at run time in a temporary folder). Its outer-corner square next to inner
-   corner (0, 0) is black and the opposite one white, so the corner order is unambiguous (see
-   :func:`canonical_order`).
+   white margin) is drawn with numpy into a PNG and put on a quad textured on its front, plain
+   white behind (an OBJ with UVs, made at run time in a temporary folder). Its outer-corner
+   square next to inner corner (0, 0) is black and the opposite one white, so the corner order
+   is unambiguous (see :func:`canonical_order`).
 2. **Poses** (:func:`sample_board_poses`). As a person waving a board would, the board is shown
    at ``N`` seeded random poses in front of both cameras, between them and the arm's
    workspace, tilted up to ``tilt_deg`` (default 45 degrees) about its two in-plane axes and
@@ -115,7 +115,8 @@ class Board:
         return np.where(black, 0, 255).astype(np.uint8)
 
     def write_assets(self, folder) -> tuple[str, str]:
-        """Write the texture (PNG) and a two-sided textured quad (OBJ, metres); return paths."""
+        """Write the texture (PNG) and a quad textured on its front, white behind (OBJ, metres);
+        return paths."""
         folder = Path(folder)
         png = folder / "board.png"
         obj = folder / "board.obj"
@@ -125,13 +126,20 @@ class Board:
         # the texture (board y0) has v = 1. Checked by
         # test_rendered_corners_match_the_projection_of_the_true_board (an 8 x 7 board's
         # pattern is not symmetric under a flip of v; the default 9 x 6 board's is).
+        # The back is plain white (every vertex at one texel of the white margin), as a real
+        # board's back shows no pattern: a camera that sees the back must not find corners
+        # there, whose order would be the mirror of the front's (a rig whose cameras face
+        # each other across the workspace saw it, and its stereo fit failed by ~18 px).
+        u_white = 0.5 * self.margin_mm / (x1 - x0) * 1e-3
+        v_white = 1.0 - u_white * (x1 - x0) / (y1 - y0)
         lines = ["# calibration board (itg_vision.board)",
                  f"v {x0:.6f} {y0:.6f} 0", f"v {x1:.6f} {y0:.6f} 0",
                  f"v {x1:.6f} {y1:.6f} 0", f"v {x0:.6f} {y1:.6f} 0",
                  "vt 0 1", "vt 1 1", "vt 1 0", "vt 0 0",
+                 f"vt {u_white:.6f} {v_white:.6f}",
                  "vn 0 0 -1", "vn 0 0 1",
                  "f 1/1/1 3/3/1 2/2/1", "f 1/1/1 4/4/1 3/3/1",   # front (seen from -z)
-                 "f 1/1/2 2/2/2 3/3/2", "f 1/1/2 3/3/2 4/4/2"]   # back
+                 "f 1/5/2 2/5/2 3/5/2", "f 1/5/2 3/5/2 4/5/2"]   # back: plain white
         obj.write_text("\n".join(lines) + "\n")
         return str(obj), str(png)
 
