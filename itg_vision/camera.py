@@ -599,6 +599,8 @@ def _distortion_check(fx, fy, cx, cy, W, H, dist, n_angles: int = 72,
 POSE_FORMS = ((("position_mm", "look_at_mm"), ("up",)),
               (("position_mm", "rotation_deg"), ()),
               (("rotation_matrix", "translation_mm"), ("position_mm",)))
+#: How far R R^T of a rotation_matrix may be from the identity (each element).
+ROTATION_TOL = 1e-6
 #: How far (mm) the exact form's position_mm may be from the pose's (written to 0.001 mm).
 POSITION_TOL_MM = 0.01
 
@@ -615,7 +617,12 @@ def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarr
     F.mapping(d, where, *forms[0])
     if "rotation_matrix" in d:
         R = F.array(d["rotation_matrix"], 9, f"{where}.rotation_matrix", shape=(3, 3)).reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        off = float(np.max(np.abs(R @ R.T - np.eye(3))))
+        if not off <= ROTATION_TOL:  # (NaN-safe)
+            F.fail(f"{where}.rotation_matrix", f"must be a rotation (orthonormal, det +1): R R^T "
+                   f"is {off:.2g} off the identity (at most {ROTATION_TOL:g}); a rotation "
+                   f"written to 4 or 5 decimals is 1e-4 to 1e-5 off: give it to 8 or more")
+        if np.linalg.det(R) < 0:
             F.fail(f"{where}.rotation_matrix", "must be a rotation (orthonormal, det +1)")
         t = F.array(d["translation_mm"], 3, f"{where}.translation_mm")
         if np.max(np.abs(t)) > MAX_POSITION_MM:

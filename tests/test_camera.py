@@ -373,6 +373,31 @@ def test_a_mirrored_rotation_matrix_is_refused(tmp_path):
                               "(orthonormal, det +1)")
 
 
+def test_a_rotation_matrix_written_with_too_few_digits_says_how_far_off_it_is(tmp_path):
+    """A rotation_matrix copied to 5 decimals (as a printout gives it) is ~7e-6 off
+    orthonormal, over the 1e-6 the loader allows: refused, and the one line says by how much,
+    the bound, and what to do (it said only 'must be a rotation (orthonormal, det +1)', which
+    a user reads as a wrong matrix). The same matrix to 8 decimals loads."""
+    rig = Rig.from_yaml(PLANAR)
+    doc = yaml.safe_load(PLANAR.read_text())
+    for digits in (5, 8):
+        for c, cam in zip(doc["cameras"], rig.cameras):
+            data = [round(float(v), digits) for v in cam.R.ravel()]
+            c["pose"] = {"rotation_matrix": {"rows": 3, "cols": 3, "data": data},
+                         "translation_mm": [float(v) for v in cam.t_mm]}
+        path = tmp_path / f"r{digits}.yaml"
+        path.write_text(yaml.safe_dump(doc))
+        if digits == 8:
+            assert np.allclose(Rig.from_yaml(path).cameras[0].R, rig.cameras[0].R, atol=1e-8)
+            continue
+        with pytest.raises(UserError) as exc:
+            Rig.from_yaml(path)
+        assert str(exc.value) == (
+            f"{path}: cameras[0].pose.rotation_matrix: must be a rotation (orthonormal, det +1): "
+            "R R^T is 7.1e-06 off the identity (at most 1e-06); a rotation written to 4 or 5 "
+            "decimals is 1e-4 to 1e-5 off: give it to 8 or more")
+
+
 def _mappings(doc):
     """Where a key can go in a rig document: (place in the message, the mapping)."""
     yield "", doc
