@@ -646,7 +646,11 @@ def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarr
         try:
             R = look_at_rotation(C, target, up)
         except ValueError:
-            F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
+            if "up" in d:
+                F.fail(f"{where}.up", "must not be zero or parallel to the viewing direction")
+            F.fail(f"{where}.up", "not given, and its default [0, 0, 1] is parallel to the "
+                                  "viewing direction (a camera looking straight down or up): "
+                                  "give up, the world direction shown as up in the image")
     else:
         rv = F.array(d["rotation_deg"], 3, f"{where}.rotation_deg")
         if np.max(np.abs(rv)) > 3600:

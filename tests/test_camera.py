@@ -398,6 +398,29 @@ def test_a_rotation_matrix_written_with_too_few_digits_says_how_far_off_it_is(tm
             "decimals is 1e-4 to 1e-5 off: give it to 8 or more")
 
 
+def test_a_camera_looking_straight_down_without_up_is_told_the_default_is_the_problem(tmp_path):
+    """A camera straight above the base looking down, pose without up (optional, default
+    [0, 0, 1], parallel to that view): the line said 'cameras[0].pose.up: must not be zero or
+    parallel to the viewing direction' of a field the file does not have. It now says the
+    default was used and what to give. With up written [0, 0, 1] the old words stand."""
+    doc = yaml.safe_load(PLANAR.read_text())
+    doc["cameras"][0]["pose"] = {"position_mm": [0.0, 0.0, 700.0], "look_at_mm": [0.0, 0.0, 0.0]}
+    path = tmp_path / "down.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(UserError) as exc:
+        Rig.from_yaml(path)
+    assert str(exc.value) == (
+        f"{path}: cameras[0].pose.up: not given, and its default [0, 0, 1] is parallel to the "
+        "viewing direction (a camera looking straight down or up): give up, the world "
+        "direction shown as up in the image")
+    doc["cameras"][0]["pose"]["up"] = [0.0, 0.0, 1.0]
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(UserError) as exc:
+        Rig.from_yaml(path)
+    assert str(exc.value) == (f"{path}: cameras[0].pose.up: must not be zero or parallel to the "
+                              "viewing direction")
+
+
 def _mappings(doc):
     """Where a key can go in a rig document: (place in the message, the mapping)."""
     yield "", doc
