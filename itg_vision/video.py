@@ -52,6 +52,19 @@ def open_writer(path: Path, fps: float, size: tuple[int, int]):
                     "FFmpeg backend, or one without those encoders)")
 
 
+#: Grey (BGR) below a panel shorter than the other (cameras of different image heights).
+PAD_BGR = (96, 96, 96)
+
+
+def side_by_side(panels: list[np.ndarray]) -> np.ndarray:
+    """The panels (BGR images) left to right, each at its own pixels (the circles and crosses
+    drawn on them stay where the eye saw them); a panel shorter than the tallest is filled
+    below with :data:`PAD_BGR` (a rig's cameras may have different image heights)."""
+    h = max(p.shape[0] for p in panels)
+    return np.hstack([p if p.shape[0] == h else cv2.copyMakeBorder(
+        p, 0, h - p.shape[0], 0, 0, cv2.BORDER_CONSTANT, value=PAD_BGR) for p in panels])
+
+
 class VideoRecorder:
     """Writes one frame per set point (the look of its last iteration; 20 fps by default) from
     a ``VisionFeedback``'s last observation: each LED the eye found ringed in its colour, one it
@@ -105,7 +118,7 @@ class VideoRecorder:
             h = panels[0].shape[0]
             cv2.putText(panels[0], label, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0),
                         1, cv2.LINE_AA)
-        frame = np.hstack(panels)
+        frame = side_by_side(panels)
         if self._writer is None:
             h, w = frame.shape[:2]
             target = self.path

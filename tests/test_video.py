@@ -83,6 +83,31 @@ def test_a_frame_rings_each_led_at_its_raw_pixel_the_panels_in_camera_order(writ
     assert frame[300, 309].tolist() == list(BACKGROUND[0][::-1])  # nothing about the undistorted
 
 
+def test_cameras_of_different_image_heights_make_one_frame_the_shorter_padded_below(written):
+    """A rig of 1280 x 720 and 640 x 480 cameras (each valid in a rig file): --video ended the
+    run with a traceback (numpy.hstack: 'along dimension 0, the array at index 0 has size 720
+    and the array at index 1 has size 480'). Now one frame 720 px tall, 1280 + 640 wide: each
+    panel at its own pixels, the shorter one filled below in grey."""
+    import dataclasses
+
+    rig = Rig.from_yaml(default_rig_path("two-link"))
+    big = dataclasses.replace(rig.cameras[0], image_width=1280, image_height=720,
+                              cx=639.5, cy=359.5)
+    rig = dataclasses.replace(rig, cameras=(big, rig.cameras[1]))
+    views = tuple(np.full((c.image_height, c.image_width, 3), b, np.uint8)
+                  for c, b in zip(rig.cameras, BACKGROUND))
+    eye = SimpleNamespace(arm=ArmSpec.from_args("two-link"), estimate_rig=rig,
+                          last_observation=SimpleNamespace(frames=lambda: views, detections={},
+                                                           reasons={}))
+    video.VideoRecorder("unused").frame(eye, np.full(3, np.nan))
+    (frame,) = written
+    assert frame.shape == (720, 1280 + 640, 3)
+    assert frame[719, 0].tolist() == list(BACKGROUND[0][::-1])
+    assert frame[479, 1280].tolist() == list(BACKGROUND[1][::-1])
+    assert frame[480, 1280].tolist() == list(video.PAD_BGR)
+    assert frame[719, 1919].tolist() == list(video.PAD_BGR)
+
+
 def test_the_cross_marks_where_the_gripper_led_belongs_above_a_planar_set_point(written):
     """A planar set point lies in the joints' plane (z = 0); the gripper's LED, which the camera
     sees, is led_standoff_mm (12 mm) above it. The cross (its drawn pixels' centroid) is within
