@@ -18,6 +18,7 @@ descriptor is pointed at /dev/null while trying.
 
 from __future__ import annotations
 
+import math
 import shutil
 import tempfile
 from pathlib import Path
@@ -50,6 +51,21 @@ def open_writer(path: Path, fps: float, size: tuple[int, int]):
                 target.unlink()
     raise UserError("video: this OpenCV can write none of H.264, VP9 or MPEG-4 video (no "
                     "FFmpeg backend, or one without those encoders)")
+
+
+#: Radius (px) of the ring about a detected LED, at least: the LED's own image is smaller on
+#: the shipped rigs (about 5.5 px at f = 600 px, 650 mm away).
+RING_PX = 9
+#: Pixels the ring keeps outside an LED's image when that is larger (a longer lens, a nearer
+#: camera): a ring drawn in the LED's colour inside its disc cannot be seen.
+RING_CLEARANCE_PX = 3
+
+
+def ring_radius_px(area_px: float) -> int:
+    """The ring's radius about an LED whose blob covers ``area_px`` (its disc's radius is
+    sqrt(area / pi)): :data:`RING_PX`, or that radius + :data:`RING_CLEARANCE_PX` if larger."""
+    r = math.sqrt(max(float(area_px), 0.0) / math.pi) if math.isfinite(area_px) else 0.0
+    return max(RING_PX, math.ceil(r) + RING_CLEARANCE_PX)
 
 
 #: Grey (BGR) below a panel shorter than the other (cameras of different image heights).
@@ -102,9 +118,11 @@ class VideoRecorder:
                     uv = dets[i].uv_raw_px
                     colour = tuple(int(255 * c) for c in LED_RGB[name][::-1])
                     at = (int(round(uv[0])), int(round(uv[1])))
-                    cv2.circle(bgr, at, 9, colour, 1, cv2.LINE_AA)
+                    ring = ring_radius_px(dets[i].area_px)
+                    cv2.circle(bgr, at, ring, colour, 1, cv2.LINE_AA)
                     if name in missed:  # found here, but rejected: not what the controller got
-                        cv2.drawMarker(bgr, at, colour, cv2.MARKER_TILTED_CROSS, 18, 1, cv2.LINE_AA)
+                        cv2.drawMarker(bgr, at, colour, cv2.MARKER_TILTED_CROSS, 2 * ring, 1,
+                                       cv2.LINE_AA)
             if missed:
                 cv2.putText(bgr, "missed: " + ", ".join(missed), (8, 40), cv2.FONT_HERSHEY_SIMPLEX,
                             0.5, (0, 0, 200), 1, cv2.LINE_AA)

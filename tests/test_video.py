@@ -108,6 +108,24 @@ def test_cameras_of_different_image_heights_make_one_frame_the_shorter_padded_be
     assert frame[719, 1919].tolist() == list(video.PAD_BGR)
 
 
+def test_the_ring_stays_outside_an_led_whose_image_is_larger_than_it(written):
+    """The ring was 9 px whatever the LED's image: with a longer lens (f = 1000 px, 620 mm
+    away: an LED 9.7 px in radius) it lay inside the LED's disc, drawn in the LED's colour,
+    and no LED in that camera's panel looked circled. Now it clears the blob (area pi r^2) by
+    3 px: 13 px for r = 9.7; 9 px, as before, for the shipped rigs' ~5.5 px LEDs."""
+    raw = np.array([200.0, 150.0])
+    dets = {"gripper": (Detection(True, raw, raw, float(np.pi * 9.7**2)),
+                        Detection(False, np.full(2, np.nan), np.full(2, np.nan)))}
+    video.VideoRecorder("unused").frame(_eye(dets), np.full(3, np.nan))
+    (frame,) = written
+    colour = [255 * c for c in LED_RGB["gripper"][::-1]]
+    assert np.abs(frame[150, 213].astype(int) - colour).max() < 80  # the ring, 13 px right
+    assert frame[150, 209].tolist() == list(BACKGROUND[0][::-1])  # not at 9 px
+    assert video.ring_radius_px(np.pi * 5.5**2) == 9
+    assert video.ring_radius_px(np.pi * 9.7**2) == 13
+    assert video.ring_radius_px(0.0) == 9
+
+
 def test_the_cross_marks_where_the_gripper_led_belongs_above_a_planar_set_point(written):
     """A planar set point lies in the joints' plane (z = 0); the gripper's LED, which the camera
     sees, is led_standoff_mm (12 mm) above it. The cross (its drawn pixels' centroid) is within
