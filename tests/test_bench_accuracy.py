@@ -111,3 +111,18 @@ def test_targets_are_not_judged_on_the_few_looks_the_eye_kept(tmp_path, capsys):
     for line in targets:
         assert re.search(r"\(undecided: (\d+) of 10 marker looks missed, more than 5%", line), line
     assert "met)" not in out[out.index("targets"):]
+
+
+def test_a_calibrated_rig_is_refused_not_rendered_as_if_it_were_true(main_in_process):
+    """bench accuracy --rig cameras/planar.calib.yaml rendered with the calibration's own
+    cameras and estimated with them (gripper 0.042 mm RMS at 20 poses, the true rig's figure;
+    run on that calibration: 0.063 mm), its true_rig ignored without a word. Refused now, in
+    one line naming the file, its true rig and the command that measures a calibration."""
+    from conftest import ROOT
+
+    calib = ROOT / "cameras" / "planar.calib.yaml"
+    r = main_in_process("itg_vision.bench.accuracy", "--rig", calib, "--poses", 5)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert r.stderr.startswith(f"error: {calib}: a calibrated rig (of planar.yaml): ")
+    assert f"python -m itg_vision.run --rig {calib}" in r.stderr

@@ -164,7 +164,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.seed < 0:
             raise UserError(f"--seed: must be >= 0, got {args.seed}")
         arm = ArmSpec.from_args(args.arm)
-        rig = Rig.from_yaml(resolve_rig(args.rig or arm.defaults["rig"]))
+        rig_path = resolve_rig(args.rig or arm.defaults["rig"])
+        rig = Rig.from_yaml(rig_path)
+        if rig.true_rig:  # it would render with the calibration itself: no calibration error
+            raise UserError(f"{rig_path}: a calibrated rig (of {rig.true_rig}): this benchmark "
+                            "renders and estimates with one rig and compares with the first-order "
+                            "prediction of a rig known exactly, so the calibration's own error "
+                            "would not show; give the true rig, or measure the calibration with "
+                            f"python -m itg_vision.run --rig {rig_path}")
         if args.out is not None:  # refuse a bad --out before the renders, not after
             outputs.check_out_dir(args.out, COMMAND, force=args.force,
                                   inputs={"--arm": arm.source, "--rig": rig.source})
