@@ -12,7 +12,8 @@ renders a frame (instead of ending with every detection missed and a meaningless
 - **points**: the gripper LED at every set point in reach, both LEDs at the start pose, and the
   elbow LED of at least one of the two inverse-kinematics branches at each set point in reach
   must lie in front of the camera between the renderer's near and far planes, project inside
-  the image with a margin (the LED's projected radius + :data:`MARGIN_PX`) on the lens's
+  the image with a margin (the LED's projected radius, fx r / z across and fy r / z down, +
+  :data:`MARGIN_PX`) on the lens's
   invertible part (see :func:`_visible`), and look large enough to be detected (projected
   radius at least :data:`MIN_LED_RADIUS_PX`).
 
@@ -121,12 +122,16 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
             out.append(f"an LED there would be {2 * r_px[k]:.2g} px across (the detector needs "
                        f"{2 * MIN_LED_RADIUS_PX:g})")
         else:
-            m = r_px[k] + MARGIN_PX
+            # the LED images as an ellipse fx r / z wide and fy r / z tall (non-square pixels)
+            mu = r_px[k] * camera.fx / min(camera.fx, camera.fy) + MARGIN_PX
+            mv = r_px[k] * camera.fy / min(camera.fx, camera.fy) + MARGIN_PX
             u, v = uv[k]
-            inside = m <= u <= W - 1 - m and m <= v <= H - 1 - m
+            inside = mu <= u <= W - 1 - mu and mv <= v <= H - 1 - mv
             if not inside:
+                margin = (f"{mu:.0f} px" if round(mu) == round(mv) else
+                          f"{mu:.0f} px (u) and {mv:.0f} px (v)")
                 out.append(f"projects to ({u:.0f}, {v:.0f}) px, outside the {W} x {H} px image "
-                           f"less a {m:.0f} px margin")
+                           f"less a {margin} margin")
             elif not np.hypot(*(drawn_from[k] - pin[k])) <= FOLD_TOL_PX:
                 pu, pv = pin[k]
                 out.append(f"lies outside the field of view (pinhole ({pu:.0f}, {pv:.0f}) px), "

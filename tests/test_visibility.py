@@ -114,6 +114,28 @@ def test_the_image_margin_grows_with_the_led_s_projected_radius():
     assert all(w and w.endswith("8 px margin") for w in why[:2]) and why[2:] == [None, None], why
 
 
+def test_with_non_square_pixels_each_axis_keeps_the_led_s_own_radius_along_it():
+    """fx = 1000, fy = 400 px at 600 mm: the LED images 10 px wide and 4 px tall. The margin
+    was min(fx, fy) r / z + MARGIN_PX = 6 px on both axes, so a centre 7 px from the left edge
+    passed though its disc reached 3 px past it (a rig of the user's: the start pose's gripper
+    LED 6 px from the edge passed the check, then every look at start-up missed it 'at the
+    image border'). Now 12 px across and 6 px down: 11.5 px from the side refused, 12.5
+    accepted; along v 5.5 refused, 6.5 accepted."""
+    W, H = 640, 480
+    R = np.diag([1.0, -1.0, -1.0])
+    t = -R @ [0.0, 0.0, 612.0]
+    cam = Camera.from_arrays("down", (W, H), [[1000.0, 0, 319.5], [0, 400.0, 239.5], [0, 0, 1]],
+                             np.zeros(5), R, t)
+    us = (7.0, 11.5, 639 - 11.5, 12.5, 639 - 12.5)
+    why = _visible(cam, [cam.back_project([u, cam.cy], 600.0) for u in us], *_render_range_mm())
+    assert all(w and w.endswith("outside the 640 x 480 px image less a 12 px (u) and 6 px (v) "
+                                "margin") for w in why[:3]), why
+    assert why[3:] == [None, None], why
+    vs = (5.5, 479 - 5.5, 6.5, 479 - 6.5)
+    why = _visible(cam, [cam.back_project([cam.cx, v], 600.0) for v in vs], *_render_range_mm())
+    assert all(w for w in why[:2]) and why[2:] == [None, None], why
+
+
 def test_an_led_must_image_at_least_two_pixels_across():
     """f = 90 px at 600 mm images an LED (radius 6 mm) 0.9 px in radius, below
     MIN_LED_RADIUS_PX (1 px): refused; f = 110 px, 1.1 px: seen."""
