@@ -4,6 +4,7 @@ properties the issue asks for (first step never farther, ties settled the same w
 noise, no link length in the motion rules)."""
 
 import dataclasses
+import re
 from dataclasses import fields, is_dataclass
 
 import numpy as np
@@ -21,8 +22,6 @@ _SPECS = {n: ArmSpec.from_args(n) for n in ("one-link", "two-link", "three-link"
 ARMS = {n: a.defaults["itg_plus_rules"] for n, a in _SPECS.items()}
 #: The servo limit the comparisons use (deg per iteration, the arm file's), also the rules' S.
 SERVO = {n: float(a.benchmark["max_step_deg"]) for n, a in _SPECS.items()}
-#: Within this distance of the base (a quarter forearm) the two-link ITG+ takes the DLS step.
-NEAR_BASE_MM = 25.0
 
 
 def itg_plus(arm: ArmSpec, links=None) -> RuleBase:
@@ -37,7 +36,8 @@ def dls(arm: ArmSpec):
 
 
 def near_base(arm: ArmSpec, q) -> bool:
-    return bool(np.hypot(*forward_kinematics(arm, q)["gripper"][:2]) < NEAR_BASE_MM)
+    """The gripper within a quarter forearm of the base (25 mm on the paper's arm)."""
+    return bool(np.hypot(*forward_kinematics(arm, q)["gripper"][:2]) < arm.links_mm[-1] / 4)
 
 
 def observe(arm, q, rng=None, sigma=0.0):
@@ -361,30 +361,36 @@ def _around_base(rng, lo_mm, hi_mm):
 
 
 def _near_base_poses(arm, rng):
-    """Poses with the gripper within a quarter forearm (25 mm) of the base, folded either way."""
+    """Poses with the gripper within a quarter forearm of the base, folded either way."""
     while True:
         q = np.array([rng.uniform(-180, 180), rng.choice([-1, 1]) * rng.uniform(152, 180)])
         if near_base(arm, q):
             yield q
 
 
-def test_near_the_base_with_the_set_point_at_it_the_step_is_the_dls_trackers_step():
-    """Gripper within a quarter forearm (25 mm) of the base and the set point within 4 w (2 mm)
-    of it: the rules' step (RULE 2: Cramer's rule on the levers' dot and cross products, scaled
-    down as a whole beyond S) equals the DLS Jacobian tracker's (numpy's solve on the
-    marker-built Jacobian, lambda = 5 mm, the same direction-preserving servo limit), at the
-    arm's servo limit (20 deg: steps within it) and at 2 deg (steps scaled down to it)."""
+@pytest.mark.parametrize("links, damping_mm, gate_mm", [
+    ((100.0, 100.0), 5.0, 2.0),                            # the floors: 5 mm and 4 w
+    ((300.0, 300.0), 300 / np.sqrt(500), 5.0),             # |u| / 22.4 and |u| / 60
+    ((60.0, 60.0), 5.0, 2.0)])                             # a shorter arm: the floors
+def test_near_the_base_with_the_set_point_at_it_the_step_is_the_dls_trackers_step(
+        links, damping_mm, gate_mm):
+    """Gripper within a quarter forearm of the base and the set point within the gate of it
+    (max(4 w, |u| / 60)): the rules' step (RULE 2: Cramer's rule on the levers' dot and cross
+    products, scaled down as a whole beyond S) equals the DLS Jacobian tracker's (numpy's solve
+    on the marker-built Jacobian, the same direction-preserving servo limit) with its damping
+    lambda = max(5 mm, |u| / sqrt(500)), at the arm's servo limit (20 deg: steps within it) and
+    at 2 deg (steps scaled down to it). On the 300/300 arm both lengths scale with the forearm:
+    with the fixed 5 and 2 mm the step differed and RULE 2 did not fire from 2 to 5 mm."""
     from itg_vision.controllers import make_controller
 
-    arm = ArmSpec.from_args("two-link")
+    arm = ArmSpec.from_args("two-link").with_links(links)
     rng = np.random.default_rng(7)
     scaled = []
     for servo in (SERVO["two-link"], 2.0):
         rb = load_rules(ARMS["two-link"], 2, arm.links_mm, S=servo, w=0.5)
-        tracker = make_controller("jacobian", arm, max_step_deg=servo)
-        assert tracker.damping == 5.0
+        tracker = make_controller("jacobian", arm, max_step_deg=servo, damping_mm=damping_mm)
         for q, _ in zip(_near_base_poses(arm, rng), range(150)):
-            p = _around_base(rng, 0, 2.0)
+            p = _around_base(rng, 0.9 * gate_mm if len(scaled) % 2 else 0.0, gate_mm)
             if distance(arm, p, q) <= 0.5:  # the hold band w
                 continue
             got = rb.step(p, observe(arm, q), q)
@@ -394,6 +400,38 @@ def test_near_the_base_with_the_set_point_at_it_the_step_is_the_dls_trackers_ste
             np.testing.assert_allclose(got.dq_deg, tracker.step(p, observe(arm, q), q).dq_deg,
                                        rtol=2e-8, atol=1e-9)
     assert 30 < sum(scaled) < len(scaled) - 30  # steps within the servo limit and scaled to it
+
+
+def test_on_forearms_up_to_111_mm_the_near_base_lengths_are_their_floors_to_the_bit():
+    """lambda^2 = max(25, |u|^2 / 500) and the gate^2 = max(16 w^2, |u|^2 / 3600), written as
+    a + (|b - a| + (b - a)) / 2, are exactly 25 and 16 w^2 wherever b < a: forearms measured
+    up to 111.8 and 120 mm. So on the paper's 100 mm forearm every step is the same to the last
+    bit as the rules with the fixed lengths they replaced, here a copy with the two LETs
+    written as 25 and 16 w^2: near-base poses of arms with forearms of 40-111 mm, markers
+    0.5 mm off, set points 0 to 30 % of the forearm from the base, both servo limits."""
+    from itg_vision.rules import resolve_rules_path
+
+    text = resolve_rules_path(ARMS["two-link"]).read_text()
+    fixed = re.sub(r"^LET lam2 = .*$", "LET lam2 = 25", text, count=1, flags=re.M)
+    fixed = re.sub(r"^LET gate2 = .*$", "LET gate2 = 16 * w * w", fixed, count=1, flags=re.M)
+    assert fixed.count("LET lam2 = 25\n") == fixed.count("LET gate2 = 16 * w * w\n") == 1
+    rng = np.random.default_rng(11)
+    fired, n = set(), 0
+    for servo in (SERVO["two-link"], 2.0):
+        for _ in range(8):
+            L = rng.uniform(40.0, 111.0)
+            arm = ArmSpec.from_args("two-link").with_links((L, L))
+            new = load_rules(ARMS["two-link"], 2, arm.links_mm, S=servo, w=0.5)
+            old = RuleBase.from_text(fixed, 2, arm.links_mm, S=servo, w=0.5)
+            for q, _ in zip(_near_base_poses(arm, rng), range(60)):
+                p, m = _around_base(rng, 0.0, 0.3 * L), observe(arm, q, rng, 0.5)
+                a, b = new.step(p, m, q), old.step(p, m, q)
+                np.testing.assert_array_equal(a.dq_deg, b.dq_deg, err_msg=str((L, q, p)))
+                assert a.fired == b.fired
+                fired |= set(a.fired)
+                n += 1
+    assert {2, 3, 4, 5, 6, 7} <= fired, fired  # every near-base rule compared
+    assert n == 960
 
 
 def test_near_the_base_the_step_never_ends_farther_and_beats_the_dls_step():
