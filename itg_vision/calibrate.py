@@ -143,7 +143,9 @@ def summary_table(r: dict, tail=()) -> str:
             ("base frame error: origin (mm), rotation (deg)",
              f"{e['base_frame']['origin_mm']:.2f}, {e['base_frame']['rotation_deg']:.3f}"),
             ("base frame: joint-axis circle fits RMS (mm)",
-             f"{r['base_frame']['fit_rms_mm']:.3f} ({measured_links(r['base_frame'])})"),
+             f"{r['base_frame']['fit_rms_mm']:.3f} ("
+             + (f"the {r['base_frame']['arm']} arm's LEDs, --arm; " if "arm" in r["base_frame"]
+                else "") + f"{measured_links(r['base_frame'])})"),
             *([] if "worst_fit" not in r["base_frame"] else [  # (since the check: older files)
                 ("worst circle fit / its LED-noise bound (mm)",
                  "{rms_mm:.3f} / {bound_mm:.3f} ({fit})".format(**r["base_frame"]["worst_fit"]))]),

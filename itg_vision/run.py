@@ -273,6 +273,10 @@ def main(argv: list[str] | None = None) -> int:
         note = traj.span_note(prep.trajectory, prep.true_arm.reach_mm()[1])
         if note:
             print(note, file=sys.stderr)
+        if prep.rig_arm not in (None, prep.model.name) and len(prep.model.marker_names) > 1:
+            print(f"note: {shown_path(prep.info['estimate_rig'])} was tied to the base by the "
+                  f"{prep.rig_arm} arm's LEDs; calibrating with --arm {prep.model.name} ties it "
+                  "by this arm's own joint axes", file=sys.stderr)
         n, n_in = len(prep.trajectory), prep.n_in_reach
         if 2 * n_in < n:
             print(f"note: {n - n_in} of the {n} set points are out of the arm's reach: every "

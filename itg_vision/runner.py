@@ -190,6 +190,7 @@ class Prepared:
     info: dict = field(default_factory=dict)
     preview: Preview | None = None  # the preview's plan (None: no preview)
     n_in_reach: int = 0  # set points the simulated arm can reach: those the metrics count
+    rig_arm: str | None = None  # the arm whose LEDs tied a calibrated rig to the base (calibrate --arm)
 
 
 def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) -> Prepared:
@@ -257,6 +258,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                                      damping_mm=cfg.damping_mm)
         info["controller_params"] = controller.params()
     planned = _preview(cfg, model, trajectory) if cfg.preview else None
+    rig_arm = None
 
     if cfg.feedback == "model":
         def feedback_factory():
@@ -278,6 +280,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
             check_visible(render_rig, true_arm, trajectory.points_mm)
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
+        rig_arm = ((estimate_rig.calibration or {}).get("base_frame") or {}).get("arm")
 
         supersample = supersample_of(cfg, estimate_rig)
 
@@ -286,7 +289,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                                   dropout=cfg.dropout, strobe=cfg.strobe,
                                   supersample=supersample, full_frame=cfg.full_frame)
     return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, planned,
-                    n_in_reach)
+                    n_in_reach, rig_arm)
 
 
 def given_rule_params(cfg: RunConfig) -> dict[str, float]:

@@ -1176,3 +1176,31 @@ def test_the_circle_fit_bound_is_the_residual_that_centroid_noise_leaves(radius_
     exact = {"points": X, "centre": centre, "axis": normal, "rms_mm": 0.0}
     assert cal.check_circle_fits(rig, {0: {"gripper": exact}}) == {
         "fit": "q1 gripper", "rms_mm": 0.0, "bound_mm": bound}
+
+
+def test_a_run_on_a_rig_tied_by_another_arm_says_so(tmp_path, capsys):
+    """A calibration ties the base frame by one arm's joint axes (calibrate --arm; a rig of the
+    user's own gets two-link unless told): a run of another arm on it says which arm tied it
+    (an auditor's three-link rig, renamed, was tied by the two-link arm: gripper estimate 0.55
+    mm RMS against 0.14 with --arm three-link). The shipped calibration with its own arm, and
+    the one-link arm (one LED: it cannot tie a base frame) on the planar one, say nothing."""
+    from itg_vision.run import main as run_main
+
+    (tmp_path / "three-link.yaml").write_bytes((ROOT / "cameras" / "three-link.yaml").read_bytes())
+    doc = (ROOT / "cameras" / "three-link.calib.yaml").read_text()
+    assert doc.count("    arm: three-link\n") == 1
+    other = tmp_path / "mine.calib.yaml"
+    other.write_text(doc.replace("    arm: three-link\n", "    arm: two-link\n"))
+    notes = {}
+    for arm, rig in (("three-link", other), ("three-link", ROOT / "cameras" / "three-link.calib.yaml"),
+                     ("one-link", ROOT / "cameras" / "planar.calib.yaml")):
+        assert run_main(["--arm", arm, "--rig", str(rig), "--points", "2", "--quiet",
+                         "--out", str(tmp_path / f"out-{len(notes)}")]) == 0
+        notes[len(notes)] = [x for x in capsys.readouterr().err.splitlines() if "tied" in x]
+    assert notes[0] == [f"note: {other} was tied to the base by the two-link arm's LEDs; "
+                        "calibrating with --arm three-link ties it by this arm's own joint axes"]
+    assert notes[1] == notes[2] == []
+    # and calibrate's table names the arm beside the base frame's fits
+    row = next(x for x in summary_table(yaml.safe_load(doc)["calibration"]).splitlines()
+               if x.startswith("base frame: joint-axis circle fits"))
+    assert row.endswith("(the three-link arm's LEDs, --arm; measured L2 99.90, L3 99.97 mm)"), row
