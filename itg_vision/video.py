@@ -75,10 +75,17 @@ PAD_BGR = (96, 96, 96)
 def side_by_side(panels: list[np.ndarray]) -> np.ndarray:
     """The panels (BGR images) left to right, each at its own pixels (the circles and crosses
     drawn on them stay where the eye saw them); a panel shorter than the tallest is filled
-    below with :data:`PAD_BGR` (a rig's cameras may have different image heights)."""
+    below with :data:`PAD_BGR` (a rig's cameras may have different image heights), and an odd
+    width or height gets one more column or row of it: the encoders store colour at half
+    resolution (4:2:0) and cut an odd frame's last row (a 641 x 481 rig's video read back 480
+    rows)."""
     h = max(p.shape[0] for p in panels)
-    return np.hstack([p if p.shape[0] == h else cv2.copyMakeBorder(
+    frame = np.hstack([p if p.shape[0] == h else cv2.copyMakeBorder(
         p, 0, h - p.shape[0], 0, 0, cv2.BORDER_CONSTANT, value=PAD_BGR) for p in panels])
+    odd_h, odd_w = frame.shape[0] % 2, frame.shape[1] % 2
+    if odd_h or odd_w:
+        frame = cv2.copyMakeBorder(frame, 0, odd_h, 0, odd_w, cv2.BORDER_CONSTANT, value=PAD_BGR)
+    return frame
 
 
 class VideoRecorder:

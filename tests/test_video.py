@@ -108,6 +108,34 @@ def test_cameras_of_different_image_heights_make_one_frame_the_shorter_padded_be
     assert frame[719, 1919].tolist() == list(video.PAD_BGR)
 
 
+def test_an_odd_sized_frame_gets_a_row_and_a_column_more_and_reads_back_whole(tmp_path):
+    """641 x 481 and 639 x 479 cameras make a 1280 x 481 frame, which the 4:2:0 encoders cut to
+    1280 x 480 (read back one row short, unnoticed: the check counts frames). The frame is
+    padded to 1280 x 482 (one grey row below, the panels' pixels where they were), and a video
+    written through OpenCV reads back at that size, every frame."""
+    a = np.full((481, 641, 3), 50, np.uint8)
+    b = np.full((479, 639, 3), 150, np.uint8)
+    frame = video.side_by_side([a, b])
+    assert frame.shape == (482, 1280, 3)
+    assert (frame[:481, :641] == 50).all() and (frame[:479, 641:] == 150).all()
+    assert frame[481, 0].tolist() == list(video.PAD_BGR)
+    three = video.side_by_side([a, a, np.full((480, 640, 3), 9, np.uint8)])  # 1922 x 481 -> 482
+    assert three.shape == (482, 1922, 3)
+    writer, path, _ = video.open_writer(tmp_path / "v", 20.0, frame.shape[1::-1])
+    for _ in range(3):
+        writer.write(frame)
+    writer.release()
+    cap = video.cv2.VideoCapture(str(path))
+    sizes = []
+    while True:
+        ok, got = cap.read()
+        if not ok:
+            break
+        sizes.append(got.shape)
+    cap.release()
+    assert sizes == [frame.shape] * 3
+
+
 def test_the_ring_stays_outside_an_led_whose_image_is_larger_than_it(written):
     """The ring was 9 px whatever the LED's image: with a longer lens (f = 1000 px, 620 mm
     away: an LED 9.7 px in radius) it lay inside the LED's disc, drawn in the LED's colour,
