@@ -73,14 +73,15 @@ MAX_NAMED_LAPS = 10
 
 def lap_style(k: int, laps: int, what: str = "actual gripper") -> tuple:
     """Colour and legend label of lap ``k`` (from 0) of ``laps``: a label per lap up to
-    :data:`MAX_NAMED_LAPS`, beyond them the first and the last only (None: no entry)."""
+    :data:`MAX_NAMED_LAPS`, beyond them the first and the last only (matplotlib's
+    "_nolegend_" for the others: no entry)."""
     if laps <= 1:
         return "C0", what
     if laps <= MAX_NAMED_LAPS:
         return f"C{k}", f"{what}, lap {k + 1}"
     color = plt.get_cmap("viridis")(k / (laps - 1))
     return color, (f"{what}, lap {k + 1} (of {laps}; laps between in the colours between)"
-                   if k == 0 else f"{what}, lap {k + 1}" if k == laps - 1 else None)
+                   if k == 0 else f"{what}, lap {k + 1}" if k == laps - 1 else "_nolegend_")
 
 
 def marked_laps(laps: int) -> range:
@@ -103,7 +104,7 @@ def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
         for k, part in enumerate(lap_slices(len(g), laps)):
             color, label = lap_style(k, laps)
             ax.plot(g[part, 0], g[part, 1], ".", ms=4, color=color, zorder=2,
-                    label=label or "_nolegend_")
+                    label=label)
         ax.plot(d[:, 0], d[:, 1], "-", color="k", lw=0.7, zorder=3, label="desired")
         for which, marker, color, label in marks:
             ax.plot(d[which, 0], d[which, 1], marker, color=color, zorder=4, label=label)
@@ -117,7 +118,7 @@ def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
         for k, part in enumerate(lap_slices(len(g), laps)):
             color, label = lap_style(k, laps)
             ax.plot(g[part, 0], g[part, 1], g[part, 2], ".", ms=4, color=color,
-                    label=label or "_nolegend_")
+                    label=label)
         ax.plot(d[:, 0], d[:, 1], d[:, 2], "-", color="k", lw=0.7, label="desired")
         for which, marker, color, label in marks:
             ax.plot(d[which, 0], d[which, 1], d[which, 2], marker, color=color, label=label)
@@ -270,7 +271,7 @@ def paths_figure(panels: list, title: str, path, *, laps: int = 1) -> None:
         for k, part in enumerate(lap_slices(len(g), laps)):
             color, label = lap_style(k, laps, "actual")
             ax.plot(g[part, 0], g[part, 1], ".", ms=4, zorder=2, color=color,
-                    label=label or "_nolegend_")
+                    label=label)
         cuts = sorted(i for i, _, _ in (jumps[0] if jumps else ()))
         first = True
         for part in np.split(np.arange(len(d)), [i + 1 for i in cuts]):
