@@ -57,6 +57,9 @@ BASE_SWEEP_DEG = (-150.0, -120.0, -90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0, 12
 #: (a dropped or rejected detection is tried again, as on a real rig).
 SAMPLES_PER_POSE = 5
 MAX_TRIES_PER_POSE = 50
+#: The variance of the median of ``SAMPLES_PER_POSE`` (5) normal draws, in units of one draw's
+#: variance (the order statistics of the normal distribution; tests/test_identify.py draws it).
+MEDIAN_VARIANCE = 0.2868
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,11 @@ class ArmGeometry:
     source : where the numbers come from: "nominal model" or how they were measured.
     residual_mm : the largest RMS residual of the fits that produced them (0 for a single
         observation).
+    length_se_mm : the largest standard error of the lengths (mm), the rules' ``sL``: what the
+        noise of the looks leaves uncertain in them, to first order (each look's scatter per
+        axis, from the start-up's repeated looks, carried through the medians and the fits).
+        A bias (a rig's, a rendering's: the same in every look) is not in it. 0 for the
+        nominal model.
     """
 
     links_mm: tuple[float, ...]
@@ -80,6 +88,7 @@ class ArmGeometry:
     standoff_mm: float = 0.0
     source: str = "nominal model"
     residual_mm: float = 0.0
+    length_se_mm: float = 0.0
 
     @property
     def base_axis_mm(self) -> tuple[float, float]:
@@ -93,7 +102,8 @@ class ArmGeometry:
                 "base_axis_mm": [round(v, 4) for v in self.base_axis_mm],
                 "shoulder_mm": [round(v, 4) for v in self.shoulder_mm],
                 "standoff_mm": round(self.standoff_mm, 4), "source": self.source,
-                "residual_mm": round(self.residual_mm, 4)}
+                "residual_mm": round(self.residual_mm, 4),
+                "length_se_mm": round(self.length_se_mm, 4)}
 
 
 def nominal_geometry(arm) -> ArmGeometry:
@@ -236,8 +246,9 @@ class StartUpFailed(UserError):
     benchmark sweep, which records it as a run that did not start."""
 
 
-def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
-    """The median of ``SAMPLES_PER_POSE`` observations in which every marker was measured."""
+def _observe(world, feedback, names, where: str, scatter: list) -> dict[str, np.ndarray]:
+    """The median of ``SAMPLES_PER_POSE`` observations in which every marker was measured; each
+    marker's looks, less their mean, are appended to ``scatter`` (for :func:`look_sigma`)."""
     got: list = []
     why: Counter = Counter()  # why the looks that missed a marker missed it
     for _ in range(MAX_TRIES_PER_POSE):
@@ -245,7 +256,9 @@ def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
         if not any(n in m.missed or not np.all(np.isfinite(m.get(n))) for n in names):
             got.append({n: m.get(n) for n in names})
             if len(got) == SAMPLES_PER_POSE:
-                return {n: np.median([g[n] for g in got], axis=0) for n in names}
+                looks = {n: np.array([g[n] for g in got], float) for n in names}
+                scatter.extend(v - v.mean(axis=0) for v in looks.values())
+                return {n: np.median(v, axis=0) for n, v in looks.items()}
         else:
             why.update({_miss_cause(feedback, n) for n in names if n in m.missed})
     causes = ", ".join(f"{c}: {k} looks" for c, k in why.most_common())
@@ -253,6 +266,36 @@ def _observe(world, feedback, names, where: str) -> dict[str, np.ndarray]:
                         f"{MAX_TRIES_PER_POSE} observations {where}"
                         + (f" (missed: {causes})" if causes else "")
                         + "; the arm's lengths cannot be measured")
+
+
+def look_sigma(scatter) -> np.ndarray:
+    """One look's standard deviation per axis (x, y, z, mm), pooled over sets of repeated looks,
+    each given less its own mean (a set of n looks has n - 1 degrees of freedom). Shape (3,)."""
+    dof = sum(len(d) - 1 for d in scatter)
+    return np.sqrt(sum((np.asarray(d) ** 2).sum(axis=0) for d in scatter) / dof)
+
+
+def length_standard_errors(lengths_of, points_mm, sigma_mm) -> np.ndarray:
+    """First-order standard errors of lengths measured from points whose coordinates are
+    independent with standard deviation ``sigma_mm`` per axis: the gradient of each length by
+    central differences (0.001 mm), weighted by the axis' sigma.
+
+    Parameters
+    ----------
+    lengths_of : function of an array shape (n, 3) (mm) returning the lengths (mm).
+    points_mm : array-like, shape (n, 3), where the lengths were measured from.
+    sigma_mm : shape (3,), each coordinate's standard deviation along x, y, z.
+    """
+    P = np.asarray(points_mm, float)
+    h = 1e-3
+    var = 0.0
+    for i, k in np.ndindex(P.shape):
+        up, down = P.copy(), P.copy()
+        up[i, k] += h
+        down[i, k] -= h
+        grad = (np.asarray(lengths_of(up)) - np.asarray(lengths_of(down))) / (2 * h)
+        var = var + (grad * sigma_mm[k]) ** 2
+    return np.sqrt(var)
 
 
 def _miss_cause(feedback, name: str) -> str:
@@ -289,43 +332,58 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     ------
     StartUpFailed : a marker was not seen (a UserError).
     """
+    scatter: list = []
     if arm.planar:
-        m = _observe(world, feedback, arm.marker_names, "at the start pose")
-        g = m["gripper"][:2]
+        m = _observe(world, feedback, arm.marker_names, "at the start pose", scatter)
+        sigma = look_sigma(scatter) * np.sqrt(MEDIAN_VARIANCE)  # a median's, per axis
         if arm.n_joints == 1:
-            return ArmGeometry((float(np.linalg.norm(g)),), source="measured: |gripper_xy|")
-        e = m["elbow"][:2]
-        links = (float(np.linalg.norm(e)), float(np.linalg.norm(g - e)))
-        return ArmGeometry(links, source="measured: |elbow_xy|, |gripper_xy - elbow_xy|")
+            def lengths_of(p):
+                return (float(np.linalg.norm(p[0, :2])),)
+            points, source = m["gripper"][None], "measured: |gripper_xy|"
+        else:
+            def lengths_of(p):
+                return float(np.linalg.norm(p[0, :2])), float(np.linalg.norm(p[1, :2] - p[0, :2]))
+            points = np.array([m["elbow"], m["gripper"]])
+            source = "measured: |elbow_xy|, |gripper_xy - elbow_xy|"
+        se = length_standard_errors(lengths_of, points, sigma)
+        return ArmGeometry(lengths_of(points), source=source, length_se_mm=float(se.max()))
     leds: dict[str, list] = {n: [] for n in arm.marker_names}
-    elbows, forearm = [], []
+    elbows, grippers = [], []
     start = np.array(world.q_deg, float)
     try:  # back at the start however it ends: a failed look leaves a sweep's pose otherwise
         for q1 in BASE_SWEEP_DEG:
             world.set_q([q1, *BASE_SWEEP_POSE_DEG])
             m = _observe(world, feedback, arm.marker_names,
                          f"leaned (q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} "
-                         f"deg) with the base at {q1:+g} deg")
+                         f"deg) with the base at {q1:+g} deg", scatter)
             for n in arm.marker_names:
                 leds[n].append(m[n])
         for rel in SHOULDER_SWEEP_DEG:
             world.set_q(start + [0.0, rel, 0.0])
             m = _observe(world, feedback, arm.marker_names,
-                         f"with the shoulder moved {rel:+g} deg from the start")
+                         f"with the shoulder moved {rel:+g} deg from the start", scatter)
             elbows.append(m["elbow"])
-            forearm.append(float(np.linalg.norm(m["gripper"] - m["elbow"])))
+            grippers.append(m["gripper"])
     finally:
         world.set_q(start)
+
+    def lengths_of(p):  # the five elbows, then the five grippers, of the shoulder sweep
+        centre, _, radius, _ = fit_circle(p[:5])
+        return float(centre[2]), radius, float(np.median([np.linalg.norm(g - e)
+                                                          for e, g in zip(p[:5], p[5:])]))
+
+    sweep = np.array(elbows + grippers)
+    se = length_standard_errors(lengths_of, sweep, look_sigma(scatter) * np.sqrt(MEDIAN_VARIANCE))
     axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
     centre, _, radius, rms = fit_circle(elbows)
     L1 = float(centre[2])
     shoulder = axis_at_height(axis_point, axis_dir, L1)  # the axis as measured, tilt and all
     standoff = float(np.linalg.norm(np.cross(centre - shoulder, axis_dir)))
-    links = (L1, radius, float(np.median(forearm)))
+    links = lengths_of(sweep)
     return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
                        "measured: base axis from the LEDs' circles with the arm leaned "
                        f"(q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} deg) and "
                        f"the base at {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
                        "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
-                       "|gripper - elbow|", max(rms, axis_rms))
+                       "|gripper - elbow|", max(rms, axis_rms), float(se.max()))

@@ -59,7 +59,10 @@ to +-S and whose compensations assume each joint moves what the rules ask).
 
 Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm; none on a one-link arm); radial squares
 ``rd2 rg2 re2`` (x^2 + y^2, mm^2); joints ``q1..qn`` (deg); gain ``f`` (deg/mm), fixed step
-``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm.
+``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm, and ``sL`` (mm),
+the largest standard error of the lengths: 0 for the nominal model's, else what the noise of the
+start-up's looks leaves uncertain in the measured ones (a reach test on measured lengths allows a
+few: RULE 0 of ``itg-plus-two-link``).
 
 The file text is never evaluated: the parsed tree is checked (names, joints) and compiled into
 one Python function from the tree itself.
@@ -869,6 +872,8 @@ class RuleBase:
     rules : parsed rules.
     n_joints : joints the arm has (rules naming others are refused).
     links_mm : link lengths bound to ``L1..Ln`` and ``L``.
+    sL : the lengths' largest standard error (mm), bound to ``sL``
+        (:attr:`itg_vision.identify.ArmGeometry.length_se_mm`).
     f, S, w : gain (deg/mm), fixed step (deg), tolerance (mm).
     servo_step : the file declares ``#! S is the servo limit`` (see the module docstring).
     base_axis_mm : where the arm's vertical base axis crosses the xy plane (mm), measured at
@@ -879,6 +884,7 @@ class RuleBase:
     rules: list[Rule]
     n_joints: int
     links_mm: tuple[float, ...]
+    sL: float = 0.0
     f: float = PARAM_DEFAULTS["f"]
     S: float = PARAM_DEFAULTS["S"]
     w: float = PARAM_DEFAULTS["w"]
@@ -940,20 +946,20 @@ class RuleBase:
         """Whether a rule reads a joint angle ``q1..qn`` (then the loop passes the encoders)."""
         return any(self.uses(f"q{i}") for i in range(1, self.n_joints + 1))
 
-    def with_links(self, links_mm, base_axis_mm=(0.0, 0.0)) -> "RuleBase":
-        """The same compiled rules with ``L1..Ln`` bound to other lengths and the base axis at
-        another point (measured ones)."""
+    def with_links(self, links_mm, base_axis_mm=(0.0, 0.0), sL: float = 0.0) -> "RuleBase":
+        """The same compiled rules with ``L1..Ln`` bound to other lengths, ``sL`` to their
+        standard error and the base axis at another point (measured ones)."""
         links = tuple(float(v) for v in links_mm)
         if len(links) != len(self.links_mm):
             raise ValueError(f"{len(self.links_mm)} link lengths expected, got {len(links)}")
         axis = tuple(float(v) for v in base_axis_mm)
-        return replace(self, links_mm=links, base_axis_mm=(axis[0], axis[1]))
+        return replace(self, links_mm=links, base_axis_mm=(axis[0], axis[1]), sL=float(sL))
 
     # -------------------------------------------------------------- checks
     @property
     def known_names(self) -> set[str]:
         joints = {f"q{i}" for i in range(1, self.n_joints + 1)}
-        links = {f"L{i}" for i in range(1, len(self.links_mm) + 1)} | {"L"}
+        links = {f"L{i}" for i in range(1, len(self.links_mm) + 1)} | {"L", "sL"}
         markers = set(MARKER_NAMES) - (set(ELBOW_NAMES) if self.n_joints == 1 else set())
         return markers | set(PARAM_NAMES) | joints | links
 
@@ -1041,7 +1047,7 @@ class RuleBase:
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
-        out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}):")
+        out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}, v_sL):")
         top = _Scope()
         for i, r in enumerate(out_of_reach):
             out.define(out.reads([r.condition]), top, 1)
@@ -1110,7 +1116,7 @@ class RuleBase:
     def argument_names(self) -> tuple[str, ...]:
         """Names of :meth:`arguments`, in order."""
         return (*MARKER_NAMES, *(f"q{i}" for i in range(1, self.n_joints + 1)), *PARAM_NAMES,
-                "L", *(f"L{i}" for i in range(1, len(self.links_mm) + 1)))
+                "L", *(f"L{i}" for i in range(1, len(self.links_mm) + 1)), "sL")
 
     # -------------------------------------------------------------- run
     @property
@@ -1134,7 +1140,7 @@ class RuleBase:
         return (xd, yd, zd, xg, yg, zg, xe, ye, ze,
                 xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
                 *(nan_q if q_deg is None else (float(q) for q in q_deg)),
-                float(self.f), float(self.S), float(self.w), links[0], *links)
+                float(self.f), float(self.S), float(self.w), links[0], *links, float(self.sL))
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""

@@ -474,7 +474,8 @@ def bind_geometry(controller, geometry, model, max_step_deg=None):
     from .rules import RuleBase
 
     if isinstance(controller, RuleBase):
-        return controller.with_links(geometry.links_mm, geometry.base_axis_mm)
+        return controller.with_links(geometry.links_mm, geometry.base_axis_mm,
+                                     geometry.length_se_mm)
     if isinstance(controller, JacobianTracker):
         return make_controller("jacobian", model, geometry, max_step_deg, controller.damping)
     return controller  # open-loop IK: the nominal model by definition
