@@ -820,3 +820,50 @@ def test_passing_by_is_left_to_the_other_rules_beyond_the_series_range():
         for S, rb in rules.items():
             fired[S] += 3 in rb.step(np.array([*d, 0.0]), observe(arm, q), q).fired
     assert fired[20.0] >= 50 and fired[40.0] == 0, fired
+
+
+# ----------------------------------------------------------------------------- RULE 0
+#: RULE 0's margin beyond what the told lengths reach: w plus three standard errors of the
+#: lengths' sum or difference, each length's at most sL (two lengths; three-link three).
+REACH_MARGIN_SL = {"two-link": 6.0, "three-link": 9.0}
+
+
+@pytest.mark.parametrize("sL", [0.0, 0.9])
+@pytest.mark.parametrize("name, links", [("two-link", (150.0, 50.0)),
+                                         ("three-link", (100.0, 150.0, 50.0))])
+def test_rule_0_flags_a_set_point_only_beyond_its_margin(name, links, sL):
+    """A set point within m = w + k sL of the ring (two-link, about the base) or the shell
+    (three-link, about the shoulder) that the told lengths reach is left to the steps, which take
+    the gripper to its nearest point; one beyond m is flagged: 0.1 mm either side of m, outside
+    the outer rim and inside the hole (100 mm, the links 150 and 50 mm), in 8 directions."""
+    arm = ArmSpec.from_args(name).with_links(links)
+    rb = load_rules(ARMS[name], arm.n_joints, links, S=SERVO[name], w=0.5).with_links(links, sL=sL)
+    m = 0.5 + REACH_MARGIN_SL[name] * sL
+    centre = np.array([0.0, 0.0, 0.0 if arm.planar else links[0]])
+    inner, outer = abs(links[-2] - links[-1]), links[-2] + links[-1]
+    markers = observe(arm, arm.start_q_deg.astype(float))
+    for a in np.radians(np.arange(0, 360, 45)):
+        u = np.array([np.cos(a), 0.0, np.sin(a)]) if not arm.planar and a % np.pi else \
+            np.array([np.cos(a), np.sin(a), 0.0])
+        for beyond in (m - 0.1, m + 0.1):
+            for radius in (outer + beyond, inner - beyond):
+                got = rb.step(centre + radius * u, markers, arm.start_q_deg).out_of_reach
+                assert got == (beyond > m), (u, radius, beyond, m)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_under_1px_only_the_set_points_out_of_reach_are_flagged(seed, tmp_path):
+    """Through the eye under 1 px, the lengths measured at start-up are off by up to a few mm
+    (seed 1: L1 99.45, L2 100.85 mm, a 1.4 mm "hole" the 100/100 arm does not have; the old
+    RULE 0 flagged 4 set points of lemniscate, which pass 0.6 mm from the base, and held the
+    arm). Lemniscate with three set points 30 mm beyond reach put after its first half: exactly
+    those three are flagged (the margin under 1 px, w + 6 sL, is 2.4-12 mm over 60 seeds)."""
+    xy = np.loadtxt("data/trajectories/lemniscate.csv", delimiter=",", skiprows=1)
+    far = [[230.0, 0.0], [0.0, 230.0], [-230.0, 0.0]]
+    path = tmp_path / "lemniscate-and-far.csv"
+    np.savetxt(path, np.vstack([xy[:100], far, xy[100:]]), delimiter=",", header="x_mm,y_mm",
+               comments="", fmt="%.3f")
+    cfg = RunConfig(trajectory=str(path), rules=ARMS["two-link"], feedback="vision", noise_px=1.0,
+                    max_step_deg=SERVO["two-link"], seed=seed)
+    _, s = execute(prepare(cfg))
+    assert s["n_out_of_reach"] == 3 and s["n_flagged"] == 3, s
