@@ -374,6 +374,14 @@ def plot_title(s: dict) -> str:
     return line + ("\n" + ", ".join(more) if more else "")
 
 
+def _lengths(geometry: dict) -> str:
+    """The lengths the controller was given, their standard error where they were measured with
+    one (the rules' sL), and where they came from."""
+    se = geometry.get("length_se_mm", 0.0)
+    return (f"{geometry['links_mm']} mm" + (f", standard error up to {se:g} mm" if se else "")
+            + f" ({geometry['source']})")
+
+
 def summary_table(s: dict, out: Path) -> str:
     def f(v, unit=""):
         return "n/a" if v is None else (f"{v:.3f}{unit}" if isinstance(v, float) else f"{v}{unit}")
@@ -404,7 +412,7 @@ def summary_table(s: dict, out: Path) -> str:
                 **s["preview"]))] if s.get("preview") else []),
             *([("aims flagged out of reach, asked again with the set point",
                 f(s["n_aim_out_of_reach"]))] if s.get("n_aim_out_of_reach") else []),
-            ("lengths given to the controller", f"{s['geometry']['links_mm']} mm ({s['geometry']['source']})")]
+            ("lengths given to the controller", _lengths(s["geometry"]))]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),

@@ -758,3 +758,19 @@ def test_a_step_of_a_full_turn_or_more_is_said_once_naming_joint_and_set_point(t
     assert float(notes[0].split()[3]) >= 360 and abs(trace["q1_deg"][0]) >= 360
     assert main(base + ["--max-step", "20", "--out", str(tmp_path / "b")]) == 0
     assert "full turn" not in capsys.readouterr().err
+
+
+def test_the_printed_lengths_carry_their_standard_error_when_measured_with_one(tmp_path):
+    """The table's "lengths given to the controller" row gives the measured lengths' standard
+    error (summary.json's geometry.length_se_mm, the rules' sL) when there is one: under 1 mm
+    of look noise, not under the nominal model."""
+    from itg_vision.run import summary_table
+
+    for cfg, shown in ((RunConfig(points=4, feedback="truth", noise_mm=1.0, seed=0), True),
+                       (RunConfig(points=4, feedback="model"), False)):
+        _, s = execute(prepare(cfg))
+        row = next(ln for ln in summary_table(s, tmp_path).splitlines()
+                   if ln.startswith("lengths given to the controller"))
+        se = s["geometry"]["length_se_mm"]
+        assert (se > 0) == shown
+        assert (f"standard error up to {se:g} mm" in row) == shown, row
