@@ -329,8 +329,10 @@ def render_views(world, rig: Rig, board: Board, poses: list[BoardPose],
     rng : sensor-noise generator (None: noise-free).
     progress : optional callable, called once per view.
     """
-    from .imaging import capture
+    from .imaging import capture, check_whole_frame
 
+    for camera in rig.cameras:  # refused before any view is rendered
+        check_whole_frame(camera, supersample)
     corners = []
     sample = None
     with tempfile.TemporaryDirectory(prefix="itg_board_") as tmp:

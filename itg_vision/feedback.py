@@ -132,7 +132,7 @@ class VisionFeedback:
                  dropout: float = 0.0, max_residual_px: float = 2.0,
                  supersample: int = DEFAULT_SUPERSAMPLE, strobe: bool = False,
                  min_area_ratio: float = 0.5, full_frame: bool = False):
-        from .imaging import FLAT_LIGHT
+        from .imaging import FLAT_LIGHT, check_whole_frame
 
         self.render_rig = render_rig
         self.estimate_rig = estimate_rig
@@ -150,6 +150,10 @@ class VisionFeedback:
         self.strobe = bool(strobe)
         self.min_area_ratio = float(min_area_ratio)
         self.full_frame = bool(full_frame)
+        if self.full_frame:  # refused now, not at the first look
+            for camera in render_rig.cameras:
+                check_whole_frame(camera, self.supersample,
+                                  ", or windows around the LEDs instead of whole frames")
         self.lighting = FLAT_LIGHT
         self.rng = np.random.default_rng(None)
         self._last: dict[str, np.ndarray] = {}

@@ -30,7 +30,9 @@ from statistics import NormalDist
 import cv2
 import numpy as np
 
-from .camera import UNDISTORT_CRITERIA, Camera, gl_projection_matrix
+from .camera import (BYTES_PER_PIXEL, MAX_IMAGE_PIXELS, UNDISTORT_CRITERIA, Camera,
+                     gl_projection_matrix)
+from .errors import UserError
 
 
 #: Lighting of the vision path: the LEDs drawn flat (ambient 1, diffuse 0, no specular), as an
@@ -268,6 +270,29 @@ def _rounded_table(sigma_gray: float) -> np.ndarray:
     return np.rint(_gaussian_table(sigma_gray)).astype(np.int16)
 
 
+def check_whole_frame(camera: Camera, supersample: int, hint: str = "") -> None:
+    """Refuse a whole frame whose render (``supersample`` times the image and its lens margin,
+    each way) exceeds :data:`~itg_vision.camera.MAX_IMAGE_PIXELS`, the rig files' limit on an
+    image: a frame costs about :data:`~itg_vision.camera.BYTES_PER_PIXEL` per rendered pixel,
+    so a 2048 x 1536 camera at supersample 3 (6144 x 4608 rendered) would take about 2 GB.
+
+    Raises
+    ------
+    UserError : naming the camera, the rendered size, the memory, the largest supersample that
+        fits, and ``hint`` (another way out, where the caller has one).
+    """
+    plan = render_plan(camera, supersample)
+    if plan.width * plan.height <= MAX_IMAGE_PIXELS:
+        return
+    per_s = plan.width * plan.height / plan.supersample ** 2  # pixels at supersample 1
+    fits = int(math.isqrt(int(MAX_IMAGE_PIXELS // per_s)))
+    way = f"supersample {fits} at most" if fits >= 1 else "a smaller image (no supersample fits)"
+    raise UserError(f"camera {camera.name!r}: a whole frame at supersample {plan.supersample} "
+                    f"renders {plan.width} x {plan.height} px, about "
+                    f"{plan.width * plan.height * BYTES_PER_PIXEL / 1e9:.3g} GB; the limit is "
+                    f"{MAX_IMAGE_PIXELS / 1e6:.1f} Mpx rendered: {way}{hint}")
+
+
 def capture(world, camera: Camera, rng: np.random.Generator | None, *,
             supersample: int = 2, lighting=None, lens_first: bool = False) -> np.ndarray:
     """What the camera sees: render, distort, expose and add noise.
@@ -288,6 +313,7 @@ def capture(world, camera: Camera, rng: np.random.Generator | None, *,
     -------
     image : uint8, shape (camera.image_height, camera.image_width, 3), RGB.
     """
+    check_whole_frame(camera, supersample)
     maps = lens_maps(camera, supersample) if lens_first and supersample > 1 else None
     if maps is None:
         img = distort(render_pinhole(world, camera, supersample, lighting), camera, supersample)

@@ -126,3 +126,50 @@ def test_window_pixels_carry_the_cameras_sensor_noise():
     mean = sum(k * (N.cdf(k + 0.5) - N.cdf(k - 0.5)) for k in range(-int(10 * sigma) - 1, 0))
     assert abs(np.mean(d < 0) - frac) < 0.03, (np.mean(d < 0), frac)
     assert abs(d.mean() - mean) < 0.05, (d.mean(), mean)
+
+
+class _NoRender:
+    """A world that must not be asked to render."""
+
+    def render(self, *args, **kwargs):
+        raise AssertionError("rendered")
+
+
+def test_a_whole_frame_beyond_the_image_limit_is_refused_before_it_is_rendered(cam):
+    """A whole frame renders supersample x (image + lens margin) each way, about
+    BYTES_PER_PIXEL bytes per rendered pixel: capture refuses one over MAX_IMAGE_PIXELS (the rig
+    files' limit on an image) before rendering, naming the camera, the rendered size and the
+    largest supersample that fits; that one fits and the next does not (the shipped 640 x 480
+    camera with its 24 px lens margin: 6 fits, 7 renders 4816 x 3696 px)."""
+    from itg_vision.camera import MAX_IMAGE_PIXELS
+    from itg_vision.errors import UserError
+    from itg_vision.imaging import check_whole_frame
+
+    def pixels(s):
+        plan = render_plan(cam, s)
+        return plan.width * plan.height
+
+    fits = max(s for s in range(1, 9) if pixels(s) <= MAX_IMAGE_PIXELS)
+    assert pixels(fits + 1) > MAX_IMAGE_PIXELS
+    check_whole_frame(cam, fits)
+    plan = render_plan(cam, fits + 1)
+    with pytest.raises(UserError) as exc:
+        capture(_NoRender(), cam, None, supersample=fits + 1)
+    msg = str(exc.value)
+    assert f"camera {cam.name!r}" in msg and f"{plan.width} x {plan.height} px" in msg
+    assert f"supersample {fits} at most" in msg and "\n" not in msg
+
+
+def test_calibration_refuses_a_rig_whose_frames_are_too_large_before_rendering_a_view(cam):
+    """The calibration's board views are whole frames at supersample 2: a 2900 x 2900 camera
+    (8.4 Mpx, within the rig files' limit) renders 5800 x 5800 and more, refused before a view."""
+    import dataclasses
+
+    from itg_vision.board import Board, render_views
+    from itg_vision.errors import UserError
+
+    big = dataclasses.replace(cam, image_width=2900, image_height=2900, cx=1450.0, cy=1450.0,
+                              dist=(0.0,) * 5)
+    rig = Rig("big", (big, big))
+    with pytest.raises(UserError, match="supersample 2 renders 5800 x 5800 px"):
+        render_views(_NoRender(), rig, Board(), [], None, supersample=2)

@@ -774,3 +774,16 @@ def test_the_printed_lengths_carry_their_standard_error_when_measured_with_one(t
         se = s["geometry"]["length_se_mm"]
         assert (se > 0) == shown
         assert (f"standard error up to {se:g} mm" in row) == shown, row
+
+
+def test_a_whole_frame_too_large_to_render_is_refused_in_one_line(main_in_process, tmp_path):
+    """`run --full-frame --supersample 7` on the shipped rig would render 4816 x 3696 px per
+    frame (over the rig files' 16.8 Mpx image limit): exit 2, one line naming the camera and
+    the supersample that fits, no output folder."""
+    out = tmp_path / "r"
+    res = main_in_process("itg_vision.run", "--full-frame", "--supersample", "7", "--points", "4",
+                          "--out", out)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.startswith("error: camera 'left': a whole frame at supersample 7 renders")
+    assert "supersample 6 at most" in res.stderr and "Traceback" not in res.stderr
+    assert res.stderr.count("\n") == 1 and not out.exists()
