@@ -277,11 +277,14 @@ def _mono_best(obj, img, size, flags, previous=None):
 
 def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ...],
                     camera_labels=("camera 1", "camera 2"), *, source: str = "",
-                    min_views: int = MIN_VIEWS) -> StereoCalibration:
+                    min_views: int = MIN_VIEWS,
+                    apart_deg: float | None = None) -> StereoCalibration:
     """Mono calibration of each camera, outlier views out, then stereo calibration.
     ``sizes``: each camera's image size (width, height), px.
     ``camera_labels``: how a message names each camera (:func:`calibrate`: its place in the
-    rig, ``cameras[0] (left)``); ``source``: the rig file the messages name first.
+    rig, ``cameras[0] (left)``); ``source``: the rig file the messages name first;
+    ``apart_deg``: the angle between the cameras' optical axes, which a message names when no
+    view showed the board to both.
 
     Raises
     ------
@@ -300,9 +303,16 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
     both = [k for k in seen[0] if k in set(seen[1])]
     if len(both) < min_views:
         each = ", ".join(f"{lab} {k}" for lab, k in zip(camera_labels, found))
+        if both:  # more views, at the rate this sample showed the board to both
+            hint = (f"at this rate about --views {math.ceil(n * min_views / len(both))} would "
+                    f"show it to both {min_views} times")
+        else:
+            apart = f", whose axes are {apart_deg:.0f} deg apart" if apart_deg is not None else ""
+            hint = (f"no view showed it to both cameras{apart}: the board, printed on one "
+                    "side, faced one or the other in every view; more --views are unlikely to "
+                    "help, cameras closer in angle would")
         raise UserError(f"{where}the board was found by both cameras in only {len(both)} of {n} "
-                        f"views (each camera alone: {each}); need at least {min_views} (try more "
-                        "--views)")
+                        f"views (each camera alone: {each}); need at least {min_views} ({hint})")
     obj_board = board.object_points()
     flags = cv2.CALIB_FIX_K3
     dropped: set[int] = set()
@@ -763,8 +773,11 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
                           progress=tick("board"))
         t1 = time.perf_counter()
         source = str(true_rig.source or true_rig.name)  # the rig file messages name
+        axes = [c.R[2] for c in true_rig.cameras]  # each optical axis, in the world frame
+        apart = float(np.degrees(np.arccos(np.clip(axes[0] @ axes[1], -1.0, 1.0))))
         cal = calibrate_views(vs, board, tuple(c.size for c in true_rig.cameras), tuple(
-            f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)), source=source)
+            f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)), source=source,
+                              apart_deg=apart)
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)

@@ -413,7 +413,8 @@ def _camera_looking_away(tmp_path):
 
 @pytest.mark.parametrize("args, expect", [
     (["--views", "2"], "planar.yaml: the board was found by both cameras in only 1 of 2 views "
-                       "(each camera alone: cameras[0] (left) 1, cameras[1] (right) 2); need at least 6"),
+                       "(each camera alone: cameras[0] (left) 1, cameras[1] (right) 2); need at least 6 "
+                       "(at this rate about --views 12 would show it to both 6 times)"),
     # every message names the rig file first (this one did not before)
     (["--views", "12", "--tilt", "0"], "planar.yaml: degenerate board poses: the board's tilt "
                                        "spans only"),
@@ -1204,3 +1205,26 @@ def test_a_run_on_a_rig_tied_by_another_arm_says_so(tmp_path, capsys):
     row = next(x for x in summary_table(yaml.safe_load(doc)["calibration"]).splitlines()
                if x.startswith("base frame: joint-axis circle fits"))
     assert row.endswith("(the three-link arm's LEDs, --arm; measured L2 99.90, L3 99.97 mm)"), row
+
+
+@pytest.mark.parametrize("seen_by_both, hint", [
+    (0, "(no view showed it to both cameras, whose axes are 130 deg apart: the board, printed on "
+        "one side, faced one or the other in every view; more --views are unlikely to help, "
+        "cameras closer in angle would)"),
+    (2, "(at this rate about --views 60 would show it to both 6 times)"),
+])
+def test_too_few_views_seen_by_both_say_whether_more_views_would_help(seen_by_both, hint):
+    """20 views, each camera alone sees the board in 10 (a rig whose cameras face each other:
+    the audit's 130 deg rig saw it in 0 of 60 and 0 of 300 views with both): with none seen by
+    both the message says more views are unlikely to help and gives the cameras' angle; with
+    2 of 20 it gives the views that would show 6 at that rate (20 x 6 / 2)."""
+    from itg_vision.board import Views
+
+    pts = np.zeros((4, 1, 2), np.float32)
+    corners = [(pts, None) if k % 2 else (None, pts) for k in range(20)]
+    for k in range(seen_by_both):
+        corners[k] = (pts, pts)
+    views = Views([None] * 20, corners, None)
+    with pytest.raises(UserError) as exc:
+        cal.calibrate_views(views, Board(), ((640, 480), (640, 480)), apart_deg=129.9)
+    assert str(exc.value).endswith(hint), str(exc.value)
