@@ -338,6 +338,8 @@ CASES = [
     ("noise-seeds-type", "noise", ["--quick", "--seeds", "two"], "argument --seeds: expected a whole number, got 'two'"),
     ("noise-out-empty", "bench", ["noise", "--quiet", "--out", ""], "--out: empty path"),
     ("noise-points-huge", "bench", ["noise", "--quiet", "--points", "1000000", "--out", "{tmp}/n"], "argument --points: must be in 2..100000, got 1000000"),
+    # 100000 seeds spent minutes listing 43 million runs before anything was refused
+    ("noise-seeds-huge", "bench", ["noise", "--quiet", "--seeds", "100000", "--out", "{tmp}/n"], "argument --seeds: must be in 1..1000, got 100000"),
     ("paper-out-empty", "paper", ["--quiet", "--out", ""], "--out: empty path"),
     ("speed-frames-no-vision", "bench", ["speed", "--no-vision", "--frames", "10"], "--frames: applies to the stereo loop's timings, which --no-vision skips\n"),
     ("speed-passes-no-vision", "bench", ["speed", "--passes", "2", "--no-vision"], "--passes: applies to the stereo loop's timings, which --no-vision skips\n"),
@@ -405,6 +407,8 @@ def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, 
 @pytest.mark.parametrize("option, value, expect", [
     ("--seeds", "0", "argument --seeds: must be >= 1, got 0"),
     ("--seeds-three-link", "0", "argument --seeds-three-link: must be >= 1, got 0"),
+    ("--seeds", "1001", "argument --seeds: must be in 1..1000, got 1001"),
+    ("--seeds-three-link", "1001", "argument --seeds-three-link: must be in 1..1000, got 1001"),
     ("--points", "1", "argument --points: must be in 2..100000, got 1"),
 ])
 def test_itg_plus_checks_every_option_before_making_or_running_anything(

@@ -39,7 +39,7 @@ from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, spec_limits, worst
 from .store import NO_RESULT, Results, check_sweep_file, definition_hash, missing_rows, started
-from .sweep import FF_CORRECTION, SWEEPS, _default_points, _parse_names
+from .sweep import FF_CORRECTION, SWEEPS, _default_points, _parse_names, seed_count
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -514,9 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "target's measured value, threshold and computed verdict.")
     ap.add_argument("--out", default="runs/bench-itg-plus", metavar="DIR",
                     help="output folder (default %(default)s); rerun to resume")
-    ap.add_argument("--seeds", type=at_least_one, metavar="K", help="seeds of the two-link vision sweep "
+    ap.add_argument("--seeds", type=seed_count, metavar="K", help="seeds of the two-link vision sweep "
                     "(default: the itg-plus sweep's)")
-    ap.add_argument("--seeds-three-link", type=at_least_one, metavar="K",
+    ap.add_argument("--seeds-three-link", type=seed_count, metavar="K",
                     help="seeds of the three-link sweep (default: its 40)")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points of the named trajectories (default: each one's own)")

@@ -27,7 +27,8 @@ from .store import (Results, check_sweep_file, code_warning, definition_hash, pa
                     LOCK, record_sweep_file, started, sweep_lock)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, QUICK, SWEEPS,
                     TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
-                    rules_controllers, span_notes, trajectory_label, user_rules)
+                    rules_controllers, seed_count, span_notes, trajectory_label,
+                    user_rules)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -108,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"reduced sweep (< 2 min on 2 cores): {QUICK['trajectories'][0]} with "
                          f"{QUICK['points']} points, {QUICK['seeds']} seeds, conditions "
                          + ", ".join(QUICK["conditions"]).replace("%", "%%"))
-    ap.add_argument("--seeds", type=at_least_one, metavar="K",
+    ap.add_argument("--seeds", type=seed_count, metavar="K",
                     help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
     ap.add_argument("--workers", type=at_least_one, metavar="N",
                     help="local worker processes (default: the number of CPUs; 1 = this process)")

@@ -27,6 +27,7 @@ Choices (documented in the report too):
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import functools
 import hashlib
@@ -36,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..arm import ArmSpec, arm_names, names_a_file
-from ..errors import ConfigError, UserError
+from ..errors import ConfigError, UserError, at_least_one
 from ..inputs import file_sha256
 from ..rules import PARAM_FIELDS, RULES_DIR, resolve_rules_path
 
@@ -128,6 +129,18 @@ RIG_SHIFT_MM = 5.0
 #: Closed paths run this many laps; the tracking phase is the laps after the first.
 LAPS = 2
 FULL_SEEDS = 5
+#: The most seeds a sweep takes: 1000 seeds of the full sweep are 432 000 runs, about 75 h of
+#: work on one core; 100 000 spent minutes only listing its 43 million runs.
+MAX_SEEDS = 1000
+
+
+def seed_count(text: str) -> int:
+    """An argparse ``type``: a whole number of seeds in 1..:data:`MAX_SEEDS` (the option's
+    one-line error otherwise, ``argument --seeds: must be in 1..1000, got 0``)."""
+    n = at_least_one(text)
+    if n > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(f"must be in 1..{MAX_SEEDS}, got {n}")
+    return n
 QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
@@ -566,8 +579,8 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
             for name, entry in u.controllers.items()}
     ctrls = controllers or (*base["controllers"], *mine)
     n_seeds = seeds if seeds is not None else (QUICK["seeds"] if quick else base["seeds"])
-    if n_seeds < 1:
-        raise UserError(f"--seeds: must be >= 1, got {n_seeds}")
+    if not 1 <= n_seeds <= MAX_SEEDS:
+        raise UserError(f"--seeds: must be in 1..{MAX_SEEDS}, got {n_seeds}")
     if points is None and quick:
         points = QUICK["points"]
     if points is not None and points < 2:
