@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .arm import ArmSpec, arm_names
-from .calibration import (DEFAULT_VIEWS, MAX_STEREO_EXCESS_PX, MIN_VIEWS, Result, arm_of_rig,
-                          calibrate, picture_path, progress_steps, write_result)
+from .calibration import (DEFAULT_VIEWS, MAX_STEREO_EXCESS_PX, MAX_VIEWS, MIN_VIEWS, Result,
+                          arm_of_rig, calibrate, picture_path, progress_steps, write_result)
 from .camera import Rig, resolve_rig
 from .errors import ConfigError, UserError, exit_status, run_main
 from .inputs import file_sha256
@@ -177,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the true rig that renders: cameras/<NAME>.yaml or a path "
                          "(default: planar)")
     ap.add_argument("--views", type=int, default=DEFAULT_VIEWS, metavar="N",
-                    help="board poses shown, 1..1000 (default %(default)s; at least "
+                    help=f"board poses shown, 1..{MAX_VIEWS} (default %(default)s; at least "
                          f"{MIN_VIEWS} must show the board to both cameras)")
     ap.add_argument("--seed", type=int, default=0,
                     help="seed of the board poses, sensor noise and arm poses (default 0)")
@@ -233,7 +233,8 @@ class Job:
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> "Job":
         """Check the options and load the rig and the arms; `UserError` names the option."""
-        checks = [(1 <= args.views <= 1000, f"--views: must be in 1..1000, got {args.views}"),
+        checks = [(1 <= args.views <= MAX_VIEWS,
+                   f"--views: must be in 1..{MAX_VIEWS}, got {args.views}"),
                   (args.seed >= 0, f"--seed: must be >= 0, got {args.seed}"),
                   (0 <= args.tilt <= 75, f"--tilt: must be in 0..75 deg, got {args.tilt}"),
                   (args.sensor_noise is None or 0 <= args.sensor_noise <= 100,

@@ -65,6 +65,8 @@ MIN_TILT_SPAN_DEG = 40.0
 MAX_FOCAL_STD = 0.01
 #: Default number of board views.
 DEFAULT_VIEWS = 60
+#: The most board views ``calibrate --views`` takes.
+MAX_VIEWS = 1000
 #: The LED centroid error (RMS length of the 2-D error, px) that the base tie's circle fits are
 #: judged against: the largest this eye (the tracker's own, :class:`itg_vision.feedback.
 #: VisionFeedback`, as the calibration uses it) is measured to make, 0.144 px on the three-link
@@ -303,9 +305,12 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
     both = [k for k in seen[0] if k in set(seen[1])]
     if len(both) < min_views:
         each = ", ".join(f"{lab} {k}" for lab, k in zip(camera_labels, found))
-        if both:  # more views, at the rate this sample showed the board to both
-            hint = (f"at this rate about --views {math.ceil(n * min_views / len(both))} would "
-                    f"show it to both {min_views} times")
+        need = math.ceil(n * min_views / len(both)) if both else 0
+        if need > MAX_VIEWS:
+            hint = (f"at this rate {need} views would show it to both {min_views} times, more "
+                    f"than the {MAX_VIEWS} --views allows: point the cameras at a common view")
+        elif both:  # more views, at the rate this sample showed the board to both
+            hint = f"at this rate about --views {need} would show it to both {min_views} times"
         else:
             apart = f", whose axes are {apart_deg:.0f} deg apart" if apart_deg is not None else ""
             hint = (f"no view showed it to both cameras{apart}: the board, printed on one "
@@ -775,9 +780,9 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
         source = str(true_rig.source or true_rig.name)  # the rig file messages name
         axes = [c.R[2] for c in true_rig.cameras]  # each optical axis, in the world frame
         apart = float(np.degrees(np.arccos(np.clip(axes[0] @ axes[1], -1.0, 1.0))))
-        cal = calibrate_views(vs, board, tuple(c.size for c in true_rig.cameras), tuple(
-            f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras)), source=source,
-                              apart_deg=apart)
+        labels = tuple(f"cameras[{i}] ({c.name})" for i, c in enumerate(true_rig.cameras))
+        cal = calibrate_views(vs, board, tuple(c.size for c in true_rig.cameras), labels,
+                              source=source, apart_deg=apart)
         t2 = time.perf_counter()
         name = name or f"{true_rig.name}.calib"
         rig_c1 = rig_in_camera1_frame(true_rig, cal, name)

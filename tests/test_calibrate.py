@@ -1212,19 +1212,23 @@ def test_a_run_on_a_rig_tied_by_another_arm_says_so(tmp_path, capsys):
         "one side, faced one or the other in every view; more --views are unlikely to help, "
         "cameras closer in angle would)"),
     (2, "(at this rate about --views 60 would show it to both 6 times)"),
+    (-1, "(at this rate 1200 views would show it to both 6 times, more than the 1000 --views "
+         "allows: point the cameras at a common view)"),
 ])
 def test_too_few_views_seen_by_both_say_whether_more_views_would_help(seen_by_both, hint):
     """20 views, each camera alone sees the board in 10 (a rig whose cameras face each other:
     the audit's 130 deg rig saw it in 0 of 60 and 0 of 300 views with both): with none seen by
     both the message says more views are unlikely to help and gives the cameras' angle; with
-    2 of 20 it gives the views that would show 6 at that rate (20 x 6 / 2)."""
+    2 of 20 it gives the views that would show 6 at that rate (20 x 6 / 2); with 1 of 200 that
+    number, 1200, is over what --views allows, and it says so."""
     from itg_vision.board import Views
 
+    n = 200 if seen_by_both < 0 else 20  # -1: one of 200, which needs 1200 views at that rate
     pts = np.zeros((4, 1, 2), np.float32)
-    corners = [(pts, None) if k % 2 else (None, pts) for k in range(20)]
-    for k in range(seen_by_both):
+    corners = [(pts, None) if k % 2 else (None, pts) for k in range(n)]
+    for k in range(abs(seen_by_both)):
         corners[k] = (pts, pts)
-    views = Views([None] * 20, corners, None)
+    views = Views([None] * n, corners, None)
     with pytest.raises(UserError) as exc:
         cal.calibrate_views(views, Board(), ((640, 480), (640, 480)), apart_deg=129.9)
     assert str(exc.value).endswith(hint), str(exc.value)
