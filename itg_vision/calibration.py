@@ -305,17 +305,17 @@ def calibrate_views(views: Views, board: Board, sizes: tuple[tuple[int, int], ..
     both = [k for k in seen[0] if k in set(seen[1])]
     if len(both) < min_views:
         each = ", ".join(f"{lab} {k}" for lab, k in zip(camera_labels, found))
-        need = math.ceil(n * min_views / len(both)) if both else 0
-        if need > MAX_VIEWS:
-            hint = (f"at this rate {need} views would show it to both {min_views} times, more "
-                    f"than the {MAX_VIEWS} --views allows: point the cameras at a common view")
-        elif both:  # more views, at the rate this sample showed the board to both
-            hint = f"at this rate about --views {need} would show it to both {min_views} times"
-        else:
+        if not both:
             apart = f", whose axes are {apart_deg:.0f} deg apart" if apart_deg is not None else ""
             hint = (f"no view showed it to both cameras{apart}: the board, printed on one "
                     "side, faced one or the other in every view; more --views are unlikely to "
                     "help, cameras closer in angle would")
+        else:  # more views, at the rate this sample showed the board to both
+            need = math.ceil(n * min_views / len(both))
+            hint = (f"at this rate about --views {need} would show it to both {min_views} times"
+                    if need <= MAX_VIEWS else
+                    f"at this rate {need} views would show it to both {min_views} times, more "
+                    f"than the {MAX_VIEWS} --views allows: point the cameras at a common view")
         raise UserError(f"{where}the board was found by both cameras in only {len(both)} of {n} "
                         f"views (each camera alone: {each}); need at least {min_views} ({hint})")
     obj_board = board.object_points()

@@ -298,6 +298,13 @@ def length_standard_errors(lengths_of, points_mm, sigma_mm) -> np.ndarray:
     return np.sqrt(var)
 
 
+def _largest_se(lengths_of, points_mm, scatter) -> float:
+    """The largest standard error of lengths measured from ``points_mm``, each a median of
+    ``SAMPLES_PER_POSE`` looks whose scatter is ``scatter`` (:func:`look_sigma`)."""
+    sigma = look_sigma(scatter) * np.sqrt(MEDIAN_VARIANCE)  # a median's, per axis
+    return float(length_standard_errors(lengths_of, points_mm, sigma).max())
+
+
 def _miss_cause(feedback, name: str) -> str:
     """Why ``feedback``'s last look missed marker ``name`` (its cause, not the measured value:
     one entry per cause in the failure's count), naming the option that set the cause where
@@ -335,7 +342,6 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     scatter: list = []
     if arm.planar:
         m = _observe(world, feedback, arm.marker_names, "at the start pose", scatter)
-        sigma = look_sigma(scatter) * np.sqrt(MEDIAN_VARIANCE)  # a median's, per axis
         if arm.n_joints == 1:
             def lengths_of(p):
                 return (float(np.linalg.norm(p[0, :2])),)
@@ -345,8 +351,8 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
                 return float(np.linalg.norm(p[0, :2])), float(np.linalg.norm(p[1, :2] - p[0, :2]))
             points = np.array([m["elbow"], m["gripper"]])
             source = "measured: |elbow_xy|, |gripper_xy - elbow_xy|"
-        se = length_standard_errors(lengths_of, points, sigma)
-        return ArmGeometry(lengths_of(points), source=source, length_se_mm=float(se.max()))
+        return ArmGeometry(lengths_of(points), source=source,
+                           length_se_mm=_largest_se(lengths_of, points, scatter))
     leds: dict[str, list] = {n: [] for n in arm.marker_names}
     elbows, grippers = [], []
     start = np.array(world.q_deg, float)
@@ -373,17 +379,17 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
                                                           for e, g in zip(p[:5], p[5:])]))
 
     sweep = np.array(elbows + grippers)
-    se = length_standard_errors(lengths_of, sweep, look_sigma(scatter) * np.sqrt(MEDIAN_VARIANCE))
+    links = lengths_of(sweep)
     axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
-    centre, _, radius, rms = fit_circle(elbows)
-    L1 = float(centre[2])
+    centre, _, _, rms = fit_circle(elbows)
+    L1 = links[0]
     shoulder = axis_at_height(axis_point, axis_dir, L1)  # the axis as measured, tilt and all
     standoff = float(np.linalg.norm(np.cross(centre - shoulder, axis_dir)))
-    links = lengths_of(sweep)
     return ArmGeometry(links, (float(shoulder[0]), float(shoulder[1]), L1), standoff,
                        "measured: base axis from the LEDs' circles with the arm leaned "
                        f"(q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} deg) and "
                        f"the base at {BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; circle "
                        "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
-                       "|gripper - elbow|", max(rms, axis_rms), float(se.max()))
+                       "|gripper - elbow|", max(rms, axis_rms),
+                       _largest_se(lengths_of, sweep, scatter))

@@ -132,15 +132,6 @@ FULL_SEEDS = 5
 #: The most seeds a sweep takes: 1000 seeds of the full sweep are 432 000 runs, about 75 h of
 #: work on one core; 100 000 spent minutes only listing its 43 million runs.
 MAX_SEEDS = 1000
-
-
-def seed_count(text: str) -> int:
-    """An argparse ``type``: a whole number of seeds in 1..:data:`MAX_SEEDS` (the option's
-    one-line error otherwise, ``argument --seeds: must be in 1..1000, got 0``)."""
-    n = at_least_one(text)
-    if n > MAX_SEEDS:
-        raise argparse.ArgumentTypeError(f"must be in 1..{MAX_SEEDS}, got {n}")
-    return n
 QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
@@ -150,6 +141,15 @@ SCHEMA = 9  # 3: the gain column (always empty) became controller_params; 4: rul
 #            set points the simulated arm cannot reach (was: those the controller flagged, now
 #            n_flagged), and the metrics leave out those, the same for every controller;
 #            8: preview; 9: link_error (a fraction) became link_error_pct (in %)
+
+
+def seed_count(text: str) -> int:
+    """An argparse ``type``: a whole number of seeds in 1..:data:`MAX_SEEDS` (the option's
+    one-line error otherwise, ``argument --seeds: must be in 1..1000, got 0``)."""
+    n = at_least_one(text)
+    if n > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(f"must be in 1..{MAX_SEEDS}, got {n}")
+    return n
 
 
 @dataclass(frozen=True)
