@@ -100,6 +100,10 @@ class RunConfig:
             if not ((v is None and optional)
                     or (isinstance(v, numbers.Real) and not isinstance(v, bool))):
                 raise ConfigError(name, f"must be a number, got {v!r}")
+        for name, what in (("rules", "a rule base"), ("trajectory", "a trajectory"),
+                           ("rig", "a rig")):  # '' is given, not the arm's default
+            if getattr(self, name) == "":
+                raise ConfigError(name, f"is empty: name {what} or give a file's path")
         checks = [
             ("points", self.points is None or (is_whole(self.points) and 2 <= self.points <= MAX_POINTS),
              f"must be a whole number of set points in 2..{MAX_POINTS}, got {self.points!r}"),

@@ -219,6 +219,9 @@ CASES = [
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves or holds q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
+    ("rules-empty", "run", RUN + ["--rules", ""], "--rules: is empty: name a rule base or give a file's path"),
+    ("trajectory-empty", "run", RUN + ["--trajectory", ""], "--trajectory: is empty: name a trajectory or give a file's path"),
+    ("rig-empty", "run", ["--quiet", "--rig", ""], "--rig: is empty: name a rig or give a file's path"),
     # rig files (vision feedback, the default)
     ("rig-binary", "run", ["--quiet", "--rig", "{binary.yaml}"], "binary.yaml:2:118: not UTF-8 text (byte 0x80)"),
     ("rig-yaml-syntax", "run", ["--quiet", "--rig", "{syntax.yaml}"], "syntax.yaml:4:1: not valid YAML (expected ',' or ']'"),
