@@ -988,7 +988,8 @@ class RuleBase:
                 raise UserError(f"{self.source}:{r.line}:{r.col}: RULE {r.number} is defined twice "
                                 f"(first on line {seen[r.number]})")
             seen[r.number] = r.line
-            above = {name for name, line in defined.items() if line < r.line}
+            # the LETs before the rule, on the lines above or before it on its own line
+            above = {d.name for d in self.definitions if (d.line, d.col) < (r.line, r.col)}
             self._check_names([r.condition] + [a.step for a in r.actions], known | above)
             for a in r.actions:
                 if a.kind != "out" and not 1 <= a.joint <= self.n_joints:

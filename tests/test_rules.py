@@ -115,6 +115,21 @@ def test_syntax_and_name_errors_name_file_line_column(text, where, what):
     assert "\n" not in msg
 
 
+def test_a_let_before_a_rule_on_the_same_line_is_known_to_that_rule():
+    """A statement ends where the next RULE or LET starts, so 'LET a = ... RULE 1: ...' on one
+    line defines a before RULE 1 reads it (it was refused: 'the LET on line 1 defines it
+    below'); a LET after the rule on its line is still unknown to it."""
+    rb = RuleBase.from_text("LET a = xd * 2 RULE 1: IF a > 1 THEN q1 += a\n"
+                            "RULE 2: IF xd > 0 THEN q2 += 1 LET b = xd + 1 RULE 3: IF b > 0 THEN q2 -= b",
+                            2, TWO, source="my.rules")
+    step = rb.step(np.array([3.0, 0, 0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+    assert step.fired == (1, 2) and list(step.dq_deg) == [6.0, 1.0]
+    step = rb.step(np.array([-3.0, 0, 0]), markers([0, 0, 0], [0, 0, 0]), [0, 0])
+    assert step.fired == () and list(step.dq_deg) == [0.0, 0.0]
+    with pytest.raises(UserError, match=r"^my\.rules:1:30: unknown name 'a' here"):
+        RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += a LET a = 2", 2, TWO, source="my.rules")
+
+
 def test_parses_nested_conditions_and_parenthesised_expressions():
     rb = RuleBase.from_text(
         "RULE 1: IF ((xd - xg) * 2 > w OR NOT (yd >= 0)) AND (xg - xe) != 0 THEN q1 += 2 * (xd - xg)^2",
