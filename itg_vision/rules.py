@@ -315,8 +315,9 @@ class _Parser:
             if a is not None and b is not None and a.text == b.text and a.text in ("|", "*") \
                     and (b.line, b.col) == (a.line, a.col + 1):
                 return f": '{a.text * 2}' is not an operator here, {'OR' if a.text == '|' else '^'} is"
-        operand_end = before is not None and (before.kind in ("num", "name")
-                                              or before.text == ")")
+        named = k > 1 and self.t[k - 2].kind == "kw" and self.t[k - 2].text in ("LET", "RULE")
+        operand_end = before is not None and not named and (before.kind in ("num", "name")
+                                                             or before.text == ")")
         if operand_end and (tok.kind in ("num", "name") or tok.text in ("(", "|")):
             return f": two operands side by side; a product needs its * ('{before.text} * ...')"
         return ""

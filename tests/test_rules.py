@@ -60,6 +60,11 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q1 -= f |xd - xg|", ":1:33:", "(found '|'): two operands side by "
      "side; a product needs its * ('f * ...')"),
     ("LET a = 2 xg\nRULE 1: IF xd > a THEN q1 += S", ":1:11:", "a product needs its * ('2 * "),
+    # a LET's name or a rule's number, then an operand: no product was meant there
+    ("LET a 2 * xg\nRULE 1: IF xd > a THEN q1 += S", ":1:7:", "expected '=' after LET a (found "
+     "'2')\n"),
+    ("RULE 1 2: IF xd > xg THEN q1 += S", ":1:8:", "expected ':' after the rule number (found "
+     "'2')\n"),
     ("RULE 1: IF (xd => xg) THEN q1 += S", ":1:16:", "(found '='): '=>' is not an operator, '>=' is"),
     ("RULE 1: IF xd =< xg THEN q1 += S", ":1:15:", "'=<' is not an operator, '<=' is"),
     ("RULE 1: IF xd = xg THEN q1 += S", ":1:15:", "(found '='): '=' is not a comparison, '==' is"),
