@@ -845,6 +845,27 @@ def test_the_default_out_of_a_sweep_with_rules_is_its_own(tmp_path, monkeypatch)
     assert not (tmp_path / "runs" / "bench-noise-quick").exists()
 
 
+def test_runs_your_rule_base_stops_are_one_line_each_and_exit_2(tmp_path, monkeypatch, capsys):
+    """A rule whose step is not finite stops each run the same way at every retry: each run's
+    one-line reason (no traceback), failures.log lists them, and the last line says the input
+    is to be fixed (exit 2), not 'rerun to retry' (exit 1, as for a run that crashed)."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "div0.rules", "RULE 1: IF 1 > 0 THEN q1 += 1 / (xd - xd), q2 HOLD\n")
+    args = ["--quick", "--conditions", "clean", "--seeds", "1", "--controllers", "div0-model",
+            "--rules", "div0.rules", "--out", "o", "--workers", "1", "--quiet", *FEW_PLOTS]
+    for _ in range(2):  # a rerun of the same input stops the same runs
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        logged = (tmp_path / "o" / "failures.log").read_text().splitlines()
+        failed = [line for line in err.splitlines() if line.startswith("run failed: ")]
+        assert "Traceback" not in err and len(failed) == len(logged) > 0
+        assert all("div0.rules:1: RULE 1 gives q1 a step of inf deg" in x for x in failed + logged)
+        last = err.strip().splitlines()[-1]
+        assert last.startswith(f"error: {len(logged)} of {len(logged)} failed runs were stopped by "
+                               "your input") and "fix it" in last and "retry" not in last
+    assert not (tmp_path / "o" / "results.csv").exists() or not _rows(tmp_path / "o")
+
+
 @pytest.mark.parametrize("second", ["mine.rules", "./mine.rules"])
 def test_a_rule_file_given_twice_is_refused_as_given_twice(tmp_path, monkeypatch, capsys, second):
     """The same file twice (by the same name or another path to it) was told to 'rename the

@@ -25,7 +25,9 @@ def run_one(spec: RunSpec) -> dict:
     A run whose start-up measurement fails (the LEDs measured in too few looks), or whose
     simulated arm reaches no set point (links made longer: the one-link arm reaches only its
     circle), is a row of its own, ``no_start`` saying why (an outcome of its condition, the
-    same at every retry); any other exception is an error, retried by the next resume.
+    same at every retry); a `UserError` (the input stops the run: a rule's step that is not
+    finite) is an error row marked ``user_error``, with no traceback; any other exception is an
+    error, retried by the next resume.
 
     Builds its own World (PyBullet clients are per process) and, for ``rig-perturbed``, its own
     perturbed rig in memory: nothing is shared with the caller but the spec.
@@ -48,6 +50,9 @@ def run_one(spec: RunSpec) -> dict:
     except (StartUpFailed, NothingInReach) as exc:
         why = str(exc).strip().splitlines() or [type(exc).__name__]
         return make_row(spec, None, no_start=why[0])
+    except UserError as exc:  # the user's input stopped it (a rule's step not finite): the same
+        # at every retry, and its one line says what to fix; no traceback
+        return {"run_id": spec.run_id, "error": str(exc).splitlines()[0], "user_error": True}
     except Exception as exc:  # noqa: BLE001 - reported per run, the sweep goes on
         return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}".splitlines()[0],
                 "traceback": traceback.format_exc()}  # where it failed: a bug's one clue

@@ -238,7 +238,8 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
               workers: int | None = None, scheduler: str | None = None, limit: int | None = None,
               quiet: bool = False, plot_metrics=DEFAULT_PLOT_METRICS) -> tuple[int, list[dict]]:
     """Run the sweep ``specs`` into ``out`` (resuming what it holds), write its report, and
-    return the exit status (0, or 1 when runs failed, each in ``failures.log``) and the rows
+    return the exit status (0; 1 when runs failed, each in ``failures.log``; 2 when the user's
+    input stopped some, e.g. a rule's step that is not finite) and the rows
     ``results.csv`` holds. A run that did not start (its start-up measurement found the LEDs in
     too few looks) is a row, not a failure: the report names it. ``options`` are recorded in
     ``sweep.json``; ``command`` (what reproduces it) heads the report.
@@ -284,12 +285,13 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
           f"{len(store.rows)} already done, {len(todo)} to run on {where}: "
           f"estimated {todo_cost / n_workers / 60:.1f} min", file=sys.stderr)
     failures: dict[str, str] = {}
+    yours: set[str] = set()  # the failed runs your input stopped (a rule's step not finite)
 
     def stored() -> int:  # runs of this sweep with their row in results.csv
         return sum(1 for s in specs if s.run_id in store.rows)
 
     try:
-        _run_all(executor, 2 * n_workers, todo, store, failures, quiet)
+        _run_all(executor, 2 * n_workers, todo, store, failures, yours, quiet)
     except BaseException as exc:
         shutdown(executor, cancel=True, client=client)
         if isinstance(exc, KeyboardInterrupt):  # counted on disk, what a resume will find:
@@ -319,6 +321,12 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     print(f"{done} of {len(specs)} runs in {out / 'results.csv'}"
           + (f" ({gone} did not start: see the report)" if gone else "")
           + f"; report {out / 'report.md'}; {len(plots)} plots", file=sys.stderr)
+    if yours:  # a retry fails the same way: what to fix, in one line
+        first = failures[next(k for k in failures if k in yours)]
+        print(f"error: {len(yours)} of {len(failures)} failed runs were stopped by your input "
+              f"(see {out / 'failures.log'}; first: {first}); fix it, then the same command "
+              "reruns every failed run", file=sys.stderr)
+        return 2, rows
     if failures:
         print(f"error: {len(failures)} runs failed (see {out / 'failures.log'}); rerun the "
               "same command to retry them", file=sys.stderr)
@@ -337,9 +345,10 @@ def _earlier_failures(path: Path, store: Results, tried: list[RunSpec]) -> dict[
 
 
 def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, failures: dict,
-             quiet: bool) -> None:
+             yours: set, quiet: bool) -> None:
     """Run ``todo`` on ``executor`` and store each row as its run finishes (or note its
-    failure), with a progress bar weighted by the runs' estimated costs."""
+    failure in ``failures``, and in ``yours`` when the user's input stopped it), with a
+    progress bar weighted by the runs' estimated costs."""
     from ..progress import progress
 
     weight = {s.run_id: max(1, round(100 * s.cost_s())) for s in todo}  # estimated cost, 10 ms
@@ -354,6 +363,8 @@ def _run_all(executor, in_flight: int, todo: list[RunSpec], store: Results, fail
                                         f"{trajectory_label(spec.trajectory)} " \
                                         f"seed {spec.seed}: {res['error']}"
                 bar.write(f"run failed: {failures[spec.run_id]}", file=sys.stderr)
+                if res.get("user_error"):
+                    yours.add(spec.run_id)
                 if res.get("traceback"):  # the run's own error (not a lost worker): where
                     bar.write(res["traceback"].rstrip(), file=sys.stderr)
             else:
