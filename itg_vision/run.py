@@ -105,7 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "takes the arm file's limit). E_i is still measured from the set point "
                          "(README, 'Preview')")
     ap.add_argument("--laps", type=int, default=1,
-                    help="run a closed trajectory this many times, 1..1000 (default %(default)s); the "
+                    help="run a closed trajectory this many times, 1..1000 and at most "
+                         f"{MAX_POINTS} set points in all (default %(default)s); the "
                          "tracking-phase metrics then cover the laps after the first")
     ap.add_argument("--feedback", default="vision", choices=FEEDBACKS,
                     help="vision (two cameras, LEDs), model (encoders + nominal kinematic model) "

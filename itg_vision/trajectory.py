@@ -76,6 +76,13 @@ class Trajectory:
         # each seam: its laps share it (one set point, once)
         p = self.points_mm
         shared = len(p) > 2 and np.array_equal(p[0], p[-1])
+        total = laps * (len(p) - 1) + 1 if shared else laps * len(p)
+        if total > MAX_POINTS:  # a run's memory and trace.csv grow with its set points
+            most = (MAX_POINTS - 1) // (len(p) - 1) if shared else MAX_POINTS // len(p)
+            raise ConfigError("laps", f"{laps} laps of the {len(p)} set points of trajectory "
+                                      f"{self.name} make {total}; a run holds at most "
+                                      f"{MAX_POINTS} set points (as --points): at most {most} "
+                                      f"lap{'' if most == 1 else 's'} of this path")
 
         def tiled(v, shift=0.0):  # v per set point, one lap -> all laps
             one = v[:-1] if shared else v

@@ -162,6 +162,9 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--noise-px", "2"], "--noise-px: applies to vision feedback only\n"),
     (["--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
     (["--feedback", "vision", "--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
+    (["--laps", "556"], "--laps: 556 laps of the 180 set points of trajectory ellipse-t1 make "
+     "100080; a run holds at most 100000 set points (as --points): at most 555 laps of this "
+     "path\n"),
     (["--trajectory", "abcd", "--laps", "2"],
      "--laps: trajectory abcd is not a closed path (its last point is not next to its first): "
      "it can run only once\n"),

@@ -408,3 +408,32 @@ def test_a_point_held_at_the_base_gets_no_metres_note(tmp_path):
     tiny = tmp_path / "tiny.csv"
     tiny.write_text("x_mm,y_mm\n0.1,0\n0,0.1\n-0.1,0\n")
     assert T.span_note(T.read_csv(tiny), 200.0).startswith("note: trajectory ")
+
+
+def test_laps_are_refused_past_max_points_set_points_in_all(tmp_path):
+    """A run holds at most MAX_POINTS set points, laps included: `--points 100000 --laps 1000`
+    made 1e8 set points, allocated 2.2 GiB before the first step and would have run out of
+    memory (a traceback) after hours in start-up with nothing printed. The refusal names
+    --laps, the set points it would make and the most laps of that path; a path that repeats
+    its start shares it at each seam, so it fits one lap more than its count suggests."""
+    from itg_vision.errors import MAX_POINTS
+
+    t1 = T.named("ellipse-t1")  # 180 set points
+    assert len(t1.repeated(MAX_POINTS // 180).points_mm) == 180 * (MAX_POINTS // 180)
+    with pytest.raises(ConfigError) as exc:
+        t1.repeated(MAX_POINTS // 180 + 1)
+    assert exc.value.field == "laps"
+    assert exc.value.message == (
+        f"{MAX_POINTS // 180 + 1} laps of the 180 set points of trajectory ellipse-t1 make "
+        f"{180 * (MAX_POINTS // 180 + 1)}; a run holds at most {MAX_POINTS} set points (as "
+        f"--points): at most {MAX_POINTS // 180} laps of this path")
+    with pytest.raises(ConfigError, match=r"make 100000000; .* at most 1 lap of this path$"):
+        T.named("ellipse-t1", MAX_POINTS).repeated(1000)
+    f = tmp_path / "loop.csv"  # 201 set points, the last its first: 200 more a lap
+    a = np.radians(np.arange(201) * 1.8)
+    np.savetxt(f, np.c_[100 * np.cos(a), 100 * np.sin(a)], fmt="%.6f", delimiter=",",
+               header="x_mm,y_mm", comments="")
+    loop = T.read_csv(f)
+    assert loop.closed and len(loop.repeated(499).points_mm) == 499 * 200 + 1 <= MAX_POINTS
+    with pytest.raises(ConfigError, match=r"make 100001; .* at most 499 laps of this path$"):
+        loop.repeated(500)
