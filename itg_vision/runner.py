@@ -219,7 +219,8 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
             raise ConfigError("joint_offset_deg", f"arm {model.name!r} needs {model.n_joints} "
                               f"finite offsets in deg within +-180, got {cfg.joint_offset_deg}")
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
-    trajectory = traj.load(cfg.trajectory_name, cfg.points, arm=model).repeated(cfg.laps)
+    one_lap = traj.load(cfg.trajectory_name, cfg.points, arm=model)
+    trajectory = one_lap.repeated(cfg.laps)
     # a trajectory the arm file chose is that file's field, not an option the user gave
     field = "trajectory" if cfg.trajectory else f"{model.source or model.name}: defaults.trajectory"
     if not trajectory.planar and model.planar:
@@ -239,7 +240,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                   "from the base axis, the LEDs' stand-off")
         metres = ("" if traj.span_note(trajectory, hi) is None else
                   "; every point lies within 1 % of the reach of the base: written in metres?")
-        raise NothingInReach(field, f"none of the {len(trajectory.points_mm) // trajectory.laps}"
+        raise NothingInReach(field, f"none of the {len(one_lap.points_mm)}"
                           f" set points of {trajectory.name} is in reach of {true_arm.label} "
                           f"({lo:g} to {hi:g} mm from its shoulder{beside}): nothing to "
                           f"track{metres}")

@@ -790,3 +790,17 @@ def test_a_whole_frame_too_large_to_render_is_refused_in_one_line(main_in_proces
     assert res.stderr.startswith("error: camera 'left': a whole frame at supersample 7 renders")
     assert "supersample 6 at most" in res.stderr and "Traceback" not in res.stderr
     assert res.stderr.count("\n") == 1 and not out.exists()
+
+
+def test_a_path_out_of_reach_in_laps_is_refused_with_its_own_count(main_in_process, tmp_path):
+    """A 5-point closed file whose last point repeats its first, out of reach, run in 3 laps:
+    the refusal counts the file's 5 set points (it said 4: 13 set points in all, the seams
+    shared, divided by the laps)."""
+    f = tmp_path / "far.csv"
+    f.write_text("x_mm,y_mm\n300,0\n0,300\n-300,0\n0,-300\n300,0\n")
+    for laps in ("1", "2", "3"):
+        res = main_in_process("itg_vision.run", "--feedback", "model", "--trajectory", f,
+                              "--laps", laps, "--out", tmp_path / "o")
+        assert res.returncode == 2
+        assert res.stderr.startswith(f"error: --trajectory: none of the 5 set points of {f} is "
+                                     "in reach of arm two-link"), res.stderr
