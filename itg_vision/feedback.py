@@ -30,6 +30,11 @@ from .inputs import is_real, is_whole
 #: this project's host over several days, 300-305 Hz on 2026-12-04, s = 4 under 300 Hz).
 DEFAULT_SUPERSAMPLE = 3
 
+#: The largest centroid noise (px std) a vision run takes: far beyond any image (every look is
+#: already rejected at a 2 px reprojection residual). Past ~1e50 px the triangulation's
+#: arithmetic failed (OpenCV's solvePoly, a division by zero): a traceback, not a result.
+MAX_NOISE_PX = 1e6
+
 
 def _in_range(what: str, v, lo: float, hi: float) -> float:
     """``v`` as a finite float in [lo, hi], else a ValueError naming it."""
@@ -137,7 +142,7 @@ class VisionFeedback:
         self.render_rig = render_rig
         self.estimate_rig = estimate_rig
         self.arm = arm
-        self.noise_px = _in_range("VisionFeedback: noise_px", noise_px, 0.0, math.inf)
+        self.noise_px = _in_range("VisionFeedback: noise_px", noise_px, 0.0, MAX_NOISE_PX)
         self.dropout = _in_range("VisionFeedback: dropout", dropout, 0.0, 1.0)
         self.max_residual_px = float(max_residual_px)  # inf: no residual gate
         if not self.max_residual_px > 0:

@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="camera rig the estimator believes: cameras/<NAME>.yaml or a path; a "
                          "calibrated rig renders with the true rig it names (default: the arm file's "
                          "defaults.rig: planar, or three-link for the three-link arm)")
-    ap.add_argument("--noise-px", type=float, default=0.0, help="vision: extra Gaussian centroid noise, px std, >= 0 (default 0)")
+    ap.add_argument("--noise-px", type=float, default=0.0, help="vision: extra Gaussian centroid noise, px std, in [0, 1e6] (default 0)")
     ap.add_argument("--noise-mm", type=float, default=0.0,
                     help="with --feedback truth: Gaussian noise added to each LED coordinate, mm std")
     ap.add_argument("--true-links", type=_links, metavar="L1,L2[,L3]",

@@ -160,6 +160,9 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--trajectory", "{csv}", "--points", "10"],
      "--points: applies to named trajectories only, not to a CSV file\n"),
     (["--noise-px", "2"], "--noise-px: applies to vision feedback only\n"),
+    # beyond MAX_NOISE_PX the triangulation failed in OpenCV (a traceback), from ~1e50 px
+    (["--feedback", "vision", "--noise-px", "1e100"],
+     "--noise-px: must be in [0, 1e+06] px, got 1e+100\n"),
     (["--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
     (["--feedback", "vision", "--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
     (["--laps", "556"], "--laps: 556 laps of the 180 set points of trajectory ellipse-t1 make "

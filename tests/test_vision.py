@@ -318,9 +318,10 @@ def test_three_link_markers_mostly_visible():
 
 
 @pytest.mark.parametrize("kw, what", [
-    (dict(noise_px=-1.0), "noise_px must be a finite number >= 0"),
-    (dict(noise_px=float("nan")), "noise_px must be a finite number >= 0"),
-    (dict(noise_px=float("inf")), "noise_px must be a finite number >= 0"),
+    (dict(noise_px=-1.0), r"noise_px must be a finite number in \[0, 1e\+06\]"),
+    (dict(noise_px=float("nan")), r"noise_px must be a finite number in \[0, 1e\+06\]"),
+    (dict(noise_px=float("inf")), r"noise_px must be a finite number in \[0, 1e\+06\]"),
+    (dict(noise_px=1e100), r"noise_px must be a finite number in \[0, 1e\+06\]"),
     (dict(dropout=2.0), r"dropout must be a finite number in \[0, 1\]"),
     (dict(dropout=float("nan")), r"dropout must be a finite number in \[0, 1\]"),
     (dict(supersample=0), "supersample must be a whole number in 1..8"),
