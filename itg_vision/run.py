@@ -241,7 +241,7 @@ def _check_default_out(out: Path, key: dict, force: bool) -> None:
     diff += [f"content of the {k} file" for k in sorted(key["inputs_sha256"])
              if old.get("inputs_sha256", {}).get(k) != key["inputs_sha256"][k]]
     raise UserError(f"{out} holds an earlier run with other settings ({', '.join(diff) or 'version'}"
-                    f"); give --out, or {outputs.FORCE_REPLACES}")
+                    "); give --out, or --force to replace it (a run made it: it is not kept)")
 
 
 def _seconds(t: float) -> str:

@@ -677,9 +677,15 @@ def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     assert run.main(base + ["--rules", str(rules)]) == 2
     err = capsys.readouterr().err
     assert "holds an earlier run with other settings (content of the rules file)" in err
+    # --force replaces it, as it says: a run's own folder is not kept aside (the line offered
+    # --force with "the old one is kept beside it as .replaced-N", and then removed it)
+    assert err.endswith("; give --out, or --force to replace it (a run made it: it is not "
+                        "kept)\n"), err
     assert _tree(folder) == kept
     assert run.main(base + ["--rules", str(rules), "--force"]) == 0
     assert _tree(folder) != kept
+    assert [p.name for p in folder.parent.iterdir() if p.name.startswith(folder.name)] == [
+        folder.name]
     # so is an edited arm file of the user's; a folder made before arm files were hashed is not
     # refused for that alone
     arm = tmp_path / "my-arm.yaml"
