@@ -210,6 +210,9 @@ def named(name: str, n_points: int | None = None, arm=None) -> Trajectory:
 
 #: The largest coordinate a trajectory file may give (mm): a kilometre, far beyond any arm here.
 MAX_COORD_MM = 1e6
+#: The largest time a trajectory file may give (s): an epoch time even in nanoseconds, and far
+#: from where 1000 laps' times, going on by a period each, would overflow to inf.
+MAX_TIME_S = 1e18
 #: A number as a trajectory file may write it: ASCII digits, an optional sign, point and
 #: exponent (Python's float() also takes 1_000, full-width and Arabic-Indic digits).
 DECIMAL = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
@@ -271,9 +274,10 @@ def read_csv(path: str | Path) -> Trajectory:
             if not math.isfinite(v):
                 raise UserError(f"{path}:{lineno}: field {col}: must be finite, got "
                                 f"{clip(cell.strip())}")
-            if col != "t_s" and abs(v) > MAX_COORD_MM:
+            limit, unit = (MAX_TIME_S, "s") if col == "t_s" else (MAX_COORD_MM, "mm")
+            if abs(v) > limit:
                 raise UserError(f"{path}:{lineno}: field {col}: {clip(cell.strip())} is beyond "
-                                f"+-{MAX_COORD_MM:.0e} mm")
+                                f"+-{limit:.0e} {unit}")
             vals.append(v)
         values.append(vals)
         linenos.append(lineno)

@@ -437,3 +437,21 @@ def test_laps_are_refused_past_max_points_set_points_in_all(tmp_path):
     assert loop.closed and len(loop.repeated(499).points_mm) == 499 * 200 + 1 <= MAX_POINTS
     with pytest.raises(ConfigError, match=r"make 100001; .* at most 499 laps of this path$"):
         loop.repeated(500)
+
+
+def test_times_beyond_max_time_s_are_refused_and_a_thousand_laps_stay_finite(tmp_path):
+    """t_s was read up to the largest double: a closed path timed up to 1.7e308 s, in 3 laps,
+    wrote 'inf' times into trace.csv (numpy's overflow warning on stderr). A time is refused
+    beyond MAX_TIME_S at its line, as a coordinate beyond MAX_COORD_MM; at that bound the
+    most laps (1000) keep every time finite."""
+    a = np.radians(np.arange(20) * 18.0)
+    x, y = 60 + 40 * np.cos(a), 60 + 40 * np.sin(a)
+    f = tmp_path / "timed.csv"
+    np.savetxt(f, np.c_[x, y, np.linspace(0, 1.7e308, 20)], fmt="%.17g", delimiter=",",
+               header="x_mm,y_mm,t_s", comments="")
+    with pytest.raises(UserError, match=r"timed.csv:3: field t_s: 8\.94.* is beyond \+-1e\+18 s$"):
+        T.read_csv(f)
+    np.savetxt(f, np.c_[x, y, np.linspace(-T.MAX_TIME_S, T.MAX_TIME_S, 20)], fmt="%.17g",
+               delimiter=",", header="x_mm,y_mm,t_s", comments="")
+    laps = T.read_csv(f).repeated(1000)
+    assert np.all(np.isfinite(laps.t_s)) and np.all(np.diff(laps.t_s) >= 0)
