@@ -33,7 +33,7 @@ from .options import OPTIONS, RULE_OPTIONS, add_rule_options
 from .rules import PARAM_OF_FIELD, PARAM_UNITS
 from .shipped import rule_names
 from .identify import StartUpFailed
-from .runner import CONTROLLERS, FEEDBACKS, RunConfig, config_dict, execute, prepare, shown_path
+from .runner import CONTROLLERS, FEEDBACKS, MAX_DECISIONS, RunConfig, config_dict, execute, prepare, shown_path
 
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"),
@@ -87,7 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the jacobian controller's damping lambda in mm, in (0, 1e4] (default "
                          f"{DEFAULT_DAMPING_MM:g})")
     ap.add_argument("--iterations", type=int, default=1,
-                    help=f"rule iterations per set point, 1..{MAX_ITERATIONS} (default 1: the paper's one step ahead)")
+                    help=f"rule iterations per set point, 1..{MAX_ITERATIONS}, at most {MAX_DECISIONS} "
+                         "decisions (set points x iterations) in all (default 1: the paper's one "
+                         "step ahead)")
     ap.add_argument("--max-step", type=float, metavar="DEG",
                     help="servo rate limit: no joint moves more than DEG per iteration, whatever "
                          "the controller, in (0, 360] (default: none, as in the paper; the "

@@ -26,6 +26,9 @@ from .world import World
 
 FEEDBACKS = ("vision", "model", "truth")
 CONTROLLERS = ("itg", "ik", "jacobian")
+#: Most decisions (set points x iterations, laps included) a run makes: the trace keeps each
+#: (~125 bytes: 1.25 GB here; ~12 min without vision), 100 iterations at MAX_POINTS set points.
+MAX_DECISIONS = 10_000_000
 #: A rule base's parameters: their defaults (one place) and their names in the rules.
 RULE_DEFAULTS = {PARAM_FIELDS[k]: v for k, v in PARAM_DEFAULTS.items()}
 #: What a run whose rule base binds S to the servo limit does instead of giving another S.
@@ -221,6 +224,12 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
     one_lap = traj.load(cfg.trajectory_name, cfg.points, arm=model)
     trajectory = one_lap.repeated(cfg.laps)
+    decisions = len(trajectory.points_mm) * cfg.iterations
+    if decisions > MAX_DECISIONS:  # the trace keeps each decision (~125 B; ~70 us without vision)
+        raise ConfigError("iterations", f"{cfg.iterations} iterations at each of the "
+                          f"{len(trajectory.points_mm)} set points make {decisions} decisions; a "
+                          f"run makes at most {MAX_DECISIONS}: at most "
+                          f"{MAX_DECISIONS // len(trajectory.points_mm)} iterations here")
     # a trajectory the arm file chose is that file's field, not an option the user gave
     field = "trajectory" if cfg.trajectory else f"{model.source or model.name}: defaults.trajectory"
     if not trajectory.planar and model.planar:

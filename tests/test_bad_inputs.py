@@ -310,6 +310,7 @@ CASES = [
     # options
     ("points-too-many", "run", RUN + ["--points", "1000000000"], "argument --points: must be in 2..100000"),
     ("points-not-a-number", "run", RUN + ["--points", "many"], "argument --points: expected a whole number"),
+    ("decisions-too-many", "run", RUN + ["--points", "100000", "--iterations", "101"], "--iterations: 101 iterations at each of the 100000 set points make 10100000 decisions; a run makes at most 10000000: at most 100 iterations here"),
     ("unknown-option", "run", RUN + ["--colour", "red"], "unrecognized arguments: --colour red"),
     ("video-without-vision", "run", RUN + ["--video"], "--video needs --feedback vision"),
     # --out

@@ -807,3 +807,25 @@ def test_a_path_out_of_reach_in_laps_is_refused_with_its_own_count(main_in_proce
         assert res.returncode == 2
         assert res.stderr.startswith(f"error: --trajectory: none of the 5 set points of {f} is "
                                      "in reach of arm two-link"), res.stderr
+
+
+def test_a_run_makes_at_most_max_decisions_laps_and_iterations_included():
+    """Set points x iterations (laps included) is capped, as the trace keeps every decision:
+    exactly MAX_DECISIONS prepares; one lap more, or one iteration more, is refused before
+    anything runs, naming --iterations and the most this path takes."""
+    from itg_vision.errors import ConfigError
+    from itg_vision.runner import MAX_DECISIONS
+
+    def cfg(**kw):
+        return RunConfig(feedback="model", trajectory="ellipse-t1", **kw)
+
+    # ellipse-t1 at 1000 points repeats no start: laps x 1000 set points
+    prep = prepare(cfg(points=1000, laps=5, iterations=MAX_DECISIONS // 5000))
+    assert len(prep.trajectory.points_mm) * prep.config.iterations == MAX_DECISIONS
+    for kw in (dict(laps=6, iterations=MAX_DECISIONS // 5000),
+               dict(laps=5, iterations=MAX_DECISIONS // 5000 + 1)):
+        n = 1000 * kw["laps"]
+        with pytest.raises(ConfigError, match=rf"^iterations: {kw['iterations']} iterations at "
+                           rf"each of the {n} set points make {n * kw['iterations']} decisions; a "
+                           rf"run makes at most {MAX_DECISIONS}: at most {MAX_DECISIONS // n} "):
+            prepare(cfg(points=1000, **kw))
