@@ -273,17 +273,15 @@ def main(argv: list[str] | None = None) -> int:
             raise exc.as_option(OPTIONS) from None
         if args.video and cfg.feedback != "vision":
             raise UserError("--video needs --feedback vision")
-        note = traj.span_note(prep.trajectory, prep.true_arm.reach_mm()[1])
-        if note:
-            print(note, file=sys.stderr)
+        notes = [traj.span_note(prep.trajectory, prep.true_arm.reach_mm()[1])]
         if prep.rig_arm not in (None, prep.model.name) and len(prep.model.marker_names) > 1:
-            print(f"note: {shown_path(prep.info['estimate_rig'])} was tied to the base by the "
-                  f"{prep.rig_arm} arm's LEDs; calibrating with --arm {prep.model.name} ties it "
-                  "by this arm's own joint axes", file=sys.stderr)
+            notes.append(f"note: {shown_path(prep.info['estimate_rig'])} was tied to the base by "
+                         f"the {prep.rig_arm} arm's LEDs; calibrating with --arm "
+                         f"{prep.model.name} ties it by this arm's own joint axes")
         n, n_in = len(prep.trajectory), prep.n_in_reach
         if 2 * n_in < n:
-            print(f"note: {n - n_in} of the {n} set points are out of the arm's reach: every "
-                  f"metric rests on the {n_in} in reach", file=sys.stderr)
+            notes.append(f"note: {n - n_in} of the {n} set points are out of the arm's reach: "
+                         f"every metric rests on the {n_in} in reach")
         key = run_key(prep)
         if args.out is not None:  # '' is check_path's empty-path error, not the default folder
             out = outputs.check_path(args.out)
@@ -292,6 +290,8 @@ def main(argv: list[str] | None = None) -> int:
             _check_default_out(out, key, args.force)
         with outputs.staged_dir(out, "run", force=args.force, key=key,
                                 inputs=input_files(prep)) as tmp:
+            for note in filter(None, notes):  # after every refusal of --out: an error is one line
+                print(note, file=sys.stderr)
             bar = progress(len(prep.trajectory), f"run {out.name}", quiet=args.quiet, unit="pt")
             recorder = nullcontext()
             if args.video:

@@ -829,3 +829,23 @@ def test_a_run_makes_at_most_max_decisions_laps_and_iterations_included():
                            rf"each of the {n} set points make {n * kw['iterations']} decisions; a "
                            rf"run makes at most {MAX_DECISIONS}: at most {MAX_DECISIONS // n} "):
             prepare(cfg(points=1000, **kw))
+
+
+def test_a_refused_out_is_one_line_even_when_the_run_has_notes(main_in_process, tmp_path):
+    """The notes (here: most set points out of reach) come after --out is accepted: a refusal
+    of --out (a folder the run did not make) is the one line on stderr; accepted, the note is
+    printed."""
+    f = tmp_path / "far.csv"
+    f.write_text("x_mm,y_mm\n150,0\n0,150\n300,0\n0,300\n-300,0\n")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    res = main_in_process("itg_vision.run", "--feedback", "model", "--trajectory", f,
+                          "--out", mine)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith(f"error: --out {mine}: ") and "note:" not in res.stderr
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+    res = main_in_process("itg_vision.run", "--feedback", "model", "--trajectory", f,
+                          "--out", tmp_path / "new", "--quiet")
+    assert res.returncode == 0, res.stderr
+    assert "note: 3 of the 5 set points are out of the arm's reach" in res.stderr
