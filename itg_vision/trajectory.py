@@ -224,6 +224,21 @@ DECIMAL = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?
 MAX_CSV_BYTES = 16 << 20
 
 
+def _header_hint(header: list[str], allowed) -> str:
+    """What a refused header probably means, where that is clear ('' where it is not)."""
+    line = ",".join(header)
+    if line.lstrip().startswith("#"):
+        return ": a comment line is not read; the header comes first"
+    for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+        if len(header) == 1 and sep in line:
+            return f": fields are separated by commas, not {name}"
+    if any(sorted(header) == sorted(a) for a in allowed):
+        return ": the columns in that order"
+    if all(h.split("_")[0].lower() in ("x", "y", "z", "t") for h in header):
+        return ": the columns are named x_mm, y_mm, z_mm (in mm) and t_s (in s)"
+    return ""
+
+
 def read_csv(path: str | Path) -> Trajectory:
     """A user trajectory: header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm``, optional ``t_s`` column.
 
@@ -255,7 +270,7 @@ def read_csv(path: str | Path) -> Trajectory:
                ["x_mm", "y_mm", "z_mm", "t_s"])
     if header not in allowed:
         raise UserError(f"{path}:1: header must be x_mm,y_mm[,z_mm][,t_s], got "
-                        f"{clip(','.join(header), 60)!r}")
+                        f"{clip(','.join(header), 60)!r}{_header_hint(header, allowed)}")
     values, linenos = [], []
     for lineno, row, empty in zip(starts[1:], rows[1:], blank[1:]):
         if empty:

@@ -137,6 +137,15 @@ def test_a_csv_is_3d_exactly_when_it_has_a_z_mm_column(tmp_path):
 @pytest.mark.parametrize("text, expect", [
     ("", "empty file"),
     ("x,y\n1,2\n", ":1: header must be x_mm,y_mm"),
+    # a hint where the slip is clear; none where it is not
+    ("x,y\n1,2\n", "got 'x,y': the columns are named x_mm, y_mm, z_mm (in mm) and t_s (in s)"),
+    ("X_MM,Y_MM\n1,2\n", "got 'X_MM,Y_MM': the columns are named x_mm"),
+    ("# path\nx_mm,y_mm\n1,2\n", "got '# path': a comment line is not read; the header comes "
+                                 "first"),
+    ("x_mm;y_mm\n1;2\n", "got 'x_mm;y_mm': fields are separated by commas, not semicolons"),
+    ("x_mm\ty_mm\n1\t2\n", "got 'x_mm\\ty_mm': fields are separated by commas, not tabs"),
+    ("y_mm,x_mm\n1,2\n", "got 'y_mm,x_mm': the columns in that order"),
+    ("a,b\n1,2\n", "got 'a,b'\n"),
     ("x_mm,y_mm\n1,2\n3,abc\n", ":3: field y_mm: not a number: 'abc'"),
     ("x_mm,y_mm\n1,nan\n", ":2: field y_mm: must be finite"),
     ("x_mm,y_mm\n1,2,3\n", ":2: expected 2 fields, got 3"),
@@ -167,7 +176,7 @@ def test_csv_reader_bad_input_names_file_and_line(tmp_path, text, expect):
     f.write_text(text, encoding="utf-8")
     with pytest.raises(UserError) as exc:
         T.read_csv(f)
-    assert str(exc.value).startswith(str(f)) and expect in str(exc.value)
+    assert str(exc.value).startswith(str(f)) and expect in str(exc.value) + "\n"
 
 
 def test_a_path_is_closed_when_its_last_point_is_followed_by_its_first():
