@@ -116,7 +116,7 @@ _TOKEN = re.compile(r"""
   | (?P<name>[A-Za-z_][A-Za-z_0-9]*)
   | (?P<op>\+=|-=|<=|>=|==|!=|[-+*/^()|<>:,=])
   | (?P<bad>.)
-""", re.VERBOSE)
+""", re.VERBOSE | re.ASCII)  # ASCII digits, as trajectory files
 
 
 #: What a name qN or LN stands for, whether or not the arm has joint or link N.

@@ -60,6 +60,9 @@ def table2(f=0.5):
     ("RULE 1: IF xd > xg THEN q1 -= f |xd - xg|", ":1:33:", "(found '|'): two operands side by "
      "side; a product needs its * ('f * ...')"),
     ("LET a = 2 xg\nRULE 1: IF xd > a THEN q1 += S", ":1:11:", "a product needs its * ('2 * "),
+    # digits are ASCII, as in trajectory files (Python's \d also takes Arabic-Indic, full-width)
+    ("RULE 1: IF xd > xg THEN q1 += \u0663", ":1:31:", "unexpected character '\u0663'"),
+    ("RULE \uff11: IF xd > xg THEN q1 += S", ":1:6:", "unexpected character '\uff11'"),
     # a LET's name or a rule's number, then an operand: no product was meant there
     ("LET a 2 * xg\nRULE 1: IF xd > a THEN q1 += S", ":1:7:", "expected '=' after LET a (found "
      "'2')\n"),
