@@ -892,6 +892,18 @@ def test_two_rule_files_with_one_stem_are_told_to_rename_one(tmp_path, monkeypat
     assert not (tmp_path / "o").exists()
 
 
+def test_a_rule_file_whose_name_holds_a_comma_is_told_to_rename(tmp_path, monkeypatch, capsys):
+    """Its controllers ('a,b-vision') could run but never be chosen: --controllers splits on
+    commas ('unknown controller a'). Refused up front, before any folder is made."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "a,b.rules", "RULE 1: IF 1 > 0 THEN q1 HOLD, q2 HOLD\n")
+    assert main(["--quick", "--rules", "a,b.rules", "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, "--rules a,b.rules: its controllers would be called a,b-vision and "
+                            "a,b-model, which --controllers (a list separated by commas) cannot "
+                            "name: rename the file")
+    assert not (tmp_path / "o").exists()
+
+
 def test_list_names_your_files_and_refuses_bad_ones_before_printing(tmp_path, monkeypatch,
                                                                      capsys):
     """--list lists your rule base's controllers and your trajectory files beside the shipped

@@ -476,7 +476,7 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
     `UserError` naming the file when it fits none of them (the file's own error: unreadable,
     a syntax error, a rule base for another arm), when it was given before (the same file),
     when its controllers' names are taken (a shipped controller's, or another file's with the
-    same stem), or when ``run`` would refuse ``params`` for it (:func:`_check_params`)."""
+    same stem) or hold a comma (``--controllers`` could not name them), or when ``run`` would refuse ``params`` for it (:func:`_check_params`)."""
     params = dict(params or {})
     out, taken, seen = [], set(ALL_CONTROLLERS), {}
     for given in given_rules:
@@ -510,6 +510,10 @@ def user_rules(given_rules, arms, params: dict[str, float] | None = None
         shipped = path.parent.resolve() == RULES_DIR.resolve() and path.stem == given
         u = UserRules(given if shipped else str(path.resolve()), tuple(fits),
                       tuple(own.items()))
+        if "," in path.stem:
+            raise UserError(f"--rules {given}: its controllers would be called "
+                            f"{' and '.join(u.controllers)}, which --controllers (a list "
+                            "separated by commas) cannot name: rename the file")
         clash = sorted(taken & set(u.controllers))
         if clash:
             raise UserError(f"--rules {given}: its controllers would be called "
