@@ -135,7 +135,9 @@ def path_figure(trace, title: str, path, *, laps: int = 1) -> None:
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
     ax.set_title(_shown(title), fontsize=9)
-    ax.legend(fontsize=8)
+    # beside the axes, as the other figures': inside, a lap's long label (past MAX_NAMED_LAPS)
+    # made the legend wider than the equal-scaled axes, over the gripper's dots and the ticks
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02 if trace.planar else 1.08, 1))
     _save(fig, path)
 
 

@@ -107,6 +107,27 @@ def test_many_laps_share_a_colour_map_and_name_only_the_first_and_last(figures):
     assert plot.lap_style(3, 4) == ("C3", "actual gripper, lap 4")
 
 
+@pytest.mark.parametrize("planar", [True, False])
+def test_a_path_figures_legend_lies_beside_its_axes_and_ticks(figures, planar):
+    """Past MAX_NAMED_LAPS laps the first lap's label is long: inside the equal-scaled axes the
+    legend was wider than them (``run --laps 12``: it hid a start dot and the y tick 150; a 3-D
+    path's hid its top z tick)."""
+    a = np.linspace(0, 2 * np.pi, 20, endpoint=False)
+    lap = np.c_[20 + 50 * np.cos(a), -30 + 50 * np.sin(a), 150 + 50 * np.sin(a)]
+    d = np.vstack([lap] * 12)
+    g = d.copy()
+    g[:4] = [[100, 170, 250], [160, 95, 300], [170, 0, 280], [130, -80, 200]]  # the start
+    plot.path_figure(_trace(d, g, planar=planar), "t", "x.png", laps=12)
+    fig = figures[0]
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    box = ax.get_legend().get_window_extent()
+    assert not box.overlaps(ax.get_window_extent())
+    ticks = [t for axis in (ax.xaxis, ax.yaxis, *((ax.zaxis,) if not planar else ()))
+             for t in axis.get_ticklabels() if t.get_text()]
+    assert ticks and not any(box.overlaps(t.get_window_extent()) for t in ticks)
+
+
 def test_log_ticks_are_plain_decimals(figures):
     plot.lines_figure({"a": ([1, 2], [0.002, 60.0])}, "s", "E (mm)", "t", "x.png", logy=True)
     fmt = figures[0].axes[0].yaxis.get_major_formatter()
