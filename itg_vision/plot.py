@@ -41,10 +41,30 @@ def _shown(text: str) -> str:
 _PLAIN = FuncFormatter(lambda v, _: f"{v:g}")
 
 
+#: Labelled ticks per decade of a log axis: 1, 2, 5; on an axis where they label fewer than
+#: three values (less than about a decade shown), the denser set.
+LOG_SUBS = (1.0, 2.0, 5.0)
+LOG_SUBS_NARROW = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0)
+
+
+class _LogTicks(LogLocator):
+    """:data:`LOG_SUBS` per decade, or :data:`LOG_SUBS_NARROW` where those leave fewer than
+    three ticks inside the axis (E_av from 5.7 to 42 mm was labelled at 10 and 20 alone)."""
+
+    def tick_values(self, vmin, vmax):
+        lo, hi = sorted((vmin, vmax))
+        for subs in (LOG_SUBS, LOG_SUBS_NARROW):
+            self.set_params(subs=subs)
+            ticks = super().tick_values(vmin, vmax)
+            if np.count_nonzero((ticks >= lo) & (ticks <= hi)) >= 3:
+                break
+        return ticks
+
+
 def plain_log_ticks(axis) -> None:
-    """Ticks of a log axis at 1, 2 and 5 per decade, written as plain decimals (0.05, 20), not
-    as powers of ten."""
-    axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    """Ticks of a log axis at 1, 2 and 5 per decade (more where that leaves fewer than three
+    inside the axis), written as plain decimals (0.05, 20), not as powers of ten."""
+    axis.set_major_locator(_LogTicks())
     axis.set_major_formatter(_PLAIN)
     axis.set_minor_formatter(NullFormatter())
 

@@ -134,6 +134,28 @@ def test_log_ticks_are_plain_decimals(figures):
     assert [fmt(v, 0) for v in (0.005, 0.05, 1.0, 20.0, 50.0)] == ["0.005", "0.05", "1", "20", "50"]
 
 
+def _labelled_ticks(ax) -> list[float]:
+    """The values of the y axis' labelled ticks inside its limits, as drawn."""
+    ax.figure.canvas.draw()
+    lo, hi = ax.get_ylim()
+    return [t.get_position()[1] for t in ax.yaxis.get_ticklabels()
+            if t.get_text() and lo <= t.get_position()[1] <= hi]
+
+
+def test_a_log_axis_under_a_decade_labels_values_across_it(figures):
+    """`bench noise --quick`'s E_av against sigma, dropout and link error spans 5.7-42 mm: its
+    log axis was labelled at 10 and 20 alone, so the ITG's 36-42 mm could not be read (the dot
+    charts write each value beside its dot)."""
+    plot.lines_figure({"itg": ([0, 1], [35.7, 41.8]), "ik": ([0, 1], [5.7, 5.7])}, "p",
+                      "E_av (mm)", "t", "x.png", logy=True)
+    ticks = _labelled_ticks(figures[0].axes[0])
+    assert len(ticks) >= 3 and min(ticks) < 10 and max(ticks) > 20, ticks
+    # over several decades the 1-2-5 ticks stay
+    plot.lines_figure({"a": ([1, 2], [0.002, 60.0])}, "s", "E (mm)", "t", "z.png", logy=True)
+    assert _labelled_ticks(figures[-1].axes[0]) == pytest.approx(
+        [0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100])
+
+
 def test_references_are_drawn_without_markers_and_apart_from_the_measurements(figures):
     plot.lines_figure({"f = 0.1": ([100, 1000], [5.0, 0.5])}, "n", "E (mm)", "t", "x.png",
                       logx=True, logy=True, references={"slope -1": ([100, 1000], [4.0, 0.4])})
