@@ -764,6 +764,19 @@ def test_figure_titles_say_which_sweep_they_show():
                                                 "servo 20 deg/iteration; 2 seeds")
 
 
+def test_figure_titles_count_the_set_points_of_a_path_the_sweep_does_not_resample():
+    """A path run at its own set points (a file, or the start-tie sweep's line) was titled
+    "the path's set points": `bench itg-plus` on peanut (150 per lap), whose targets.md says
+    150, and `--sweep start-tie` (line-ab-reach, 100)."""
+    from itg_vision.bench.report import _sweep_line
+
+    specs = build_sweep(sweep="itg-plus", trajectories=("peanut",), seeds=1)
+    assert {s.points for s in specs} == {None}
+    assert _sweep_line(specs, "peanut").startswith("150 set points, 2 laps, ")
+    specs = build_sweep(sweep="start-tie", seeds=1)
+    assert _sweep_line(specs, "line-ab-reach").startswith("100 set points, 5 iteration(s), ")
+
+
 # ---------------------------------------------------------------------------- --rules
 def _write_rules(path: Path, text: str) -> Path:
     path.write_text(text)

@@ -39,7 +39,7 @@ from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, spec_limits, worst
 from .store import NO_RESULT, Results, check_sweep_file, definition_hash, missing_rows, started
-from .sweep import FF_CORRECTION, SWEEPS, _default_points, _parse_names, seed_count
+from .sweep import FF_CORRECTION, SWEEPS, _parse_names, seed_count
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -232,8 +232,7 @@ def limits_line(sweeps) -> str:
     for _, _, _, specs in sweeps:
         for t in dict.fromkeys(s.trajectory for s in specs):  # in the sweep's order
             lim = spec_limits(specs, t)
-            n = lim["points"] if lim["points"] is not None else _default_points(t)
-            parts.append(f"{t} ({lim['arm']}) {n} set points, {lim['laps']} "
+            parts.append(f"{t} ({lim['arm']}) {lim['per_lap']} set points, {lim['laps']} "
                          f"lap{'s' if lim['laps'] > 1 else ''}, {lim['servo']}, "
                          f"{lim['iterations']} iteration(s), {lim['seeds']} seeds")
     return "; ".join(parts)

@@ -14,8 +14,8 @@ import numpy as np
 from .. import outputs
 from ..loop import DIVERGED_MM
 from .store import params_cell, started
-from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, controller_title,
-                    is_trajectory_file, span_notes, trajectory_label)
+from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, _default_points,
+                    controller_title, is_trajectory_file, span_notes, trajectory_label)
 
 def _float(v: str) -> float:
     try:
@@ -386,13 +386,14 @@ def spec_limits(specs: list[RunSpec], traj: str) -> dict:
     s = mine[0]
     servo = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
     return {"arm": s.arm, "points": s.points, "laps": s.laps, "iterations": s.iterations,
-            "servo": servo, "seeds": len({x.seed for x in mine})}
+            "servo": servo, "seeds": len({x.seed for x in mine}),
+            "per_lap": s.points or _default_points(s.trajectory)}
 
 
 def _sweep_line(specs: list[RunSpec], traj: str) -> str:
     """What a figure of ``traj`` shows, for its title: set points, laps, seeds, limits."""
     lim = spec_limits(specs, traj)
-    pts = "the path's set points" if lim["points"] is None else f"{lim['points']} set points"
+    pts = f"{lim['per_lap']} set points"  # the path's own when the sweep gives none
     laps = f", {lim['laps']} laps" if lim["laps"] > 1 else ""
     return (f"{pts}{laps}, {lim['iterations']} iteration(s), {lim['servo']}; "
             f"{lim['seeds']} seed{'s' if lim['seeds'] > 1 else ''}")
