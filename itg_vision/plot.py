@@ -313,7 +313,8 @@ def paths_figure(panels: list, title: str, path, *, laps: int = 1) -> None:
 
 def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str, path, *,
                         logy=False, spread: dict | None = None, flagged: dict | None = None,
-                        flag_label: str = "", empty_label: str = "no value") -> None:
+                        flag_label: str = "", empty_label: str = "no value",
+                        notes: dict | None = None) -> None:
     """A dot chart: ``values`` maps a series label to one value per category (NaN: no dot), the
     series side by side in each category, each with its own marker, and the value written
     beside it. Dots, not bars: on a log axis a bar's length would mean nothing. With
@@ -321,7 +322,9 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
     triangle. ``spread`` maps a series label to (q1s, q3s), whiskers per category (the
     interquartile range over seeds). ``flagged`` maps a series label to booleans per category: those dots are ringed
     in red and ``flag_label`` says why (e.g. a run diverged). A category no series has a value
-    in is written ``empty_label`` (e.g. no run finished), not left blank."""
+    in is written ``empty_label`` (e.g. no run finished), not left blank; ``notes`` maps a
+    series label to a text per category ("" for none) written where that series' dot would be
+    (e.g. why its cell has no value: some runs did not start)."""
     n = max(1, len(values))
     width = 0.8 / n
     x = np.arange(len(categories))
@@ -340,6 +343,10 @@ def grouped_dots_figure(categories: list, values: dict, ylabel: str, title: str,
                 ax.annotate(f"<{FLOOR_MM:g}" if b else f"{yv:.3g}", (xv, yv), xytext=(0, 5),
                             textcoords="offset points", fontsize=6, ha="center",
                             rotation=90, va="bottom", color=dots.get_color())
+        for xv, note in zip(xs, (notes or {}).get(label, ())):
+            if note:  # a cell left out: say why where its dot would be, in its colour
+                ax.text(xv, 0.02, note, transform=ax.get_xaxis_transform(), rotation=90,
+                        ha="center", va="bottom", fontsize=6, color=dots.get_color())
         hit = np.asarray((flagged or {}).get(label, np.zeros(len(categories), bool)), bool)
         if hit.any():
             any_flag = True

@@ -1575,3 +1575,34 @@ def test_a_run_whose_worker_died_is_an_error_row_not_an_exception():
     for spec, row in rows:
         assert row == {"run_id": spec.run_id, "error": "BrokenProcessPool: A process in the "
                                                        "process pool was terminated"}
+
+
+def test_a_dot_chart_says_why_a_controllers_cell_is_left_out(monkeypatch):
+    """`--conditions ...,rig-perturbed-cams --quick`: one seed of each vision controller did not
+    start there, so its cell is left out of the plots (its median is not over every seed); the
+    dot chart drew nothing in its place and said nothing, beside the model controllers' dots.
+    It now writes why, where the dot would be."""
+    import matplotlib.pyplot as plt
+
+    from itg_vision import plot
+    from itg_vision.bench.report import _plots, summarize
+
+    conds, ctrls = ["clean", "rig-perturbed-cams"], ["itg-vision", "itg-model"]
+    rows = [{"trajectory": "ellipse-t1", "condition": c, "controller": k, "seed": str(s),
+             "diverged": "0",
+             "no_start": "start-up measurement" if (k, c, s) == (ctrls[0], conds[1], 1) else "",
+             **{m: "1.0" for m in ("e_av_mm", "e_max_mm", "track_median_mm", "track_mean_mm",
+                                   "track_p95_mm", "track_max_mm")}}
+            for k in ctrls for c in conds for s in (0, 1)]
+    specs = build_sweep(quick=True, conditions=tuple(conds), controllers=tuple(ctrls))
+    made = []
+    monkeypatch.setattr(plot, "_save", lambda fig, path: made.append(fig))
+    _plots(Path("o"), summarize(rows), ["ellipse-t1"], conds, ctrls, plot, ("e_av",), specs)
+    try:
+        ax = made[-1].axes[0]  # the dot chart, drawn last
+        dots = {ln.get_label(): ln.get_ydata() for ln in ax.lines if ln.get_label() in ctrls}
+        assert np.isnan(dots["itg-vision"][1]) and dots["itg-model"][1] == 1.0
+        assert [t.get_text() for t in ax.texts].count("left out: 1 of 2 did not start") == 1
+    finally:
+        for fig in made:
+            plt.close(fig)

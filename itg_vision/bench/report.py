@@ -406,6 +406,10 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
         s = summary.get((t, c, k))
         return s[metric] if s and complete(s) else (float("nan"),) * 3
 
+    def left_out(t, c, k):  # why a cell with runs has no dot ("" if it has one or no runs)
+        s = summary.get((t, c, k))
+        return f"left out: {_no_start_note(s).strip(' ()')}" if s and not complete(s) else ""
+
     def diverged(t, c, k):
         s = summary.get((t, c, k))
         return bool(s and s["diverged"])
@@ -462,6 +466,7 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
                                    for k, vs in cells.items()},
                 flagged={k: [diverged(t, c, k) for c in conds] for k in ctrls},
                 flag_label=f"a run diverged (tracking median > {DIVERGED_MM:g} mm)",
-                empty_label="no run finished")
+                empty_label="no run finished",
+                notes={k: [left_out(t, c, k) for c in conds] for k in ctrls})
             made.append(path)
     return made
