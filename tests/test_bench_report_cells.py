@@ -37,6 +37,21 @@ def test_a_cell_is_the_median_and_quartiles_interpolated_between_seeds():
         "| clean | 2 [1.5, 6] |"
 
 
+def test_a_cell_under_a_hundredth_of_a_mm_keeps_three_significant_digits():
+    """The one-link arm's clean tracking medians over 4 seeds, 0.0072-0.0084 mm (README):
+    written "7e-03" and "8e-03", one digit, while every other cell keeps three; the `ik`
+    quick-sweep cell 1.25e-06 mm read "1e-06"."""
+    rows = [_row("itg-plus-vision", "clean", i, e_av_mm=v)
+            for i, v in enumerate((0.0072, 0.0075, 0.0081, 0.0084))]
+    med, q1, q3 = (np.median([0.0072, 0.0075, 0.0081, 0.0084]),
+                   *np.percentile([0.0072, 0.0075, 0.0081, 0.0084], [25, 75]))
+    assert _table(summarize(rows), "ellipse-t1", ["clean"], ["itg-plus-vision"], "e_av")[2] == \
+        f"| clean | {med:.3g} [{q1:.3g}, {q3:.3g}] |"  # 0.0078 [0.00742, 0.00817]
+    rows = [_row("ik", "clean", 0, e_av_mm=1.25e-6)]
+    assert _table(summarize(rows), "ellipse-t1", ["clean"], ["ik"], "e_av")[2] == \
+        "| clean | 1.25e-06 [1.25e-06, 1.25e-06] |"
+
+
 def test_a_tail_cell_is_median_mean_p95_max_in_that_order_then_the_worst_seed():
     raw = {"track_median_mm": (1, 2, 3), "track_mean_mm": (4, 5, 60), "track_p95_mm": (7, 8, 9),
            "track_max_mm": (10, 11, 12)}
