@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from itg_vision.bench.report import _table, _tail_table, conclusion, summarize
+from itg_vision.bench.report import _ratio, _table, _tail_table, conclusion, summarize
 
 COLUMNS = ("e_av_mm", "e_max_mm", "track_median_mm", "track_mean_mm", "track_p95_mm",
            "track_max_mm")
@@ -115,3 +115,11 @@ def test_a_model_error_change_that_rounds_to_zero_has_no_minus_sign():
     line = next(line for line in _conclusion(rows, ["clean", "links+5%", "offset-1deg"],
                                              ["itg-vision"]) if "Model error on" in line)
     assert "links+5% +0.00" in line and "offset-1deg -0.02" in line and "-0.00" not in line
+
+
+def test_a_loss_ratio_in_prose_is_a_plain_number():
+    """The conclusion's 'largest loss' ratio: two significant digits below 100, whole above,
+    never in exponent form (it printed 3.6e+02x)."""
+    assert [_ratio(*ab) for ab in ((3.6, 1.0), (36.4, 1.0), (36.0, 0.1), (12345.0, 1.0))] == \
+        ["3.6x", "36x", "360x", "12345x"]
+    assert _ratio(2.0, 1e-4) == "> 1000x" and _ratio(float("nan"), 1.0) == "n/a"

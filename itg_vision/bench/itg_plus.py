@@ -234,7 +234,8 @@ def limits_line(sweeps) -> str:
             lim = spec_limits(specs, t)
             parts.append(f"{t} ({lim['arm']}) {lim['per_lap']} set points, {lim['laps']} "
                          f"lap{'s' if lim['laps'] > 1 else ''}, {lim['servo']}, "
-                         f"{lim['iterations']} iteration(s), {lim['seeds']} seeds")
+                         f"{lim['iterations']} iteration(s), {lim['seeds']} seed"
+                         f"{'s' if lim['seeds'] != 1 else ''}")
     return "; ".join(parts)
 
 

@@ -53,7 +53,8 @@ def _ratio(a: float, b: float) -> str:
         return "n/a"
     if b < 1e-3:
         return "> 1000x" if a >= 1.0 else f"{a / max(b, 1e-9):.3g}x"
-    return f"{a / b:.2g}x"
+    r = a / b
+    return f"{r:.2g}x" if abs(r) < 100 else f"{r:.0f}x"  # 360x, not 3.6e+02x
 
 
 #: Per-run statistics summarised over seeds: (column, short label).
@@ -279,7 +280,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
          f"{len(rows)} of {len(specs)} runs in `results.csv`"
          + (f", {n_gone} of which did not start (listed below)" if n_gone else "")
          + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
-         + f"; {len(seeds)} seeds per cell; wall-clock time of the runs, summed {wall:.0f} s "
+         + f"; {len(seeds)} seed{'s' if len(seeds) != 1 else ''} per cell; wall-clock time of the runs, summed {wall:.0f} s "
          "(with several workers the sweep took less).", ""]
     codes = Counter(r["code"] for r in rows)
     if codes:
