@@ -360,10 +360,15 @@ def exp5(base, out) -> dict:
                          f"the paper's peaks: 0, 180, 360 +- {PEAK_ANGLE_TOL_DEG:g} deg")
                         for a in (0, 180, 360)]}
     angle = "radial angle: the ellipse's parameter (deg)"
+    # the start transient, per series in its colour: its peak near 0 deg is the start, not a
+    # flail at the paper's 0 deg peak (the verdict reads the settled lap)
+    settled = [(float(series_first[f"n_t={m}"][0][res[m]["first_lap_settled_at"]]),
+                f"n_t={m}: start transient before here (set point {res[m]['first_lap_settled_at']})",
+                f"C{i}") for i, m in enumerate(res) if res[m]["first_lap_settled_at"] < m]
     plot.lines_figure(series_first, angle, "E_i (mm)",
                       "Fig. 4.5: set point deviation, first lap (as the paper: from the start pose)"
                       f"\n{_setup(base)}",
-                      out / "exp5_first_lap.png", logy=True, marker=None, **marks)
+                      out / "exp5_first_lap.png", logy=True, marker=None, vlines=settled, **marks)
     plot.lines_figure(series_second, angle, "E_i (mm)",
                       f"Fig. 4.5: set point deviation, second lap (settled)\n{_setup(base)}",
                       out / "exp5_second_lap.png",

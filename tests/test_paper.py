@@ -2,6 +2,7 @@
 
 import copy
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -519,6 +520,34 @@ def test_a_flail_onset_is_credited_to_the_pose_one_set_point_before(monkeypatch,
     for n, v in r.items():
         assert (v["flail_onsets"], v["flail_onsets_from_inverted_pose"]) == (1, 1), n
         assert v["inverted_share_of_settled_lap"] == pytest.approx(1 / n)
+
+
+def test_the_first_lap_figure_marks_each_series_start_transient(monkeypatch, tmp_path):
+    """Fig. 4.5's first lap: a run that starts 50 mm off for 7 set points, then settles, gets a
+    line at the angle of set point 7 in its series' colour, so that its peak near 0 deg reads as
+    the start, not as the paper's 0 deg peak; the settled lap's figure gets none."""
+    from itg_vision import trajectory as traj
+
+    def fake_two_laps(base, n, rules=None):
+        e = np.zeros(2 * n)
+        e[:7] = 50.0
+        g = np.tile([0.0, 200.0, 0.0], (2 * n, 1))
+        el = np.tile([0.0, 100.0, 0.0], (2 * n, 1))
+        return SimpleNamespace(error_mm=lambda: e, gripper_mm=g, elbow_mm=el), \
+            traj.named("ellipse-t1", n)
+
+    drawn = {}
+    monkeypatch.setattr(paper, "_two_laps", fake_two_laps)
+    monkeypatch.setattr(_plot, "lines_figure",
+                        lambda series, *a, vlines=(), **k: drawn.update({Path(a[3]).name: (
+                            list(series), list(vlines))}))
+    r = paper.exp5(RunConfig(feedback="model"), tmp_path)
+    names, lines = drawn["exp5_first_lap.png"]
+    assert [v["first_lap_settled_at"] for v in r.values()] == [7, 7, 7]
+    assert [(x, c) for x, _, c in lines] == [
+        (traj.named("ellipse-t1", n).param_deg[7], f"C{i}") for i, n in enumerate((180, 360, 720))]
+    assert [label.split(":")[0] for _, label, _ in lines] == names
+    assert drawn["exp5_second_lap.png"][1] == []
 
 
 def test_the_two_link_tie_study_runs_on_model_feedback_whatever_the_runs_feedback(monkeypatch):
