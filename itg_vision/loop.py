@@ -323,7 +323,15 @@ class Session:
                  progress: Callable[[int], None] | None = None, recorder=None):
         self.world = world
         self.feedback = feedback
-        self.points_mm = np.asarray(points_mm, float).reshape(-1, 3)
+        points = np.asarray(points_mm, float)
+        if points.ndim != 2 or points.shape[1] != 3 or not len(points):
+            # (n, 2) x, y pairs were read three numbers at a time, as other points
+            raise ValueError(f"points_mm: shape (n, 3) expected (x, y, z in mm; z = 0 for a "
+                             f"planar arm), got shape {points.shape}")
+        if not np.isfinite(points).all():
+            i = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
+            raise ValueError(f"points_mm: set point {i + 1} is not finite: {points[i].tolist()}")
+        self.points_mm = points
         if not (is_whole(iterations) and iterations >= 1):
             raise ValueError(f"iterations must be a whole number >= 1, got {iterations!r}")
         if max_step_deg is not None and not (is_real(max_step_deg) and max_step_deg > 0):

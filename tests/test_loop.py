@@ -708,3 +708,27 @@ def test_the_rules_stage_is_timed_in_milliseconds():
         trace = simulate(world, _Counting([0.0, 0.0], sleep_s=0.005), TruthFeedback(),
                          np.zeros((3, 3)))
     assert trace.metrics()["timing_ms"]["rules"] >= 5.0
+
+
+@pytest.mark.parametrize("points, said", [
+    (np.array([[100.0, 50.0], [90.0, 60.0], [80.0, 70.0]]), r"got shape \(3, 2\)"),
+    (np.array([100.0, 50.0, 0.0]), r"got shape \(3,\)"),
+    (np.zeros((0, 3)), r"got shape \(0, 3\)"),
+])
+def test_set_points_of_another_shape_are_refused_not_reshaped(points, said):
+    """A planar path given as x, y pairs, shape (3, 2), was reshaped to (2, 3): two set points
+    (100, 50, 90) and (60, 80, 70) tracked without a word; no set point at all ran and
+    measured nothing (E_av None)."""
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(ValueError, match=r"^points_mm: shape \(n, 3\) expected \(x, y, z in "
+                                             r"mm; z = 0 for a planar arm\), " + said + "$"):
+            simulate(world, Constant([0.0, 0.0]), TruthFeedback(), points)
+
+
+def test_a_set_point_that_is_not_finite_is_refused():
+    """A NaN set point was tracked as out of reach, left out of every metric without a word."""
+    points = np.array([[100.0, 50.0, 0.0], [np.nan, 60.0, 0.0]])
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(ValueError, match=r"^points_mm: set point 2 is not finite: "
+                                             r"\[nan, 60.0, 0.0\]$"):
+            Session(world, TruthFeedback(), points)
