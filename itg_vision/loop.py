@@ -348,6 +348,11 @@ class Session:
         self.progress = progress
         self.recorder = recorder
         n = len(self.points_mm)
+        if tracking_start is not None and not (is_whole(tracking_start)
+                                               and 0 <= tracking_start < n):
+            # -1 measured the tracking phase on the last set point alone, 2.7 from the third
+            raise ValueError(f"tracking_start must be a whole number in 0..{n - 1} (the index of "
+                             f"a set point), got {tracking_start!r}")
         self.trace = Trace(self.planar, world.arm.n_joints,
                            n // 2 if tracking_start is None else int(tracking_start))
         self.k = 0

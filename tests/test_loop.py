@@ -1,6 +1,7 @@
 """The loop: the servo limit, the set-point bookkeeping, and the trace's records."""
 
 import dataclasses
+import re
 import time
 
 import numpy as np
@@ -732,3 +733,18 @@ def test_a_set_point_that_is_not_finite_is_refused():
         with pytest.raises(ValueError, match=r"^points_mm: set point 2 is not finite: "
                                              r"\[nan, 60.0, 0.0\]$"):
             Session(world, TruthFeedback(), points)
+
+
+@pytest.mark.parametrize("tracking_start", [-1, 5, 2.7, True])
+def test_a_tracking_start_that_is_no_set_points_index_is_refused(tracking_start):
+    """tracking_start=-1 measured the tracking phase on the last set point alone, 2.7 from the
+    third, and 5 of 5 set points on none (every tracking metric None), each without a word."""
+    points = np.array([[100.0, 50.0, 0.0]] * 5)
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(ValueError, match=r"^tracking_start must be a whole number in 0\.\.4 "
+                                             r"\(the index of a set point\), got "
+                                             + re.escape(repr(tracking_start)) + "$"):
+            simulate(world, Constant([0.0, 0.0]), TruthFeedback(), points,
+                     tracking_start=tracking_start)
+        assert simulate(world, Constant([0.0, 0.0]), TruthFeedback(), points,
+                        tracking_start=np.int64(4)).metrics()["tracking_from"] == 4
