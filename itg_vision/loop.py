@@ -487,6 +487,9 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     decision's aim for it, whatever the controller (:data:`AIM_ON_LOST`; after a step flagged
     out of reach, the gripper that decision saw; before the first decision the joints hold).
     """
+    if not (is_real(correction) and 0 < correction <= 1):  # NaN aimed every decision at NaN
+        raise ValueError(f"correction must be a finite number in (0, 1] (the fraction of the "
+                         f"measured error corrected per decision), got {correction!r}")
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)

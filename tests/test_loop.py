@@ -748,3 +748,16 @@ def test_a_tracking_start_that_is_no_set_points_index_is_refused(tracking_start)
                      tracking_start=tracking_start)
         assert simulate(world, Constant([0.0, 0.0]), TruthFeedback(), points,
                         tracking_start=np.int64(4)).metrics()["tracking_from"] == 4
+
+
+@pytest.mark.parametrize("correction", [float("nan"), 0.0, 1.5, "0.5"])
+def test_a_correction_outside_zero_to_one_is_refused(correction):
+    """RunConfig refuses these, simulate took them: NaN aimed every decision after the first at
+    NaN, which the Jacobian tracker answers by holding the arm (E_av 227 mm on ellipse-t1,
+    without a word); 0 never corrects the error, 1.5 overshoots it."""
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(ValueError, match=r"^correction must be a finite number in \(0, 1\] "
+                                             r"\(the fraction of the measured error corrected "
+                                             r"per decision\), got " + re.escape(repr(correction))):
+            simulate(world, Constant([0.0, 0.0]), TruthFeedback(),
+                     np.array([[100.0, 50.0, 0.0]] * 3), correction=correction)
