@@ -400,10 +400,12 @@ class Session:
             raise RuntimeError("the trajectory is finished")
         if decide_ms is not None:
             self.trace.time("rules", decide_ms)
-        dq = np.asarray(_checked(step).dq_deg, float)
-        if dq.shape != (self.world.arm.n_joints,):
-            raise ValueError(f"Step.dq_deg: {self.world.arm.n_joints} joint increments (deg) "
-                             f"expected, got shape {dq.shape}")
+        raw = np.asarray(_checked(step).dq_deg)
+        # as the env's actions: "1" or True read as 1 deg, and 1+1j as 1 deg with a warning
+        if raw.shape != (self.world.arm.n_joints,) or raw.dtype.kind not in "iuf":
+            raise ValueError(f"Step.dq_deg: {self.world.arm.n_joints} real joint increments (deg) "
+                             f"expected, got shape {raw.shape} of {raw.dtype}")
+        dq = raw.astype(float)
         if self.max_step_deg is not None:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
         j = int(np.argmax(np.abs(dq)))

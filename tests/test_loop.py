@@ -365,12 +365,17 @@ class _Sees:
 
 @pytest.mark.parametrize("returned, error, said", [
     (np.zeros(2), TypeError, "controller.step must return itg_vision.contracts.Step, got ndarray"),
-    (Step(np.array([5.0])), ValueError, r"Step.dq_deg: 2 joint increments \(deg\) expected, got shape \(1,\)"),
+    (Step(np.array([5.0])), ValueError, r"Step.dq_deg: 2 real joint increments \(deg\) expected, "
+                                        r"got shape \(1,\) of float64"),
     (Step(np.zeros(3)), ValueError, r"got shape \(3,\)"),
+    (Step(np.array(["1", "2"])), ValueError, r"got shape \(2,\) of <U1"),
+    (Step([True, False]), ValueError, r"got shape \(2,\) of bool"),
+    (Step(np.array([1 + 1j, 0])), ValueError, r"got shape \(2,\) of complex128"),
 ])
 def test_a_controller_that_breaks_the_contract_is_told_in_one_line(returned, error, said):
     """A one-element step used to move every joint (broadcast), a three-element one failed
-    deep in the world, an array failed as a missing attribute."""
+    deep in the world, an array failed as a missing attribute; "1" and True moved a joint by
+    1 deg, and 1+1j by 1 deg with a ComplexWarning (the env refused them as actions)."""
     with World(ArmSpec.from_args("two-link")) as world:
         q0 = world.q_deg.copy()
         with pytest.raises(error, match=said):
