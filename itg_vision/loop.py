@@ -289,10 +289,21 @@ def _checked(step):
 
 
 def _shown(value) -> str:
-    """A wrong value's type, and the offending ``missed`` if that is what is wrong."""
+    """A wrong value's type, and the offending positions or ``missed`` if that is what is
+    wrong."""
     if isinstance(value, Markers):
-        return f"Markers with missed={value.missed!r}"
+        shapes = [f"{m}_mm of shape {np.shape(value.get(m))}" for m in MARKERS
+                  if np.shape(value.get(m)) != (3,)]
+        return "Markers with " + (", ".join(shapes) if shapes else f"missed={value.missed!r}")
     return type(value).__name__
+
+
+def _is_markers(value) -> bool:
+    """Whether a feedback source's ``observe`` kept the contract: positions of shape (3,), and
+    ``missed`` a tuple of marker names."""
+    return (isinstance(value, Markers) and isinstance(value.missed, tuple)
+            and all(m in MARKERS for m in value.missed)
+            and all(np.shape(value.get(m)) == (3,) for m in MARKERS))
 
 
 class Session:
@@ -378,9 +389,10 @@ class Session:
         """The feedback's estimate of the markers now (the controller's only view)."""
         self._seen = self.world.true_markers()  # evaluation only
         self._estimate = self.feedback.observe(self.world)
-        if not isinstance(self._estimate, Markers) or not isinstance(self._estimate.missed, tuple):
-            raise TypeError("feedback.observe must return itg_vision.contracts.Markers (missed: a "
-                            f"tuple of marker names), got {_shown(self._estimate)}")
+        if not _is_markers(self._estimate):  # (2,) x, y broke deep in the trace's arithmetic
+            raise TypeError("feedback.observe must return itg_vision.contracts.Markers (positions "
+                            "of shape (3,), mm; missed: a tuple of marker names), got "
+                            f"{_shown(self._estimate)}")
         self.trace.observed(self._estimate, self._seen)
         for m in self._estimate.missed:
             self.flag(f"missed:{m}")

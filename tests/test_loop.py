@@ -386,10 +386,14 @@ def test_a_controller_that_breaks_the_contract_is_told_in_one_line(returned, err
 @pytest.mark.parametrize("seen, said", [
     (lambda t: t, "got dict"),
     (lambda t: Markers(t["gripper"], t["elbow"], missed="gripper"), "missed='gripper'"),
+    (lambda t: Markers(t["gripper"][:2], t["elbow"][:2]),
+     r"gripper_mm of shape \(2,\), elbow_mm of shape \(2,\)"),
+    (lambda t: Markers(t["gripper"], t["elbow"], missed=("grip",)), r"missed=\('grip',\)"),
 ])
 def test_a_feedback_that_breaks_the_contract_is_told_in_one_line(seen, said):
     """A dict used to fail as a missing 'timing_ms'; missed='gripper' (a string) counted five
-    misses per look, one per letter."""
+    misses per look, one per letter; x, y alone (shape (2,)) failed deep in the trace as
+    'operands could not be broadcast'; a missed 'grip' left the gripper taken as measured."""
     with World(ArmSpec.from_args("two-link")) as world:
         with pytest.raises(TypeError, match=f"feedback.observe must return itg_vision.contracts"
                                             f".Markers .*{said}"):
