@@ -507,6 +507,13 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       progress=progress, recorder=recorder)
+    if aims_mm is not None:  # one short ran its set points, then failed as an IndexError
+        aims_mm = np.asarray(aims_mm, float)
+        if aims_mm.shape != session.points_mm.shape or not np.isfinite(aims_mm).all():
+            raise ValueError(f"aims_mm: one finite aim per set point, shape "
+                             f"{session.points_mm.shape}, expected, got shape {aims_mm.shape}"
+                             + ("" if aims_mm.shape != session.points_mm.shape
+                                else " with a value that is not finite"))
     previous = None  # the set point (or planned aim) of the previous decision
     last_aim = None
     while not session.done:

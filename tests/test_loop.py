@@ -770,3 +770,20 @@ def test_a_correction_outside_zero_to_one_is_refused(correction):
                                              r"per decision\), got " + re.escape(repr(correction))):
             simulate(world, Constant([0.0, 0.0]), TruthFeedback(),
                      np.array([[100.0, 50.0, 0.0]] * 3), correction=correction)
+
+
+@pytest.mark.parametrize("aims, said", [
+    (np.zeros((1, 3)), r"got shape \(1, 3\)$"),
+    (np.zeros((3, 2)), r"got shape \(3, 2\)$"),
+    (np.full((3, 3), np.nan), r"got shape \(3, 3\) with a value that is not finite$"),
+])
+def test_aims_that_are_not_one_per_set_point_are_refused_before_the_arm_moves(aims, said):
+    """One aim for three set points ran the first set point, then failed as 'index 1 is out of
+    bounds'; NaN aims reached the controller."""
+    points = np.array([[100.0, 50.0, 0.0]] * 3)
+    with World(ArmSpec.from_args("two-link")) as world:
+        q0 = world.q_deg.copy()
+        with pytest.raises(ValueError, match=r"^aims_mm: one finite aim per set point, shape "
+                                             r"\(3, 3\), expected, " + said):
+            simulate(world, Constant([1.0, 0.0]), TruthFeedback(), points, aims_mm=aims)
+        assert np.array_equal(world.q_deg, q0)  # nothing moved
