@@ -88,6 +88,9 @@ class TrackingEnv(gym.Env):
 
     def __init__(self, config: RunConfig | None = None, *, images: bool = False, **fields):
         super().__init__()
+        if config is not None and not isinstance(config, RunConfig):  # a dict: "no 'correction'"
+            raise TypeError(f"config: a RunConfig expected (or its fields as keyword "
+                            f"arguments), got {type(config).__name__}")
         cfg = config if config is not None else RunConfig(**fields)
         if config is not None and fields:
             cfg = dataclasses.replace(config, **fields)

@@ -378,3 +378,12 @@ def test_gymnasium_make_builds_the_env_by_its_id():
     finally:
         made.close()
         direct.close()
+
+
+def test_a_config_that_is_not_a_run_config_is_refused_by_name():
+    """TrackingEnv({"feedback": "truth"}) failed as "'dict' object has no attribute
+    'correction'"; the fields go as keyword arguments."""
+    with pytest.raises(TypeError, match=r"^config: a RunConfig expected \(or its fields as "
+                                        r"keyword arguments\), got dict$"):
+        TrackingEnv({"feedback": "truth", "points": 5})
+    TrackingEnv(**{"feedback": "truth", "points": 5}).close()
