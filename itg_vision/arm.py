@@ -346,7 +346,11 @@ def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]
     carry them ``led_standoff_mm`` above the joint, the three-link arm beside it along the pitch
     axis, (sin q1, -cos q1, 0)). One-link arms have no elbow marker: NaN.
     """
-    q = np.radians(np.asarray(q_deg, float) + np.asarray(arm.joint_offset_deg or 0.0))
+    q = np.asarray(q_deg, float)
+    if q.shape != (arm.n_joints,):  # one angle for two joints was broadcast to both
+        raise ValueError(f"forward_kinematics: {arm.n_joints} joint angles (deg) expected for "
+                         f"{arm.label}, got shape {q.shape}")
+    q = np.radians(q + np.asarray(arm.joint_offset_deg or 0.0))
     L = arm.links_mm
     h = arm.led_standoff_mm
     if arm.planar and arm.n_joints == 1:

@@ -168,3 +168,14 @@ def test_the_gripper_led_of_a_set_point_is_where_the_forward_kinematics_puts_it(
     led = forward_kinematics(arm, q)["gripper"]
     set_point = np.r_[led[:2], 0.0] if arm.planar else led
     np.testing.assert_allclose(arm.gripper_led_mm(set_point), led, rtol=0, atol=roundoff(200))
+
+
+@pytest.mark.parametrize("q", [[90.0], [90.0, 0.0, 45.0], [[90.0, 0.0]]])
+def test_forward_kinematics_refuses_angles_of_another_count(q):
+    """One angle for the two-link arm was broadcast to both joints: [90] gave the pose
+    (90, 90) deg, gripper (-100, 100) mm, without a word; three failed as 'operands could not
+    be broadcast'."""
+    arm = ArmSpec.from_args("two-link")
+    with pytest.raises(ValueError, match=r"^forward_kinematics: 2 joint angles \(deg\) expected "
+                                         r"for arm two-link, got shape "):
+        forward_kinematics(arm, q)
