@@ -112,12 +112,14 @@ class World:
         Its post keeps the arm's colour: the sphere is its link's first visual shape
         (:func:`itg_vision.urdf._led_link`), and a call without ``shapeIndex`` recolours every
         visual of the link, so the post was drawn lit too, from the first strobed look on."""
+        self._check_open()
         p.changeVisualShape(self.body, self._leds[name], shapeIndex=0, rgbaColor=[*rgb, 1.0],
                             physicsClientId=self.client)
 
     def ik_arguments(self, target_mm, marker: str = "gripper", start_q_deg=None) -> tuple:
         """``(args, kwargs)`` of the ``pybullet.calculateInverseKinematics`` call that
         :meth:`inverse_kinematics` makes (metres, radians), for timing the call alone."""
+        self._check_open()
         start = {} if start_q_deg is None else {
             "currentPositions": [float(v) for v in np.radians(start_q_deg) + self._offset_rad]}
         return ((self.body, self._leds[marker], [float(v) * _MM for v in target_mm]),
@@ -160,6 +162,7 @@ class World:
         ``view_gl`` and ``proj_gl`` are OpenGL matrices flattened column-major (16 floats), as
         made by :mod:`itg_vision.camera`.
         """
+        self._check_open()
         _, _, rgba, _, _ = p.getCameraImage(
             width, height, viewMatrix=list(view_gl), projectionMatrix=list(proj_gl),
             renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, shadow=0,

@@ -179,3 +179,16 @@ def test_forward_kinematics_refuses_angles_of_another_count(q):
     with pytest.raises(ValueError, match=r"^forward_kinematics: 2 joint angles \(deg\) expected "
                                          r"for arm two-link, got shape "):
         forward_kinematics(arm, q)
+
+
+def test_every_call_that_reaches_pybullet_says_when_the_world_is_closed():
+    """set_q and true_markers said 'the World is closed'; inverse_kinematics, render and
+    set_led_lit failed inside PyBullet as "'NoneType' object cannot be interpreted as an
+    integer"."""
+    w = World(ArmSpec.from_args("two-link"))
+    w.close()
+    for call in (lambda: w.inverse_kinematics([100.0, 50.0, 12.0]),
+                 lambda: w.render(8, 6, [0.0] * 16, [0.0] * 16),
+                 lambda: w.set_led_lit("gripper", (1.0, 0.0, 0.0))):
+        with pytest.raises(RuntimeError, match="^the World is closed$"):
+            call()
