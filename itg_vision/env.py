@@ -165,6 +165,9 @@ class TrackingEnv(gym.Env):
     def step(self, action):
         if self._session is None:
             raise RuntimeError("call reset() before step()")
+        if self._session.done:  # the episode terminated: a new one starts with reset()
+            raise RuntimeError("the trajectory is finished (the episode terminated): call "
+                               "reset() before step()")
         raw = np.asarray(action)
         if raw.shape != self.action_space.shape or raw.dtype.kind not in "iuf":
             raise ValueError(f"action: {self.action_space.shape[0]} real joint increments (deg) "

@@ -100,6 +100,9 @@ def test_an_episode_of_laps_tracks_from_the_second_lap():
     done = False
     while not done:
         _, _, done, _, info = env.step([0.0, 0.0])
+    with pytest.raises(RuntimeError, match=r"^the trajectory is finished \(the episode "
+                       r"terminated\): call reset\(\) before step\(\)$"):
+        env.step([0.0, 0.0])  # after termination: says what to do, and the metrics stand
     env.close()
     assert (info["metrics"]["n_setpoints"], info["metrics"]["tracking_from"]) == (60, 20)
 
