@@ -308,7 +308,10 @@ def _largest_se(lengths_of, points_mm, scatter) -> float:
 def _miss_cause(feedback, name: str) -> str:
     """Why ``feedback``'s last look missed marker ``name`` (its cause, not the measured value:
     one entry per cause in the failure's count), naming the option that set the cause where
-    one did (``--dropout``, ``--noise-px``), else the rig's part."""
+    one did (``--dropout``, ``--noise-px``), else the rig's part, and for an LED partly hidden
+    (not round, or a small blob) the arm's LED stand-off too: a link hides part of an LED that
+    stands too close beside it."""
+    from .detect import NOT_ROUND
     from .feedback import DROPPED, PARTLY_HIDDEN, RESIDUAL
 
     obs = getattr(feedback, "last_observation", None)
@@ -319,9 +322,15 @@ def _miss_cause(feedback, name: str) -> str:
         noise = getattr(feedback, "noise_px", 0.0)
         return (f"reprojection residual above {feedback.max_residual_px:g} px"
                 + (f" (--noise-px {noise:g})" if noise > 0 else " (check the rig)"))
-    if cause == PARTLY_HIDDEN:
+    if cause in (PARTLY_HIDDEN, NOT_ROUND):  # an LED partly hidden: by the view, or its link
+        arm = getattr(feedback, "arm", None)
+        hint = ("check the rig" if arm is None else
+                f"check the rig, or the arm's led_standoff_mm, {arm.led_standoff_mm:g} mm: "
+                "an LED too close beside its link is partly hidden by it")
+        if cause == NOT_ROUND:
+            return f"{cause} ({hint})"
         return (f"blob area under {feedback.min_area_ratio:g} of expected: partly hidden "
-                "(check the rig)")
+                f"({hint})")
     return f"{cause or 'not measured'} (check the rig)"
 
 

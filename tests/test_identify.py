@@ -95,16 +95,39 @@ def test_a_failed_start_up_groups_its_misses_by_cause_not_by_measured_value():
         fb.last_observation = SimpleNamespace(causes=causes)
         said.add(_miss_cause(fb, "gripper"))
         reasons.add(why["gripper"])
+    hidden = ("check the rig, or the arm's led_standoff_mm, 12 mm: an LED too close beside its "
+              "link is partly hidden by it")
     assert len(reasons) == 4 and said == {
-        f"blob area under {fb.min_area_ratio:g} of expected: partly hidden (check the rig)"}
+        f"blob area under {fb.min_area_ratio:g} of expected: partly hidden ({hidden})"}
 
     def looked(cause):
         return SimpleNamespace(last_observation=SimpleNamespace(causes={"gripper": cause}),
-                               dropout=0.0, noise_px=0.0, max_residual_px=2.0)
+                               dropout=0.0, noise_px=0.0, max_residual_px=2.0, arm=fb.arm)
 
-    assert _miss_cause(looked(NOT_ROUND), "gripper") == "not round (check the rig)"
+    assert _miss_cause(looked(NOT_ROUND), "gripper") == f"not round ({hidden})"
     assert _miss_cause(looked(RESIDUAL), "gripper") == \
         "reprojection residual above 2 px (check the rig)"
+
+
+def test_a_start_up_that_a_link_spoils_names_the_led_standoff():
+    """A three-link arm whose LEDs stand 8 mm beside their links (the shipped file's 12 mm less
+    4; led_standoff_mm allows 0..5000): its forearm (8 mm wide) hides part of the gripper LED
+    (6 mm in radius, so 2 mm from the link's face) from a camera of the shipped rig in the base
+    sweep's leaned pose, the blob is not round, and the start-up fails. The line used to say
+    only "not round (check the rig)", though the rig sees the shipped arm's 12 mm stand-off in
+    every one of those poses; it now names the arm's stand-off as a cause too."""
+    from itg_vision.camera import Rig
+    from itg_vision.feedback import VisionFeedback
+    from itg_vision.identify import StartUpFailed
+    from itg_vision.runner import CAMERAS_DIR
+
+    arm = dataclasses.replace(ArmSpec.from_args("three-link"), led_standoff_mm=8.0)
+    rig = Rig.from_yaml(CAMERAS_DIR / "three-link.yaml")
+    fb = VisionFeedback(rig, rig, arm)
+    fb.reset(0)
+    with World(arm) as world, pytest.raises(StartUpFailed) as failed:
+        measure_geometry(world, fb, arm)
+    assert "not round (check the rig, or the arm's led_standoff_mm, 8 mm:" in str(failed.value)
 
 
 #: 16 mm along -a at q1 = 35 deg (a = (sin q1, -cos q1, 0), the pitch axis), where line-ab-reach
