@@ -62,7 +62,9 @@ Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm; none 
 ``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm, and ``sL`` (mm),
 the largest standard error of the lengths: 0 for the nominal model's, else what the noise of the
 start-up's looks leaves uncertain in the measured ones (a reach test on measured lengths allows a
-few: RULE 0 of ``itg-plus-two-link``).
+few: RULE 0 of ``itg-plus-two-link``), and ``h`` (mm), the LEDs' stand-off from the links along
+the pitch axis (three-link, measured at start-up like the lengths; 0 on planar arms, whose LEDs
+stand along z: RULE 0 of ``itg-plus-three-link``, the LED's reach).
 
 The file text is never evaluated: the parsed tree is checked (names, joints) and compiled into
 one Python function from the tree itself.
@@ -875,6 +877,8 @@ class RuleBase:
     links_mm : link lengths bound to ``L1..Ln`` and ``L``.
     sL : the lengths' largest standard error (mm), bound to ``sL``
         (:attr:`itg_vision.identify.ArmGeometry.length_se_mm`).
+    h : the LEDs' stand-off along the pitch axis (mm), bound to ``h``
+        (:attr:`itg_vision.identify.ArmGeometry.standoff_mm`).
     f, S, w : gain (deg/mm), fixed step (deg), tolerance (mm).
     servo_step : the file declares ``#! S is the servo limit`` (see the module docstring).
     base_axis_mm : where the arm's vertical base axis crosses the xy plane (mm), measured at
@@ -886,6 +890,7 @@ class RuleBase:
     n_joints: int
     links_mm: tuple[float, ...]
     sL: float = 0.0
+    h: float = 0.0
     f: float = PARAM_DEFAULTS["f"]
     S: float = PARAM_DEFAULTS["S"]
     w: float = PARAM_DEFAULTS["w"]
@@ -947,20 +952,23 @@ class RuleBase:
         """Whether a rule reads a joint angle ``q1..qn`` (then the loop passes the encoders)."""
         return any(self.uses(f"q{i}") for i in range(1, self.n_joints + 1))
 
-    def with_links(self, links_mm, base_axis_mm=(0.0, 0.0), sL: float = 0.0) -> "RuleBase":
+    def with_links(self, links_mm, base_axis_mm=(0.0, 0.0), sL: float = 0.0,
+                   h: float = 0.0) -> "RuleBase":
         """The same compiled rules with ``L1..Ln`` bound to other lengths, ``sL`` to their
-        standard error and the base axis at another point (measured ones)."""
+        standard error, ``h`` to the LEDs' stand-off and the base axis at another point
+        (measured ones)."""
         links = tuple(float(v) for v in links_mm)
         if len(links) != len(self.links_mm):
             raise ValueError(f"{len(self.links_mm)} link lengths expected, got {len(links)}")
         axis = tuple(float(v) for v in base_axis_mm)
-        return replace(self, links_mm=links, base_axis_mm=(axis[0], axis[1]), sL=float(sL))
+        return replace(self, links_mm=links, base_axis_mm=(axis[0], axis[1]), sL=float(sL),
+                       h=float(h))
 
     # -------------------------------------------------------------- checks
     @property
     def known_names(self) -> set[str]:
         joints = {f"q{i}" for i in range(1, self.n_joints + 1)}
-        links = {f"L{i}" for i in range(1, len(self.links_mm) + 1)} | {"L", "sL"}
+        links = {f"L{i}" for i in range(1, len(self.links_mm) + 1)} | {"L", "sL", "h"}
         markers = set(MARKER_NAMES) - (set(ELBOW_NAMES) if self.n_joints == 1 else set())
         return markers | set(PARAM_NAMES) | joints | links
 
@@ -1049,7 +1057,7 @@ class RuleBase:
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
-        out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}, v_sL):")
+        out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}, v_sL, v_h):")
         top = _Scope()
         for i, r in enumerate(out_of_reach):
             out.define(out.reads([r.condition]), top, 1)
@@ -1118,7 +1126,7 @@ class RuleBase:
     def argument_names(self) -> tuple[str, ...]:
         """Names of :meth:`arguments`, in order."""
         return (*MARKER_NAMES, *(f"q{i}" for i in range(1, self.n_joints + 1)), *PARAM_NAMES,
-                "L", *(f"L{i}" for i in range(1, len(self.links_mm) + 1)), "sL")
+                "L", *(f"L{i}" for i in range(1, len(self.links_mm) + 1)), "sL", "h")
 
     # -------------------------------------------------------------- run
     @property
@@ -1142,7 +1150,8 @@ class RuleBase:
         return (xd, yd, zd, xg, yg, zg, xe, ye, ze,
                 xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
                 *(nan_q if q_deg is None else (float(q) for q in q_deg)),
-                float(self.f), float(self.S), float(self.w), links[0], *links, float(self.sL))
+                float(self.f), float(self.S), float(self.w), links[0], *links, float(self.sL),
+                float(self.h))
 
     def step(self, desired_mm, markers, q_deg) -> Step:
         """Apply the rules once. ``markers`` has ``gripper_mm`` and ``elbow_mm`` (shape (3,))."""

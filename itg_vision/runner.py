@@ -489,7 +489,7 @@ def bind_geometry(controller, geometry, model, max_step_deg=None):
 
     if isinstance(controller, RuleBase):
         return controller.with_links(geometry.links_mm, geometry.base_axis_mm,
-                                     geometry.length_se_mm)
+                                     geometry.length_se_mm, geometry.standoff_mm)
     if isinstance(controller, JacobianTracker):
         return make_controller("jacobian", model, geometry, max_step_deg, controller.damping)
     return controller  # open-loop IK: the nominal model by definition

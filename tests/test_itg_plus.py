@@ -829,26 +829,51 @@ REACH_MARGIN_SL = {"two-link": 6.0, "three-link": 9.0}
 
 
 @pytest.mark.parametrize("sL", [0.0, 0.9])
-@pytest.mark.parametrize("name, links", [("two-link", (150.0, 50.0)),
-                                         ("three-link", (100.0, 150.0, 50.0))])
-def test_rule_0_flags_a_set_point_only_beyond_its_margin(name, links, sL):
+@pytest.mark.parametrize("name, links, h", [("two-link", (150.0, 50.0), 0.0),
+                                            ("three-link", (100.0, 150.0, 50.0), 0.0),
+                                            ("three-link", (100.0, 150.0, 50.0), 12.0)])
+def test_rule_0_flags_a_set_point_only_beyond_its_margin(name, links, h, sL):
     """A set point within m = w + k sL of the ring (two-link, about the base) or the shell
     (three-link, about the shoulder) that the told lengths reach is left to the steps, which take
     the gripper to its nearest point; one beyond m is flagged: 0.1 mm either side of m, outside
-    the outer rim and inside the hole (100 mm, the links 150 and 50 mm), in 8 directions."""
+    the outer rim and inside the hole (100 mm, the links 150 and 50 mm), in 8 directions. The
+    three-link LED stands h off the arm's plane: its outer shell is r = sqrt(outer^2 + h^2), and
+    RULE 0's edge B = sqrt((outer + m)^2 + h (h + 2 m)) lies at or beyond r + m (equal at h = 0):
+    0.1 mm either side of B, and r + m - 0.1 never flagged."""
     arm = ArmSpec.from_args(name).with_links(links)
-    rb = load_rules(ARMS[name], arm.n_joints, links, S=SERVO[name], w=0.5).with_links(links, sL=sL)
+    rb = load_rules(ARMS[name], arm.n_joints, links, S=SERVO[name], w=0.5).with_links(
+        links, sL=sL, h=h)
     m = 0.5 + REACH_MARGIN_SL[name] * sL
     centre = np.array([0.0, 0.0, 0.0 if arm.planar else links[0]])
     inner, outer = abs(links[-2] - links[-1]), links[-2] + links[-1]
+    r, edge = np.hypot(outer, h), np.sqrt((outer + m) ** 2 + h * (h + 2 * m))
+    assert edge >= r + m - 1e-12 and (h > 0 or edge == r + m)
     markers = observe(arm, arm.start_q_deg.astype(float))
     for a in np.radians(np.arange(0, 360, 45)):
         u = np.array([np.cos(a), 0.0, np.sin(a)]) if not arm.planar and a % np.pi else \
             np.array([np.cos(a), np.sin(a), 0.0])
-        for beyond in (m - 0.1, m + 0.1):
-            for radius in (outer + beyond, inner - beyond):
-                got = rb.step(centre + radius * u, markers, arm.start_q_deg).out_of_reach
-                assert got == (beyond > m), (u, radius, beyond, m)
+        cases = [(r + m - 0.1, False), (edge - 0.1, False), (edge + 0.1, True),
+                 (inner - m + 0.1, False), (inner - m - 0.1, True)]
+        for radius, flagged in cases:
+            got = rb.step(centre + radius * u, markers, arm.start_q_deg).out_of_reach
+            assert got == flagged, (u, radius, edge, m)
+
+
+def test_a_ring_the_three_link_led_reaches_at_full_stretch_is_tracked_not_held(tmp_path):
+    """A horizontal ring at shoulder height, 200.75 mm from the base axis: beyond L2 + L3 + m
+    (200.5 mm) but within m of the LED's reach sqrt(200^2 + 12^2) = 200.36 mm. The old RULE 0
+    (without h) flagged all 90 set points and held the arm at its start (E_av 284 mm); now none
+    is flagged and the LED tracks the shell, as near as it gets: 0.39 mm off, within w more."""
+    t = np.linspace(0.0, 2 * np.pi, 91)[:-1]
+    path = tmp_path / "ring.csv"
+    np.savetxt(path, np.c_[200.75 * np.cos(t), 200.75 * np.sin(t), np.full_like(t, 100.0)],
+               delimiter=",", header="x_mm,y_mm,z_mm", comments="", fmt="%.4f")
+    cfg = RunConfig(arm="three-link", trajectory=str(path), rules=ARMS["three-link"],
+                    feedback="model", iterations=5)
+    _, s = execute(prepare(cfg))
+    nearest = 200.75 - np.hypot(200.0, 12.0)
+    assert s["n_flagged"] == 0 and s["n_out_of_reach"] == 0
+    assert nearest <= s["track_median_mm"] <= s["track_max_mm"] <= nearest + 0.5, s
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -99,11 +99,11 @@ def test_rule_numbers_keep_their_references():
     rb = RuleBase.from_text("RULE 123456789012: IF xd > 0 THEN q1 += xd\n"
                             "RULE 98765432109876: IF xd < 0 THEN OUT_OF_REACH", 1, (100.0,))
     fn = native.native_step(rb)
-    number = fn(*([1.0] + [0.0] * 18))[1][0]
-    out = fn(*([-1.0] + [0.0] * 18))[1][0]
+    number = fn(*([1.0] + [0.0] * (len(rb.argument_names) - 1)))[1][0]
+    out = fn(*([-1.0] + [0.0] * (len(rb.argument_names) - 1)))[1][0]
     before = sys.getrefcount(number), sys.getrefcount(out)
     for x in (1.0, -1.0) * 5000:
-        fn(*([x] + [0.0] * 18))
+        fn(*([x] + [0.0] * (len(rb.argument_names) - 1)))
     assert (number, out) == (123456789012, 98765432109876)
     assert (sys.getrefcount(number), sys.getrefcount(out)) == before
 
@@ -114,7 +114,7 @@ def test_the_rule_files_name_never_reaches_the_c_source():
                             source="*/ int injected = 1; /*\n#error injected")
     text = native.module_source([rb], "itg_native_x")
     assert "injected" not in text
-    assert native.native_step(rb)(*([2.0] + [0.0] * 18)) == ([2.0], [1])
+    assert native.native_step(rb)(*([2.0] + [0.0] * (len(rb.argument_names) - 1))) == ([2.0], [1])
 
 
 def test_an_unusable_cache_builds_for_the_process_and_says_so(tmp_path, monkeypatch, capsys):
@@ -169,20 +169,20 @@ def test_the_c_source_compiles_alone_as_c99(tmp_path):
 def test_bad_arguments_are_refused_like_a_python_function():
     rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += xd", 1, (100.0,))
     fn = native.native_step(rb)
-    with pytest.raises(TypeError, match="takes 19 arguments"):
+    with pytest.raises(TypeError, match=f"takes {len(rb.argument_names)} arguments"):
         fn(1.0)
     with pytest.raises(TypeError):
-        fn(*(["a"] + [0.0] * 18))
-    assert fn(*([2.0] + [0.0] * 18)) == ([2.0], [1])
-    assert fn(*([2] + [0] * 18)) == ([2.0], [1])  # ints are numbers, as in Python
+        fn(*(["a"] + [0.0] * (len(rb.argument_names) - 1)))
+    assert fn(*([2.0] + [0.0] * (len(rb.argument_names) - 1))) == ([2.0], [1])
+    assert fn(*([2] + [0] * (len(rb.argument_names) - 1))) == ([2.0], [1])  # ints are numbers, as in Python
 
     class Reading:  # not a float: read through its __float__
         def __float__(self):
             return 2.5
 
     # floats are read directly, the rest converted: each kind gives its own value
-    assert fn(*([np.float64(2.25)] + [0.0] * 18)) == ([2.25], [1])
-    assert fn(*([Reading()] + [0.0] * 18)) == ([2.5], [1])
+    assert fn(*([np.float64(2.25)] + [0.0] * (len(rb.argument_names) - 1))) == ([2.25], [1])
+    assert fn(*([Reading()] + [0.0] * (len(rb.argument_names) - 1))) == ([2.5], [1])
 
 
 def test_modules_are_cached_by_source_and_a_failed_build_leaves_nothing(tmp_path, monkeypatch):
@@ -191,11 +191,11 @@ def test_modules_are_cached_by_source_and_a_failed_build_leaves_nothing(tmp_path
     rb = RuleBase.from_text("RULE 1: IF xd > 0 THEN q1 += 2 * xd", 1, (100.0,))
     fn = native.native_step(rb)
     built = sorted((tmp_path / "native").iterdir())
-    assert len(built) == 1 and fn(*([2.0] + [0.0] * 18)) == ([4.0], [1])
+    assert len(built) == 1 and fn(*([2.0] + [0.0] * (len(rb.argument_names) - 1))) == ([4.0], [1])
 
     monkeypatch.setattr(native, "_loaded", {})  # a new process: the module comes from the cache
     monkeypatch.setattr(native, "_compile", lambda *a: pytest.fail("compiled again"))
-    assert native.native_step(rb)(*([2.0] + [0.0] * 18)) == ([4.0], [1])
+    assert native.native_step(rb)(*([2.0] + [0.0] * (len(rb.argument_names) - 1))) == ([4.0], [1])
 
     monkeypatch.undo()
     monkeypatch.setenv("ITG_VISION_CACHE", str(tmp_path))

@@ -83,7 +83,7 @@ def table2(f=0.5):
      "not an operator here, AND is"),
     ("RULE 1: IF xd > xg THEN q1 += f ** 2", ":1:34:", "(found '*'): '**' is not an operator "
      "here, ^ is"),
-    ("RULE 1: IF xd > xg THEN q1 += F", ":1:31:", "unknown name 'F' (known: L, L1, L2, S, f, q1, "
+    ("RULE 1: IF xd > xg THEN q1 += F", ":1:31:", "unknown name 'F' (known: L, L1, L2, S, f, h, q1, "
      "q2, rd2, re2, rg2, sL, w, xd, xe, xg, yd, ye, yg, zd, ze, zg); did you mean 'f'? names are "
      "case-sensitive\n"),
     # an action right after the condition: THEN is missing, not a ','

@@ -66,7 +66,7 @@ def test_definitions_a_condition_reads_after_its_first_operand_wait_for_it():
              for name in ("if v_xg > 0.0:", "v_E =", "v_F =")}
     assert depth["v_E ="] > depth["if v_xg > 0.0:"] and depth["v_F ="] > depth["v_E ="]
     for xg, xd, want in ((1.0, 1.0, [6.0]), (1.0, 0.0, [2.0]), (-1.0, 1.0, [2.0])):
-        args = (xd, 2.0, 0.0, xg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.06, 0.5, 0.5, 100.0, 100.0, 0.0)
+        args = (xd, 2.0, 0.0, xg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.06, 0.5, 0.5, 100.0, 100.0, 0.0, 0.0)
         assert rb.compiled(*args)[0] == want
 
 
@@ -82,5 +82,5 @@ def test_a_definition_the_steps_share_with_later_rules_is_computed_with_what_it_
                             "RULE 2: IF yd > 0 THEN q2 += E", 3, (100.0,) * 3)
     for xd, xg, yg in ((1.0, 1.0, 1.0), (1.0, 1.0, -1.0), (0.2, -1.0, -1.0), (5.0, 1.0, 1.0)):
         args = (xd, 1.0, 0.0, xg, yg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                0.06, 0.5, 0.5, 100.0, 100.0, 100.0, 100.0, 0.0)
+                0.06, 0.5, 0.5, 100.0, 100.0, 100.0, 100.0, 0.0, 0.0)
         _assert_compiled_is_reference(rb, args)
