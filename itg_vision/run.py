@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import math
 import re
 import sys
 from contextlib import nullcontext
@@ -223,6 +224,11 @@ def run_key(prep) -> dict:
     return {"config": outputs.json_safe(config_dict(prep.config)), "inputs_sha256": digests}
 
 
+#: run notes looks that missed the gripper beyond this share over the --dropout asked for (and
+#: three standard deviations of the misses that dropout draws).
+MISSED_NOTE = 0.1
+
+
 def _check_default_out(out: Path, key: dict, force: bool) -> None:
     """A default folder holding a run with other settings is not replaced silently."""
     made = outputs.read_manifest(out)
@@ -313,6 +319,13 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"note: q{joint} turned {big:.6g} deg in one iteration (set point {k}): a "
                       "full turn or more, which no servo does (--max-step bounds the steps)",
                       file=sys.stderr)
+            unseen = summary["n_at_last_aim"] + summary["n_held"]
+            looks = summary["n_setpoints"] * summary["iterations"]
+            p = cfg.dropout  # beyond what the dropout asked for gives, and its 3 sigma
+            if unseen > (p + MISSED_NOTE) * looks + 3 * math.sqrt(looks * p * (1 - p)):
+                print(f"note: the gripper LED went unseen in {unseen} of the {looks} looks (hidden "
+                      "by the arm, or off the image; trace.csv's flags say where): those "
+                      "decisions were made on the last aim, not on a measurement", file=sys.stderr)
             if args.video:
                 summary["video"] = recorder.path.name
                 summary["video_codec"] = recorder.codec_note

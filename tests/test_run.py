@@ -849,3 +849,28 @@ def test_a_refused_out_is_one_line_even_when_the_run_has_notes(main_in_process, 
                           "--out", tmp_path / "new", "--quiet")
     assert res.returncode == 0, res.stderr
     assert "note: 3 of the 5 set points are out of the arm's reach" in res.stderr
+
+
+def test_a_run_whose_gripper_led_goes_unseen_says_so(main_in_process, tmp_path):
+    """A three-link arm (80/120/60 mm) on a circle below its base plane: ITG+ points the forearm
+    down and the elbow LED hides the gripper's from a camera in 34 of the 75 looks; the run
+    ends normally but says so on stderr. 20 % dropout's own misses are no news: no note."""
+    arm = tmp_path / "arm.yaml"
+    arm.write_text((ROOT / "data" / "arms" / "three-link.yaml").read_text()
+                   .replace("name: three-link", "name: arm80-120-60")
+                   .replace("links_mm: [100, 100, 100]", "links_mm: [80, 120, 60]"))
+    t = np.linspace(0.0, np.pi, 15)
+    path = tmp_path / "below.csv"
+    np.savetxt(path, np.c_[108 * np.cos(t), 108 * np.sin(t), np.full_like(t, -8.0)],
+               delimiter=",", header="x_mm,y_mm,z_mm", comments="", fmt="%.4f")
+    res = main_in_process("itg_vision.run", "--arm", arm, "--rules", "itg-plus-three-link",
+                          "--trajectory", path, "--iterations", "5", "--out", tmp_path / "o",
+                          "--quiet")
+    assert res.returncode == 0, res.stderr
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    unseen, looks = s["n_at_last_aim"] + s["n_held"], s["n_setpoints"] * s["iterations"]
+    assert unseen > 0.1 * looks
+    assert f"note: the gripper LED went unseen in {unseen} of the {looks} looks" in res.stderr
+    res = main_in_process("itg_vision.run", "--points", "20", "--dropout", "0.2", "--out",
+                          tmp_path / "d", "--quiet")
+    assert res.returncode == 0 and "went unseen" not in res.stderr, res.stderr
