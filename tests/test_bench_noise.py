@@ -1577,6 +1577,39 @@ def test_a_run_whose_worker_died_is_an_error_row_not_an_exception():
                                                        "process pool was terminated"}
 
 
+def test_a_lost_runs_error_of_several_lines_is_one_line_of_failures_log(tmp_path, capsys,
+                                                                         monkeypatch):
+    """An executor's error of several lines (Dask's for a worker without itg_vision: "Error
+    during deserialization of the task graph. This frequently\noccurs if the Scheduler and
+    Client have different environments.\n...") is one line per failed run in failures.log
+    (run id, tab, why) and in the report, its words kept; it took four lines of each."""
+    why = ("Error during deserialization of the task graph. This frequently\noccurs if the "
+           "Scheduler and Client have different environments.\nFor more information, see\n"
+           "https://docs.dask.org/en/stable/deployment-considerations.html\n")
+
+    class WrongEnvironment(Executor):
+        def submit(self, fn, /, *args, **kwargs):
+            fut = Future()
+            fut.set_exception(RuntimeError(why))
+            return fut
+
+    monkeypatch.setattr(noise, "local_executor", lambda workers: WrongEnvironment())
+    out = tmp_path / "o"
+    assert main(["--quick", "--controllers", "ik", "--conditions", "clean", "--seeds", "2",
+                 "--points", "8", "--out", str(out), "--workers", "1", "--quiet", *FEW_PLOTS]) == 1
+    logged = (out / "failures.log").read_text().splitlines()
+    assert len(logged) == 2
+    for line in logged:
+        run_id, said = line.split("\t")
+        assert said.endswith("RuntimeError: Error during deserialization of the task graph. This "
+                             "frequently occurs if the Scheduler and Client have different "
+                             "environments. For more information, see "
+                             "https://docs.dask.org/en/stable/deployment-considerations.html")
+    failed = [ln for ln in (out / "report.md").read_text().splitlines() if "runs failed" in ln]
+    assert len(failed) == 1 and failed[0].count("different environments") == 2
+    assert capsys.readouterr().err.count("run failed: ik clean") == 2
+
+
 def test_a_dot_chart_says_why_a_controllers_cell_is_left_out(monkeypatch):
     """`--conditions ...,rig-perturbed-cams --quick`: one seed of each vision controller did not
     start there, so its cell is left out of the plots (its median is not over every seed); the

@@ -89,11 +89,13 @@ def results(executor: Executor, specs, in_flight: int):
 
 
 def _outcome(spec: RunSpec, future) -> dict:
-    """A finished future's row, or an error row when its worker died (reported per run)."""
+    """A finished future's row, or an error row when its worker died (reported per run): its
+    message on one line (failures.log holds a line per run; Dask's error for a worker without
+    the package takes four), every word kept."""
     try:
         return future.result()
     except Exception as exc:  # noqa: BLE001 - a dead or lost worker
-        return {"run_id": spec.run_id, "error": f"{type(exc).__name__}: {exc}"}
+        return {"run_id": spec.run_id, "error": " ".join(f"{type(exc).__name__}: {exc}".split())}
 
 
 class InlineExecutor(Executor):
