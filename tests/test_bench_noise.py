@@ -509,9 +509,86 @@ def test_the_dask_client_is_given_a_connect_timeout(monkeypatch):
         raise OSError("refused")
 
     monkeypatch.setattr(distributed, "Client", client)
+    monkeypatch.setattr(execute, "check_scheduler_answers", lambda address, timeout_s: None)
     with pytest.raises(UserError, match="cannot connect"):
         execute.dask_executor("tcp://127.0.0.1:9", timeout_s=5.0)
     assert seen == {"address": "tcp://127.0.0.1:9", "timeout": "5.0s", "set_as_default": False}
+
+
+class _Listener:
+    """A TCP server on 127.0.0.1 that accepts every connection and keeps it open: silent
+    (``reply`` None: a port whose service waits for its own protocol, as a dashboard's HTTP
+    server waits for a request), or sending ``reply`` first."""
+
+    def __init__(self, reply: bytes | None = None):
+        import socket
+        import threading
+
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.address = f"tcp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.reply, self.held = reply, []
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:  # closed
+                return
+            self.held.append(conn)
+            if self.reply is not None:
+                conn.sendall(self.reply)
+
+    def close(self):
+        self.sock.close()
+        for conn in self.held:
+            conn.close()
+
+
+@pytest.mark.parametrize("reply, said", [
+    (None, "no Dask scheduler answered within 1 s (the dashboard's port, or another service?)"),
+    (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", "what answered is not a Dask "
+                                                                   "scheduler"),
+])
+def test_a_scheduler_address_where_no_scheduler_answers_makes_no_client(monkeypatch, reply,
+                                                                          said):
+    """--scheduler at a port that accepts but is no Dask scheduler (a dashboard's HTTP port,
+    another service) is one line naming --scheduler, and no Client is made: one made there
+    waited for ever (the dashboard's port), or failed and then printed a traceback and hung
+    10 s in its __del__."""
+    distributed = pytest.importorskip("distributed")
+    made = []
+
+    def client(address, **kw):  # the real one would hang on a silent port
+        made.append(address)
+        raise OSError("refused")
+
+    monkeypatch.setattr(distributed, "Client", client)
+    server = _Listener(reply)
+    try:
+        with pytest.raises(UserError) as exc:
+            execute.dask_executor(server.address, timeout_s=0.5)
+    finally:
+        server.close()
+    assert str(exc.value) == f"--scheduler {server.address}: {said}" or (
+        reply is not None and str(exc.value).startswith(f"--scheduler {server.address}: {said} ("))
+    assert made == []
+
+
+@pytest.mark.slow
+def test_a_workers_address_given_as_the_scheduler_is_one_line(tmp_path, capsys):
+    """A worker's address given to --scheduler (both are tcp://HOST:PORT in Dask's logs) is said
+    in one line, exit 2, nothing written: the Client made there failed on the worker's reply,
+    then printed a traceback and hung 10 s."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  protocol="tcp://", dashboard_address=None) as cluster:
+        worker = next(iter(cluster.scheduler.workers))
+        assert main(["--quick", "--controllers", "ik", "--seeds", "1", "--scheduler", worker,
+                     "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    _one_line_error(capsys, f"--scheduler {worker}: a Dask Worker answered, not the scheduler "
+                            "(give the scheduler's address)")
+    assert not (tmp_path / "o").exists()
 
 
 def test_out_from_a_different_sweep_exits_2_and_loses_no_row(tmp_path, capsys):

@@ -157,6 +157,46 @@ def check_scheduler_address(address: str) -> None:
         raise UserError(f"--scheduler {address}: expected tcp://HOST:PORT (port 1..65535)")
 
 
+def check_scheduler_answers(address: str, timeout_s: float) -> None:
+    """Ask what listens at ``address`` who it is (Dask's ``identity``), within ``timeout_s`` to
+    connect and as long again for the answer: a `UserError` naming --scheduler unless a Dask
+    scheduler answers.
+
+    Asked before a Client is made: a Client whose connection is accepted but not answered (a
+    dashboard's HTTP port) waited for ever, and one that another service or a Dask worker
+    answered failed, then printed a traceback and hung 10 s when garbage-collected.
+    """
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def identity():
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        reply = asyncio.run(asyncio.wait_for(identity(), 2 * timeout_s))
+    except TimeoutError:  # connected, and no answer: not Dask's protocol
+        raise UserError(f"--scheduler {address}: no Dask scheduler answered within "
+                        f"{2 * timeout_s:g} s (the dashboard's port, or another service?)") from None
+    except OSError as exc:  # refused, unreachable, no such host
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise UserError(f"--scheduler {address}: cannot connect ({msg})") from None
+    except Exception as exc:  # noqa: BLE001 - an answer that is not Dask's (MemoryError, ...)
+        raise UserError(f"--scheduler {address}: what answered is not a Dask scheduler "
+                        f"({type(exc).__name__})") from None
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        raise UserError(f"--scheduler {address}: "
+                        + (f"a Dask {kind} answered, not the scheduler (give the scheduler's "
+                           "address)" if isinstance(kind, str) else "what answered is not a Dask "
+                           "scheduler"))
+
+
 def dask_executor(address: str, timeout_s: float = 5.0) -> tuple[Executor, int, object]:
     """The Dask cluster at ``address`` as a ``concurrent.futures`` executor (workers must be
     able to import itg_vision); returns ``(executor, threads, client)``."""
@@ -165,6 +205,7 @@ def dask_executor(address: str, timeout_s: float = 5.0) -> tuple[Executor, int, 
         from distributed import Client
     except ImportError:
         raise UserError("--scheduler needs dask.distributed: pip install 'itg_vision[cluster]'") from None
+    check_scheduler_answers(address, timeout_s)  # nor is one made for what is no scheduler
     try:
         client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError (bad address)
