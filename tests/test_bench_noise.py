@@ -515,6 +515,25 @@ def test_the_dask_client_is_given_a_connect_timeout(monkeypatch):
     assert seen == {"address": "tcp://127.0.0.1:9", "timeout": "5.0s", "set_as_default": False}
 
 
+@pytest.mark.parametrize("extra, said", [
+    (["--scheduler", ""], "--scheduler : expected tcp://HOST:PORT (port 1..65535)"),
+    (["--scheduler", "tcp://127.0.0.1:9", "--workers", "2"],
+     "--workers: sizes the local pool, which --scheduler replaces"),
+])
+def test_an_empty_scheduler_or_workers_beside_one_is_refused(tmp_path, capsys, monkeypatch,
+                                                              extra, said):
+    """``--scheduler ""`` (an unset variable: ``--scheduler "$DASK_SCHEDULER"``) ran the sweep
+    on a local pool of every CPU, and ``--workers N`` beside a scheduler was dropped without a
+    word: each is one line, exit 2, before any pool or Client is made."""
+    made = []
+    monkeypatch.setattr(noise, "local_executor", lambda workers: made.append(workers))
+    monkeypatch.setattr(noise, "dask_executor", lambda address: made.append(address))
+    assert main(["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path / "o"),
+                 "--quiet", *extra]) == 2
+    _one_line_error(capsys, said)
+    assert made == [] and not (tmp_path / "o").exists()
+
+
 class _Listener:
     """A TCP server on 127.0.0.1 that accepts every connection and keeps it open: silent
     (``reply`` None: a port whose service waits for its own protocol, as a dashboard's HTTP

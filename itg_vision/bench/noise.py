@@ -21,7 +21,8 @@ from .. import outputs
 from ..arm import arm_names
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
 from ..options import add_rule_options, labels, rule_params
-from .execute import dask_executor, local_executor, results, shutdown
+from .execute import (check_scheduler_address, dask_executor, local_executor, results,
+                      shutdown)
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,
                     LOCK, record_sweep_file, started, sweep_lock)
@@ -112,7 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seeds", type=seed_count, metavar="K",
                     help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
     ap.add_argument("--workers", type=at_least_one, metavar="N",
-                    help="local worker processes (default: the number of CPUs; 1 = this process)")
+                    help="local worker processes (default: the number of CPUs; 1 = this process; "
+                         "not with --scheduler)")
     ap.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                     help="run on this Dask distributed scheduler instead of a local pool "
                          "(pip install 'itg_vision[cluster]')")
@@ -154,6 +156,11 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         args = build_parser().parse_args(argv)
+        if args.scheduler is not None:  # '' too: an unset variable is no local pool
+            check_scheduler_address(args.scheduler)
+            if args.workers is not None:
+                raise UserError("--workers: sizes the local pool, which --scheduler replaces "
+                                "(the cluster's workers run the sweep)")
         conds = _parse_names(args.conditions, CONDITIONS, "conditions", "condition")
         mine = [name for given in args.rules for name in rules_controllers(given)]
         ctrls = _parse_names(args.controllers, [*ALL_CONTROLLERS, *mine], "controllers",
@@ -251,7 +258,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     # every refusal comes before any write: a foreign --out keeps every row
     check_sweep_file(out, definition, specs, store)
     client = None
-    if scheduler:
+    if scheduler is not None:
         executor, n_workers, client = dask_executor(scheduler)
     else:
         n_workers = workers or os.cpu_count() or 1
@@ -259,7 +266,7 @@ def run_sweep(specs: list[RunSpec], out: Path, options: dict, command: str, *,
     try:  # a second sweep into this --out at once is refused
         with sweep_lock(out):
             return _run_locked(specs, out, options, command, definition, executor, n_workers,
-                               client, where=f"Dask at {scheduler}" if scheduler else
+                               client, where=f"Dask at {scheduler}" if scheduler is not None else
                                f"{n_workers} local worker(s)", limit=limit, quiet=quiet,
                                plot_metrics=plot_metrics)
     finally:  # after the runs, and after a refusal (stopping a stopped executor is a no-op)
