@@ -34,6 +34,10 @@ DEFAULT_SUPERSAMPLE = 3
 #: already rejected at a 2 px reprojection residual). Past ~1e50 px the triangulation's
 #: arithmetic failed (OpenCV's solvePoly, a division by zero): a traceback, not a result.
 MAX_NOISE_PX = 1e6
+#: The largest noise (mm std per coordinate) truth feedback takes: a kilometre, far beyond any
+#: arm. Past ~1e154 mm the start-up's squares overflowed: numpy's warnings, measured lengths of
+#: NaN, then a rule's step of inf blamed on the rule file.
+MAX_NOISE_MM = 1e6
 
 
 def _in_range(what: str, v, lo: float, hi: float) -> float:
@@ -72,7 +76,7 @@ class TruthFeedback:
     name = "truth"
 
     def __init__(self, noise_mm: float = 0.0):
-        self.noise_mm = _in_range("TruthFeedback: noise_mm (mm)", noise_mm, 0.0, math.inf)
+        self.noise_mm = _in_range("TruthFeedback: noise_mm (mm)", noise_mm, 0.0, MAX_NOISE_MM)
         self.rng = np.random.default_rng(None)
 
     def reset(self, seed: int | None = None) -> None:

@@ -120,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "defaults.rig: planar, or three-link for the three-link arm)")
     ap.add_argument("--noise-px", type=float, default=0.0, help="vision: extra Gaussian centroid noise, px std, in [0, 1e6] (default 0)")
     ap.add_argument("--noise-mm", type=float, default=0.0,
-                    help="with --feedback truth: Gaussian noise added to each LED coordinate, mm std")
+                    help="with --feedback truth: Gaussian noise added to each LED coordinate, mm "
+                         "std, in [0, 1e6] (default 0)")
     ap.add_argument("--true-links", type=_links, metavar="L1,L2[,L3]",
                     help="model error: the simulated arm's link lengths in mm (default: the "
                          "nominal --links). Only --feedback model and --controller ik know the "

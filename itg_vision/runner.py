@@ -14,7 +14,7 @@ from .arm import MAX_ANGLE_DEG, MAX_ITERATIONS, ArmSpec
 from .camera import MAX_SUPERSAMPLE, CAMERAS_DIR, default_rig_path, resolve_rig  # noqa: F401
 from .shipped import DATA_DIR
 from .errors import MAX_POINTS, ConfigError, NothingInReach, UserError
-from .feedback import MAX_NOISE_PX, ModelFeedback, TruthFeedback
+from .feedback import MAX_NOISE_MM, MAX_NOISE_PX, ModelFeedback, TruthFeedback
 from .identify import measure_geometry, nominal_geometry
 from .imaging import opencv_threads
 from .inputs import is_whole
@@ -135,8 +135,8 @@ class RunConfig:
              f"must be a whole number in 1..{MAX_ITERATIONS}, got {self.iterations}"),
             ("noise_px", math.isfinite(self.noise_px) and 0 <= self.noise_px <= MAX_NOISE_PX,
              f"must be in [0, {MAX_NOISE_PX:g}] px, got {self.noise_px}"),
-            ("noise_mm", math.isfinite(self.noise_mm) and self.noise_mm >= 0,
-             f"must be >= 0, got {self.noise_mm}"),
+            ("noise_mm", math.isfinite(self.noise_mm) and 0 <= self.noise_mm <= MAX_NOISE_MM,
+             f"must be in [0, {MAX_NOISE_MM:g}] mm, got {self.noise_mm}"),
             ("noise_mm", self.noise_mm == 0 or self.feedback == "truth",
              "applies to truth feedback only"),
             ("noise_px", self.noise_px == 0 or self.feedback == "vision",

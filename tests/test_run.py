@@ -164,6 +164,10 @@ def test_three_link_start_up_measurement_recovers_the_true_arm():
     (["--feedback", "vision", "--noise-px", "1e100"],
      "--noise-px: must be in [0, 1e+06] px, got 1e+100\n"),
     (["--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
+    # beyond MAX_NOISE_MM the start-up's squares overflowed: numpy's warnings, lengths of NaN,
+    # then a rule's step of inf blamed on the rule file (1e308), or a result of them (1e160)
+    (["--feedback", "truth", "--noise-mm", "1e160"],
+     "--noise-mm: must be in [0, 1e+06] mm, got 1e+160\n"),
     (["--feedback", "vision", "--noise-mm", "0.5"], "--noise-mm: applies to truth feedback only\n"),
     (["--laps", "556"], "--laps: 556 laps of the 180 set points of trajectory ellipse-t1 make "
      "100080; a run holds at most 100000 set points (as --points): at most 555 laps of this "
