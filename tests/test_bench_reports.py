@@ -73,6 +73,7 @@ def test_speed_out_saves_what_it_printed(tmp_path, capsys):
     assert r["target"]["met"] == (r["target"]["ratio"] >= r["target"]["at_least"])
     assert f"{us['ik_pybullet_us']:.3f}" in printed
     assert len(r["ik_pybullet_miss_mm"]) == 720 and r["stereo_loop"]["rows"] == []
+    assert r["stereo_loop"]["targets"] == {}  # none judged: the loop was not timed
     # beside each median the mean and the slowest pass, printed and saved
     for key in ("rules_compiled_us", "itg_plus_compiled_us", "ik_pybullet_us"):
         assert us[f"{key}_mean"] <= us[f"{key}_max"]
@@ -83,6 +84,24 @@ def test_speed_out_saves_what_it_printed(tmp_path, capsys):
     far = states["gripper_from_set_point_mm"]
     assert set(far) == {"table2", "itg_plus"}
     assert f"Table 2 {far['table2']['median']:.2f} / {far['table2']['mean']:.2f}" in printed
+
+
+def test_speed_out_records_the_stereo_loops_limits_it_judged(tmp_path, capsys):
+    """results.json holds the limits of every target report.txt judges: the stereo loop's
+    (default loop, its ratio to whole frames, the fastest setting, detect + triangulate) beside
+    its rows, as accuracy's results.json holds its targets; it held only the IK ratio's."""
+    out = tmp_path / "speed"
+    rc, printed, err = _run(speed.main, ["--frames", "1", "--passes", "1", "--out", str(out)],
+                            capsys)
+    assert rc == 0, err
+    loop = json.loads((out / "results.json").read_text())["stereo_loop"]
+    assert loop["targets"] == {"default_loop_hz_at_least": 300.0,
+                               "default_over_full_frame_at_least": 10.0,
+                               "fastest_loop_hz_at_least": 500.0,
+                               "detect_triangulate_ms_below": 0.5}
+    assert "  default loop >= 300 Hz: " in printed
+    assert ">= 10x: " in printed and "fastest honest setting >= 500 Hz: " in printed
+    assert "detect + triangulate per stereo pair (both LEDs) < 0.5 ms: " in printed
 
 
 def test_speed_times_each_rule_base_at_the_states_it_reaches():

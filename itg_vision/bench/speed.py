@@ -437,7 +437,12 @@ def main(argv: list[str] | None = None) -> int:
                        "target": {"ratio": ratio, "compiled_to": compiled,
                                   "at_least": SPEED_FACTOR, "met": ratio >= SPEED_FACTOR},
                        "stereo_loop": {"frames": args.frames, "passes": args.passes,
-                                       "rows": rows}}
+                                       "rows": rows, "targets": {  # those judged
+                                           "default_loop_hz_at_least": TARGET_DEFAULT_HZ,
+                                           "default_over_full_frame_at_least": TARGET_RATIO,
+                                           "fastest_loop_hz_at_least": TARGET_FASTEST_HZ,
+                                           "detect_triangulate_ms_below": TARGET_DET_TRI_MS}
+                                       if rows else {}}}
             outputs.save_report(args.out, COMMAND, say.text, results, force=args.force)
             print(f"written to {args.out}", file=sys.stderr)
         return 0
