@@ -34,8 +34,12 @@ from .options import OPTIONS, RULE_OPTIONS, add_rule_options
 from .rules import PARAM_OF_FIELD, PARAM_UNITS
 from .shipped import rule_names
 from .identify import StartUpFailed
-from .runner import CONTROLLERS, FEEDBACKS, MAX_DECISIONS, RunConfig, config_dict, execute, prepare, shown_path
+from .runner import (CONTROLLERS, FEEDBACKS, MAX_DECISIONS, RunConfig, config_dict, execute,
+                     prepare, shown_path)
 
+#: run notes looks that missed the gripper beyond this share over the --dropout asked for (and
+#: three standard deviations of the misses that dropout draws).
+MISSED_NOTE = 0.1
 #: Options that name the default output folder when they differ from their default.
 _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"),
           *RULE_OPTIONS.items(), ("damping", "damping"), ("iterations", "it"), ("max_step", "maxstep"),
@@ -223,11 +227,6 @@ def run_key(prep) -> dict:
         except OSError:
             digests[key] = None
     return {"config": outputs.json_safe(config_dict(prep.config)), "inputs_sha256": digests}
-
-
-#: run notes looks that missed the gripper beyond this share over the --dropout asked for (and
-#: three standard deviations of the misses that dropout draws).
-MISSED_NOTE = 0.1
 
 
 def _check_default_out(out: Path, key: dict, force: bool) -> None:
