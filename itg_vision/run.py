@@ -127,12 +127,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --feedback truth: Gaussian noise added to each LED coordinate, mm "
                          "std, in [0, 1e6] (default 0)")
     ap.add_argument("--true-links", type=_links, metavar="L1,L2[,L3]",
-                    help="model error: the simulated arm's link lengths in mm (default: the "
-                         "nominal --links). Only --feedback model and --controller ik know the "
+                    help="model error: the simulated arm's link lengths in mm, each in (0, "
+                         "5000] (default: the nominal --links). Only --feedback model and --controller ik know the "
                          "nominal model; vision and truth runs measure the lengths at start-up")
     ap.add_argument("--joint-offset", type=_numbers("joint offsets in deg"), metavar="D1,D2[,D3]",
                     help="model error: the simulated joints sit this many degrees off their "
-                         "commanded angles")
+                         "commanded angles, each within +-180 (default: none)")
     ap.add_argument("--dropout", type=float, default=0.0, help="vision: probability in [0, 1] that an LED detection is dropped (default 0)")
     ap.add_argument("--strobe", action="store_true",
                     help="light one LED per frame (as active-marker systems do) instead of telling "

@@ -39,7 +39,7 @@ from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
 from .report import _float as _f, spec_limits, worst
 from .store import NO_RESULT, Results, check_sweep_file, definition_hash, missing_rows, started
-from .sweep import FF_CORRECTION, SWEEPS, _parse_names, seed_count
+from .sweep import FF_CORRECTION, MAX_SEEDS, SWEEPS, _parse_names, seed_count
 
 #: What each target compares (issue 13).
 TRACK_MAX_MM = 3.0  # tracking-phase max E_i below this
@@ -514,16 +514,19 @@ def build_parser() -> argparse.ArgumentParser:
                                     "target's measured value, threshold and computed verdict.")
     ap.add_argument("--out", default="runs/bench-itg-plus", metavar="DIR",
                     help="output folder (default %(default)s); rerun to resume")
-    ap.add_argument("--seeds", type=seed_count, metavar="K", help="seeds of the two-link vision sweep "
-                    "(default: the itg-plus sweep's)")
+    ap.add_argument("--seeds", type=seed_count, metavar="K",
+                    help=f"seeds of the two-link vision sweep, 1..{MAX_SEEDS} (default "
+                         f"{SWEEPS['itg-plus']['seeds']})")
     ap.add_argument("--seeds-three-link", type=seed_count, metavar="K",
-                    help="seeds of the three-link sweep (default: its 40)")
+                    help=f"seeds of the three-link sweep, 1..{MAX_SEEDS} (default "
+                         f"{SWEEPS['itg-plus-three-link']['seeds']})")
     ap.add_argument("--points", type=points_arg, metavar="N",
                     help="set points of the named trajectories (default: each one's own)")
     ap.add_argument("--trajectories", metavar="A,B,...",
                     help="only these of the two-link paths (default: all of them: "
                          + ", ".join(SWEEPS["itg-plus"]["trajectories"]) + ")")
-    ap.add_argument("--workers", type=at_least_one, metavar="N", help="local worker processes")
+    ap.add_argument("--workers", type=at_least_one, metavar="N",
+                    help="local worker processes (default: the number of CPUs; 1 = this process)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 

@@ -26,8 +26,8 @@ from .execute import (check_scheduler_address, dask_executor, local_executor, re
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,
                     LOCK, record_sweep_file, started, sweep_lock)
-from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, QUICK, SWEEPS,
-                    TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
+from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, MAX_SEEDS, QUICK,
+                    SWEEPS, TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
                     rules_controllers, seed_count, span_notes, trajectory_label,
                     user_rules)
 
@@ -111,7 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                          f"{QUICK['points']} points, {QUICK['seeds']} seeds, conditions "
                          + ", ".join(QUICK["conditions"]).replace("%", "%%"))
     ap.add_argument("--seeds", type=seed_count, metavar="K",
-                    help=f"seeds per cell (default {FULL_SEEDS}; --quick {QUICK['seeds']})")
+                    help=f"seeds per cell, 1..{MAX_SEEDS} (default {FULL_SEEDS}; --quick "
+                         f"{QUICK['seeds']})")
     ap.add_argument("--workers", type=at_least_one, metavar="N",
                     help="local worker processes (default: the number of CPUs; 1 = this process; "
                          "not with --scheduler)")
