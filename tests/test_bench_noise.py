@@ -515,6 +515,33 @@ def test_the_dask_client_is_given_a_connect_timeout(monkeypatch):
     assert seen == {"address": "tcp://127.0.0.1:9", "timeout": "5.0s", "set_as_default": False}
 
 
+def test_a_scheduler_without_workers_says_the_sweep_waits(monkeypatch, capsys):
+    """Dask queues the runs until a worker joins: a scheduler with none gets a note saying so
+    (the sweep looked hung); with workers, no note and their threads counted."""
+    distributed = pytest.importorskip("distributed")
+
+    class Client:
+        def __init__(self, address, **kw):
+            pass
+
+        def scheduler_info(self):
+            return {"workers": workers}
+
+        def get_executor(self, pure):
+            return "executor"
+
+    monkeypatch.setattr(distributed, "Client", Client)
+    monkeypatch.setattr(execute, "check_scheduler_answers", lambda address, timeout_s: None)
+    workers = {}
+    assert execute.dask_executor("tcp://127.0.0.1:8786")[:2] == ("executor", 1)
+    assert capsys.readouterr().err == ("note: the scheduler at tcp://127.0.0.1:8786 has no "
+                                       "workers yet: the sweep waits for them (start them with "
+                                       "`dask worker tcp://127.0.0.1:8786`)\n")
+    workers = {"w1": {"nthreads": 2}, "w2": {"nthreads": 3}}
+    assert execute.dask_executor("tcp://127.0.0.1:8786")[:2] == ("executor", 5)
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("extra, said", [
     (["--scheduler", ""], "--scheduler : expected tcp://HOST:PORT (port 1..65535)"),
     (["--scheduler", "tcp://127.0.0.1:9", "--workers", "2"],

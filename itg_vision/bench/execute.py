@@ -11,6 +11,7 @@ calling process (``workers == 1``) and a Dask cluster (:func:`dask_executor`, th
 from __future__ import annotations
 
 import os
+import sys
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
 
@@ -211,8 +212,11 @@ def dask_executor(address: str, timeout_s: float = 5.0) -> tuple[Executor, int, 
     except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError (bad address)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise UserError(f"--scheduler {address}: cannot connect ({msg})") from None
-    threads = max(1, sum(w.get("nthreads", 1) for w in
-                         client.scheduler_info().get("workers", {}).values()))
+    workers = client.scheduler_info().get("workers", {})
+    if not workers:  # Dask queues the runs until one joins: say why nothing moves
+        print(f"note: the scheduler at {address} has no workers yet: the sweep waits for them "
+              "(start them with `dask worker " + address + "`)", file=sys.stderr)
+    threads = max(1, sum(w.get("nthreads", 1) for w in workers.values()))
     return client.get_executor(pure=False), threads, client
 
 
