@@ -4,8 +4,10 @@ On random poses of the arm (its own sampler, the poses its rig sees), in one run
 at supersampling 1-4 and whole frames at the default, the detected LED centroid against the
 true projection of the LED's centre (px) and the triangulated markers against the simulator's
 truth at zero added noise (mm); then, at the default setting, for added centroid noise sigma,
-the measured RMS error against the prediction sigma_total^2 (J^T J)^-1 propagated through the
-rig geometry, where sigma_total^2 = sigma^2 + sigma_render^2 and sigma_render is the
+the measured RMS error against its first-order prediction through the rig, lens included
+(:func:`itg_vision.triangulate.predicted_covariance` with ``distort=True``: the noise on the
+captured pixels, carried through the lens's inverse, then the unweighted triangulation's
+sandwich P J^T W J P), where sigma_total^2 = sigma^2 + sigma_render^2 and sigma_render is the
 rendering's own centroid error measured here. The issue-11 targets are printed beside the
 measured values.
 """
