@@ -242,14 +242,21 @@ def test_memory_checks_report_the_worst_curve_against_a_pinned_threshold():
     assert all(t.case == "2 curves" for t in checks)
     assert same.threshold == 0.15 and same.op == "<="
     assert same.measured == pytest.approx(0.2) and not same.met
-    assert same.note == "worst rose: 1.2 against 1 mm"
+    assert same.note == "worst rose: 1.2 against 1 mm (each seed's own median: 1.2 against 1)"
     assert same_ff.measured == pytest.approx(0.05) and same_ff.met
-    assert same_ff.note == "worst rose: 1.26 against 1.2 mm"
+    assert same_ff.note == ("worst rose: 1.26 against 1.2 mm (each seed's own median: 1.26 "
+                            "against 1.2)")
     assert lowered.threshold == 1.0 and lowered.op == "<"
     assert lowered.measured == pytest.approx(1.05) and not lowered.met
     assert lowered.note.startswith("worst rose; all 0.50-1.05; ")
     assert lowered_dls.measured == pytest.approx(1.2) and not lowered_dls.met
     assert lowered_dls.note.startswith("worst rose; all 0.50-1.20; ")
+    # the seeds' own medians beside the worst gap: how far one seed moves it
+    spread = [{**r, "track_median_mm": str(1.0 + 0.1 * int(r["seed"]))} if r["trajectory"] == "rose"
+              and r["controller"] == k.SUBJECT and r["condition"] == "noise-1px" else r
+              for r in rows]
+    assert k.memory_checks(spread, ["ellipse-t1", "rose"])[0][0].note == (
+        "worst rose: 1.1 against 1 mm (each seed's own median: 1-1.2 against 1)")
     # ellipse-t1 alone: every check met, with the gaps and ratios of that curve
     alone, _ = k.memory_checks(rows, ["ellipse-t1"])
     assert [(t.measured, t.met) for t in alone] == [(0.0, True), (0.0, True), (0.5, True), (0.5, True)]
