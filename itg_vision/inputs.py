@@ -191,8 +191,10 @@ def show(v) -> str:
         return f"a {type(v).__name__}"
 
 
-def count(items: list, noun: str) -> str:
-    return f"{len(items)} {noun}{'' if len(items) == 1 else 's'}"
+def count(n, noun: str) -> str:
+    """``n`` (a number, or a collection: its length) with ``noun``: '1 seed', '3 seeds'."""
+    k = n if isinstance(n, int) else len(n)
+    return f"{k} {noun}{'' if k == 1 else 's'}"
 
 
 class Fields:

@@ -45,6 +45,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import UserError
+from .inputs import count
 
 #: The manifest file that marks a folder as made by an itg_vision command.
 MANIFEST = ".itg_vision-output.json"
@@ -350,7 +351,7 @@ def check_out_dir(out: str | Path, command: str, *, force: bool = False,
             n = f"{len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'}"
             what = f"holds {n} that {command} did not write (first: {foreign[0]})"
         else:
-            n = f"{len(changed)} file{'' if len(changed) == 1 else 's'}"
+            n = count(changed, "file")
             what = f"holds {n} changed since {command} wrote {'it' if len(changed) == 1 else 'them'} (first: {changed[0]})"
         raise UserError(f"{option} {out}: {what}; move "
                         f"{'it' if len(foreign) + len(changed) == 1 else 'them'} out or "

@@ -20,6 +20,7 @@ from . import outputs, plot
 from . import trajectory as traj
 from .errors import exit_status, run_main
 from .feedback import Markers, ModelFeedback, TruthFeedback
+from .inputs import count
 from .identify import nominal_geometry
 from .loop import simulate
 from .rules import PARAM_DEFAULTS
@@ -108,7 +109,7 @@ def _setup(base: RunConfig, with_f: bool = True, **kw) -> str:
     n = cfg.iterations
     return ", ".join([f"the paper's rules, {cfg.feedback} feedback"]
                      + ([f"f = {f:g} deg/mm"] if with_f else [])
-                     + [f"{n} iteration{'' if n == 1 else 's'} per set point, {limit}"])
+                     + [f"{count(n, 'iteration')} per set point, {limit}"])
 
 
 def _run(base: RunConfig, exact: bool = False, in_plane: bool = False, **kw):

@@ -224,12 +224,12 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         true_arm = true_arm.with_joint_offset(tuple(float(v) for v in cfg.joint_offset_deg))
     one_lap = traj.load(cfg.trajectory_name, cfg.points, arm=model)
     trajectory = one_lap.repeated(cfg.laps)
-    decisions = len(trajectory.points_mm) * cfg.iterations
-    if decisions > MAX_DECISIONS:  # the trace keeps each decision (~125 B; ~70 us without vision)
-        raise ConfigError("iterations", f"{cfg.iterations} iterations at each of the "
-                          f"{len(trajectory.points_mm)} set points make {decisions} decisions; a "
-                          f"run makes at most {MAX_DECISIONS}: at most "
-                          f"{MAX_DECISIONS // len(trajectory.points_mm)} iterations here")
+    n_points = len(trajectory.points_mm)
+    if n_points * cfg.iterations > MAX_DECISIONS:  # the trace keeps each (~125 B; ~70 us without vision)
+        raise ConfigError("iterations", f"{cfg.iterations} iterations at each of the {n_points} "
+                          f"set points make {n_points * cfg.iterations} decisions; a run makes at "
+                          f"most {MAX_DECISIONS}: at most {MAX_DECISIONS // n_points} iterations "
+                          "here")
     # a trajectory the arm file chose is that file's field, not an option the user gave
     field = "trajectory" if cfg.trajectory else f"{model.source or model.name}: defaults.trajectory"
     if not trajectory.planar and model.planar:

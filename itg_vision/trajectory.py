@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import MAX_POINTS, ConfigError, UserError
-from .inputs import clip, read_text
+from .inputs import clip, count, read_text
 from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES, or_a_path, trajectory_file_names
 
 
@@ -81,8 +81,8 @@ class Trajectory:
             most = (MAX_POINTS - 1) // (len(p) - 1) if shared else MAX_POINTS // len(p)
             raise ConfigError("laps", f"{laps} laps of the {len(p)} set points of trajectory "
                                       f"{self.name} make {total}; a run holds at most "
-                                      f"{MAX_POINTS} set points (as --points): at most {most} "
-                                      f"lap{'' if most == 1 else 's'} of this path")
+                                      f"{MAX_POINTS} set points (as --points): at most "
+                                      f"{count(most, 'lap')} of this path")
 
         def tiled(v, shift=0.0):  # v per set point, one lap -> all laps
             one = v[:-1] if shared else v

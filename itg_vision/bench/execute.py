@@ -215,7 +215,7 @@ def dask_executor(address: str, timeout_s: float = 5.0) -> tuple[Executor, int, 
     workers = client.scheduler_info().get("workers", {})
     if not workers:  # Dask queues the runs until one joins: say why nothing moves
         print(f"note: the scheduler at {address} has no workers yet: the sweep waits for them "
-              "(start them with `dask worker " + address + "`)", file=sys.stderr)
+              f"(start them with `dask worker {address}`)", file=sys.stderr)
     threads = max(1, sum(w.get("nthreads", 1) for w in workers.values()))
     return client.get_executor(pure=False), threads, client
 

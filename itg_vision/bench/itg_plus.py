@@ -37,6 +37,7 @@ import numpy as np
 from .. import outputs
 from ..loop import DIVERGED_MM
 from ..errors import ArgumentParser, at_least_one, exit_status, points_arg, run_main
+from ..inputs import count
 from .report import _float as _f, spec_limits, worst
 from .store import NO_RESULT, Results, check_sweep_file, definition_hash, missing_rows, started
 from .sweep import FF_CORRECTION, MAX_SEEDS, SWEEPS, _parse_names, seed_count
@@ -240,10 +241,9 @@ def limits_line(sweeps) -> str:
     for _, _, _, specs in sweeps:
         for t in dict.fromkeys(s.trajectory for s in specs):  # in the sweep's order
             lim = spec_limits(specs, t)
-            parts.append(f"{t} ({lim['arm']}) {lim['per_lap']} set points, {lim['laps']} "
-                         f"lap{'s' if lim['laps'] > 1 else ''}, {lim['servo']}, "
-                         f"{lim['iterations']} iteration(s), {lim['seeds']} seed"
-                         f"{'s' if lim['seeds'] != 1 else ''}")
+            parts.append(f"{t} ({lim['arm']}) {lim['per_lap']} set points, "
+                         f"{count(lim['laps'], 'lap')}, {lim['servo']}, "
+                         f"{lim['iterations']} iteration(s), {count(lim['seeds'], 'seed')}")
     return "; ".join(parts)
 
 

@@ -12,6 +12,7 @@ from urllib.parse import quote
 import numpy as np
 
 from .. import outputs
+from ..inputs import count
 from ..loop import DIVERGED_MM
 from .store import params_cell, started
 from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, _default_points,
@@ -280,7 +281,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
          f"{len(rows)} of {len(specs)} runs in `results.csv`"
          + (f", {n_gone} of which did not start (listed below)" if n_gone else "")
          + (" (partial sweep: rerun the command to finish it)" if len(rows) < len(specs) else "")
-         + f"; {len(seeds)} seed{'s' if len(seeds) != 1 else ''} per cell; wall-clock time of the runs, summed {wall:.0f} s "
+         + f"; {count(seeds, 'seed')} per cell; wall-clock time of the runs, summed {wall:.0f} s "
          "(with several workers the sweep took less).", ""]
     codes = Counter(r["code"] for r in rows)
     if codes:
@@ -397,7 +398,7 @@ def _sweep_line(specs: list[RunSpec], traj: str) -> str:
     pts = f"{lim['per_lap']} set points"  # the path's own when the sweep gives none
     laps = f", {lim['laps']} laps" if lim["laps"] > 1 else ""
     return (f"{pts}{laps}, {lim['iterations']} iteration(s), {lim['servo']}; "
-            f"{lim['seeds']} seed{'s' if lim['seeds'] > 1 else ''}")
+            f"{count(lim['seeds'], 'seed')}")
 
 
 def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> list[Path]:
