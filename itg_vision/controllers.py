@@ -242,7 +242,7 @@ class JacobianTracker:
             def turn(v):  # z x v, in the plane
                 return np.array([-v[1], v[0]])
 
-            cols = [turn(g[:2])] + ([turn(g[:2] - e[:2])] if self.n == 2 else [])
+            cols = [turn(g[:2] - self.base[:2])] + ([turn(g[:2] - e[:2])] if self.n == 2 else [])
             return np.column_stack(cols)
         z = np.array([0.0, 0.0, 1.0])
         a = self.pitch_axis(g, e) if axis is None else np.asarray(axis, float)

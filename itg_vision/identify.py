@@ -4,8 +4,13 @@ Under vision (or truth) feedback nothing from the nominal kinematic model reache
 the Jacobian tracker. The few lengths they use are measured before the trajectory starts, from
 the marker estimates alone (in the eye's frame, which calibration ties to the robot's base):
 
-- planar arms: L1 = |elbow_xy| (the elbow LED turns about the base axis, taken as the eye's z
-  axis through x = y = 0), L2 = |gripper_xy - elbow_xy|; one observation, no motion.
+- planar arms: the base joint (q1) is turned alone through most of a turn (:data:`BASE_SWEEP_DEG`,
+  the other joints at the start pose), and the LEDs' circles, fitted with one centre
+  (:func:`concentric_circles`), place the vertical base axis; L1 is the elbow LED's radius about
+  it (one link: the gripper's), L2 = |gripper_xy - elbow_xy|. A wrong world frame moves the
+  arm in the eye's frame; lengths taken about the eye's x = y = 0 would then be off by the
+  shift (88-100 mm for 100 mm links under the benchmark's rig-perturbed), the measured axis
+  moves with the arm.
 - three-link arm: the base axis is measured, not assumed: with the arm leaned
   (:data:`BASE_SWEEP_POSE_DEG`) the base joint (q1) is turned alone through most of a turn,
   and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
@@ -50,8 +55,9 @@ SHOULDER_SWEEP_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
 #: own (an arm file's ``start_pose_deg``) the same pose (relative to a start of q 30, 60, -30,
 #: the LEDs were hidden from the first base angle on).
 BASE_SWEEP_POSE_DEG = (60.0, -120.0)
-#: Base angles (deg, commanded) at which the three-link LEDs are observed, in that pose, to find
-#: the base axis: 300 deg of arc, which the shipped rig sees whole.
+#: Base angles (deg, commanded) at which the LEDs are observed to find the base axis: 300 deg of
+#: arc, which the shipped rigs see whole (three-link: in the leaned pose; planar: the other
+#: joints at the start pose).
 BASE_SWEEP_DEG = (-150.0, -120.0, -90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0, 120.0, 150.0)
 #: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
 #: (a dropped or rejected detection is tried again, as on a real rig).
@@ -70,8 +76,9 @@ class ArmGeometry:
     ----------
     links_mm : link lengths bound to the rules' ``L1..Ln``; three-link: base height (the
         shoulder's height above the base), upper arm, forearm.
-    shoulder_mm : shape (3,), the shoulder joint on the base axis ((0, 0, 0) for planar arms;
-        three-link: where the measured base axis crosses the shoulder's height L1).
+    shoulder_mm : shape (3,), the shoulder joint on the base axis (planar arms: the base axis
+        at z = 0, (0, 0, 0) in the nominal model; three-link: where the measured base axis
+        crosses the shoulder's height L1).
     standoff_mm : the LEDs' offset from the links along the pitch axis (three-link), else 0.
     source : where the numbers come from: "nominal model" or how they were measured.
     residual_mm : the largest RMS residual of the fits that produced them (0 for a single
@@ -172,6 +179,37 @@ def fit_circle(points_mm, normal=None) -> tuple[np.ndarray, np.ndarray, float, f
     in_plane = d - np.outer(d @ n, n)
     resid = np.hypot(np.linalg.norm(in_plane, axis=1) - radius, d @ n)
     return centre, n, radius, float(np.sqrt(np.mean(resid**2)))
+
+
+def concentric_circles(point_sets) -> tuple[np.ndarray, tuple[float, ...], float]:
+    """Circles about one vertical axis (a planar arm's LEDs as its base turns): a common centre
+    and one radius per set, fitted in x, y by least squares (the algebraic form of
+    :func:`fit_circle`, one constant per circle); z is not read.
+
+    Parameters
+    ----------
+    point_sets : sequence of array-likes, each shape (n, 3) or (n, 2), n >= 3: one LED's
+        positions (mm).
+
+    Returns
+    -------
+    centre_xy : (2,), where the axis crosses the xy plane; radii_mm : one per set;
+    rms_mm : the largest of the sets' RMS radial residuals.
+    """
+    sets = [np.asarray(p, float)[:, :2] for p in point_sets]
+    A = np.zeros((sum(len(P) for P in sets), 2 + len(sets)))
+    b = np.concatenate([(P * P).sum(axis=1) for P in sets])
+    row = 0
+    for i, P in enumerate(sets):  # x^2 + y^2 = 2 a x + 2 b y + k_i
+        A[row:row + len(P), :2] = 2 * P
+        A[row:row + len(P), 2 + i] = 1.0
+        row += len(P)
+    sol = np.linalg.lstsq(A, b, rcond=None)[0]
+    centre = sol[:2]
+    radii = tuple(float(np.sqrt(max(k + centre @ centre, 0.0))) for k in sol[2:])
+    rms = max(float(np.sqrt(np.mean((np.linalg.norm(P - centre, axis=1) - r) ** 2)))
+              for P, r in zip(sets, radii))
+    return centre, radii, rms
 
 
 def base_axis(point_sets) -> tuple[np.ndarray, np.ndarray, float]:
@@ -349,23 +387,18 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     StartUpFailed : a marker was not seen (a UserError).
     """
     scatter: list = []
-    if arm.planar:
-        m = _observe(world, feedback, arm.marker_names, "at the start pose", scatter)
-        if arm.n_joints == 1:
-            def lengths_of(p):
-                return (float(np.linalg.norm(p[0, :2])),)
-            points, source = m["gripper"][None], "measured: |gripper_xy|"
-        else:
-            def lengths_of(p):
-                return float(np.linalg.norm(p[0, :2])), float(np.linalg.norm(p[1, :2] - p[0, :2]))
-            points = np.array([m["elbow"], m["gripper"]])
-            source = "measured: |elbow_xy|, |gripper_xy - elbow_xy|"
-        return ArmGeometry(lengths_of(points), source=source,
-                           length_se_mm=_largest_se(lengths_of, points, scatter))
-    leds: dict[str, list] = {n: [] for n in arm.marker_names}
-    elbows, grippers = [], []
     start = np.array(world.q_deg, float)
+    leds: dict[str, list] = {n: [] for n in arm.marker_names}
     try:  # back at the start however it ends: a failed look leaves a sweep's pose otherwise
+        if arm.planar:
+            for q1 in BASE_SWEEP_DEG:
+                world.set_q([q1, *start[1:]])
+                m = _observe(world, feedback, arm.marker_names,
+                             f"with the base at {q1:+g} deg", scatter)
+                for n in arm.marker_names:
+                    leds[n].append(m[n])
+            return _planar_geometry(arm, leds, scatter)
+        elbows, grippers = [], []
         for q1 in BASE_SWEEP_DEG:
             world.set_q([q1, *BASE_SWEEP_POSE_DEG])
             m = _observe(world, feedback, arm.marker_names,
@@ -402,3 +435,28 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
                        "|gripper - elbow|", max(rms, axis_rms),
                        _largest_se(lengths_of, sweep, scatter))
+
+
+def _planar_geometry(arm, leds: dict, scatter: list) -> ArmGeometry:
+    """A planar arm's lengths and base axis from its LEDs' positions in the base sweep
+    (:func:`concentric_circles`): L1 the elbow LED's radius (one link: the gripper's), L2 the
+    mean of |gripper_xy - elbow_xy| over the sweep (each pose's a median of its looks already,
+    so the mean's standard error is one pose's over the square root of their number)."""
+    n = len(BASE_SWEEP_DEG)
+    if arm.n_joints == 1:
+        def lengths_of(p):
+            return concentric_circles([p])[1]
+        points = np.array(leds["gripper"])
+        what = "L1 the gripper LED's radius about it"
+    else:
+        def lengths_of(p):
+            radii = concentric_circles([p[:n], p[n:]])[1]
+            return radii[0], float(np.mean(np.linalg.norm(p[n:, :2] - p[:n, :2], axis=1)))
+        points = np.array(leds["elbow"] + leds["gripper"])
+        what = "L1 the elbow LED's radius about it, L2 |gripper_xy - elbow_xy|"
+    centre, _, rms = concentric_circles(list(leds.values()))
+    return ArmGeometry(tuple(float(v) for v in lengths_of(points)),
+                       (float(centre[0]), float(centre[1]), 0.0),
+                       source=f"measured: base axis from the LEDs' circles with the base at "
+                              f"{BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; {what}",
+                       residual_mm=rms, length_se_mm=_largest_se(lengths_of, points, scatter))
