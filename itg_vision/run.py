@@ -428,7 +428,10 @@ def summary_table(s: dict, out: Path) -> str:
                 **s["preview"]))] if s.get("preview") else []),
             *([("aims flagged out of reach, asked again with the set point",
                 f(s["n_aim_out_of_reach"]))] if s.get("n_aim_out_of_reach") else []),
-            ("lengths given to the controller", _lengths(s["geometry"]))]
+            ("lengths given to the controller", _lengths(s["geometry"])),
+            *([("base axis measured at (x, y)", "({:.3f}, {:.3f}) mm".format(
+                *s["geometry"]["base_axis_mm"]))]
+              if s["geometry"]["source"].startswith("measured") else [])]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),

@@ -1,3 +1,4 @@
+import dataclasses
 """`python -m itg_vision.run` end to end, and its bad inputs."""
 
 import json
@@ -784,6 +785,24 @@ def test_the_printed_lengths_carry_their_standard_error_when_measured_with_one(t
         se = s["geometry"]["length_se_mm"]
         assert (se > 0) == shown
         assert (f"standard error up to {se:g} mm" in row) == shown, row
+
+
+def test_the_printed_base_axis_is_the_measured_one(tmp_path):
+    """Where the start-up measured the base axis (the rules' and the Jacobian tracker's origin
+    for x, y), the table prints it, to 0.001 mm: an eye displaced 15 mm in x and -10 in y sees
+    it there (the simulator's truth through the displacement: 1e-3 mm covers its float32
+    rounding). The nominal model's axis is not measured and not printed."""
+    from conftest import affine_eye
+
+    from itg_vision.run import summary_table
+
+    prep = prepare(RunConfig(points=4, feedback="truth"))
+    prep = dataclasses.replace(prep, feedback_factory=lambda: affine_eye(shift_mm=(15, -10, 0)))
+    _, s = execute(prep)
+    rows = [ln for ln in summary_table(s, tmp_path).splitlines() if ln.startswith("base axis")]
+    assert len(rows) == 1 and rows[0].endswith("(15.000, -10.000) mm"), rows
+    _, s = execute(prepare(RunConfig(points=4, feedback="model")))
+    assert "base axis" not in summary_table(s, tmp_path)
 
 
 def test_a_whole_frame_too_large_to_render_is_refused_in_one_line(main_in_process, tmp_path):
