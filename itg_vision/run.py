@@ -430,7 +430,7 @@ def summary_table(s: dict, out: Path) -> str:
                 f(s["n_aim_out_of_reach"]))] if s.get("n_aim_out_of_reach") else []),
             ("lengths given to the controller", _lengths(s["geometry"])),
             *([("base axis measured at (x, y)", "({:.3f}, {:.3f}) mm".format(
-                *s["geometry"]["base_axis_mm"]))]
+                *(round(v, 3) + 0.0 for v in s["geometry"]["base_axis_mm"])))]  # no -0.000
               if s["geometry"]["source"].startswith("measured") else [])]
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
