@@ -372,6 +372,24 @@ def _miss_cause(feedback, name: str) -> str:
     return f"{cause or 'not measured'} (check the rig)"
 
 
+def start_up_poses(arm, start_deg) -> list[tuple[str, np.ndarray, str]]:
+    """The poses the start-up measurement looks at, in order: ``(sweep, q_deg, where)`` with
+    sweep "base" (the base turned through :data:`BASE_SWEEP_DEG`; planar arms: the other
+    joints at ``start_deg``; three-link: leaned, :data:`BASE_SWEEP_POSE_DEG`) or "shoulder"
+    (three-link: the shoulder moved through :data:`SHOULDER_SWEEP_DEG` from ``start_deg``),
+    and where the arm is, in words (a failed look's message; the visibility check's)."""
+    start = np.asarray(start_deg, float)
+    if arm.planar:
+        return [("base", np.array([q1, *start[1:]]), f"with the base at {q1:+g} deg")
+                for q1 in BASE_SWEEP_DEG]
+    leaned = f"leaned (q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} deg)"
+    return ([("base", np.array([q1, *BASE_SWEEP_POSE_DEG]),
+              f"{leaned} with the base at {q1:+g} deg") for q1 in BASE_SWEEP_DEG]
+            + [("shoulder", start + [0.0, rel, 0.0],
+                f"with the shoulder moved {rel:+g} deg from the start")
+               for rel in SHOULDER_SWEEP_DEG])
+
+
 def measure_geometry(world, feedback, arm) -> ArmGeometry:
     """Measure the lengths the rules and the Jacobian tracker use, from the LEDs alone.
 
@@ -388,32 +406,18 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     """
     scatter: list = []
     start = np.array(world.q_deg, float)
-    leds: dict[str, list] = {n: [] for n in arm.marker_names}
+    looks: dict[str, list] = {"base": [], "shoulder": []}
     try:  # back at the start however it ends: a failed look leaves a sweep's pose otherwise
-        if arm.planar:
-            for q1 in BASE_SWEEP_DEG:
-                world.set_q([q1, *start[1:]])
-                m = _observe(world, feedback, arm.marker_names,
-                             f"with the base at {q1:+g} deg", scatter)
-                for n in arm.marker_names:
-                    leds[n].append(m[n])
-            return _planar_geometry(arm, leds, scatter)
-        elbows, grippers = [], []
-        for q1 in BASE_SWEEP_DEG:
-            world.set_q([q1, *BASE_SWEEP_POSE_DEG])
-            m = _observe(world, feedback, arm.marker_names,
-                         f"leaned (q2 {BASE_SWEEP_POSE_DEG[0]:g}, q3 {BASE_SWEEP_POSE_DEG[1]:g} "
-                         f"deg) with the base at {q1:+g} deg", scatter)
-            for n in arm.marker_names:
-                leds[n].append(m[n])
-        for rel in SHOULDER_SWEEP_DEG:
-            world.set_q(start + [0.0, rel, 0.0])
-            m = _observe(world, feedback, arm.marker_names,
-                         f"with the shoulder moved {rel:+g} deg from the start", scatter)
-            elbows.append(m["elbow"])
-            grippers.append(m["gripper"])
+        for sweep, q, where in start_up_poses(arm, start):
+            world.set_q(q)
+            looks[sweep].append(_observe(world, feedback, arm.marker_names, where, scatter))
     finally:
         world.set_q(start)
+    leds = {n: [m[n] for m in looks["base"]] for n in arm.marker_names}
+    if arm.planar:
+        return _planar_geometry(arm, leds, scatter)
+    elbows = [m["elbow"] for m in looks["shoulder"]]
+    grippers = [m["gripper"] for m in looks["shoulder"]]
 
     def lengths_of(p):  # the five elbows, then the five grippers, of the shoulder sweep
         centre, _, radius, _ = fit_circle(p[:5])

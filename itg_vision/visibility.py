@@ -9,7 +9,8 @@ renders a frame (instead of ending with every detection missed and a meaningless
   standard deviations. The LEDs render as saturated primaries, so an LED's score is
   ``min(255, 255 * exposure)`` grey levels.
 - **place**: the camera must be above the floor the arm stands on (z > 0 mm).
-- **points**: the gripper LED at every set point in reach, both LEDs at the start pose, and the
+- **points**: the gripper LED at every set point in reach, both LEDs at the start pose and at
+  every pose of the start-up measurement (:func:`itg_vision.identify.start_up_poses`), and the
   elbow LED of at least one of the two inverse-kinematics branches at each set point in reach
   must lie in front of the camera between the renderer's near and far planes, project inside
   the image with a margin (the LED's projected radius, fx r / z across and fy r / z down, +
@@ -43,31 +44,44 @@ def _render_range_mm() -> tuple[float, float]:
     return 1e3 * NEAR_M, 1e3 * FAR_M
 
 
-def led_points(arm: ArmSpec, points_mm: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Where the LEDs must be seen.
+def led_points(arm: ArmSpec, points_mm: np.ndarray,
+               start_up: bool = True) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Where the LEDs must be seen (``start_up``: at the start-up measurement's poses too).
 
     Returns
     -------
-    gripper : ndarray, shape (m, 3): the gripper LED at the start pose and at each set point in
-        reach (planar arms carry it ``led_standoff_mm`` above the plane).
+    gripper : ndarray, shape (m, 3): the gripper LED at the start pose, at the start-up
+        measurement's poses and at each set point in reach (planar arms carry it
+        ``led_standoff_mm`` above the plane).
     elbows : list of ndarray, each shape (k, 3), k in {0, 1, 2}: the elbow LED at the start
-        pose (one), then per set point in reach its inverse-kinematics branches (two; one of
-        them must be seen). Empty for an arm without an elbow LED.
+        pose and at the start-up's poses (one each), then per set point in reach its
+        inverse-kinematics branches (two; one of them must be seen). Empty for an arm without
+        an elbow LED.
     """
-    return _led_points(arm, points_mm)[:2]
+    return _led_points(arm, points_mm, start_up)[:2]
 
 
-def _led_points(arm: ArmSpec, points_mm: np.ndarray):
+def _led_points(arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True):
     """:func:`led_points`, and for each of its gripper and elbow rows the index of its set
-    point in ``points_mm`` (trace.csv's k; None for the start pose)."""
+    point in ``points_mm`` (trace.csv's k; None for the start pose; a start-up pose's words)."""
     from .controllers import three_link_ik, two_link_ik
 
+    from .identify import start_up_poses
+
     nominal = arm.with_joint_offset((0.0,) * arm.n_joints)
-    start = forward_kinematics(arm, arm.start_q_deg)
+    poses = [(None, arm.start_q_deg)] + [(f"in the start-up measurement, {where}", q)
+                                         for _, q, where in start_up_poses(arm, arm.start_q_deg)
+                                         if start_up]
     pts = np.asarray(points_mm, float).reshape(-1, 3)
-    gripper, g_k = [start["gripper"]], [None]
     has_elbow = "elbow" in arm.marker_names
-    elbows, e_k = ([start["elbow"][None]], [None]) if has_elbow else ([], [])
+    gripper, g_k, elbows, e_k = [], [], [], []
+    for label, q in poses:
+        leds = forward_kinematics(arm, q)
+        gripper.append(leds["gripper"])
+        g_k.append(label)
+        if has_elbow:
+            elbows.append(leds["elbow"][None])
+            e_k.append(label)
     for k, p in enumerate(pts):
         if not arm.reachable(p):
             continue
@@ -142,9 +156,11 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
     return out
 
 
-def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
+def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True) -> None:
     """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
-    arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring."""
+    arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring.
+    ``start_up=False`` leaves out the start-up measurement's poses (the start pose and the set
+    points alone)."""
     from .detect import MIN_SCORE
 
     from .urdf import LED_RADIUS_MM
@@ -155,9 +171,11 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray) -> None:
                         f"--links), is shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): "
                         f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()
-    gripper, elbows, g_k, e_k = _led_points(arm, points_mm)
+    gripper, elbows, g_k, e_k = _led_points(arm, points_mm, start_up)
 
-    def at(k: int | None) -> str:
+    def at(k: int | str | None) -> str:
+        if isinstance(k, str):
+            return k
         return "at the start pose" if k is None else f"at set point k = {k} (trace.csv's k)"
 
     where = rig.source or rig.name

@@ -28,7 +28,7 @@ def test_the_shipped_rigs_see_every_shipped_trajectory(arm, trajectory, calibrat
 def test_led_points_are_the_arm_s_leds_at_the_set_points_and_its_ik_elbows():
     arm = ArmSpec.from_args("two-link")
     pts = named("ellipse-t1", 12).points_mm
-    gripper, elbows = led_points(arm, pts)
+    gripper, elbows = led_points(arm, pts, start_up=False)
     tol = roundoff(200)  # float64 round-off of FK and IK on the 200 mm arm
     assert len(gripper) == 13
     assert np.allclose(gripper[0], forward_kinematics(arm, arm.start_q_deg)["gripper"], rtol=0, atol=tol)
@@ -44,7 +44,7 @@ def test_led_points_are_the_arm_s_leds_at_the_set_points_and_its_ik_elbows():
 def test_out_of_reach_set_points_are_not_required_to_be_seen():
     arm = ArmSpec.from_args("two-link")
     far = np.array([[5000.0, 0.0, 0.0], [0.0, 150.0, 0.0]])
-    gripper, elbows = led_points(arm, far)
+    gripper, elbows = led_points(arm, far, start_up=False)
     assert len(gripper) == 2 and len(elbows) == 2  # the start pose and the reachable point
 
 
@@ -61,8 +61,8 @@ def test_a_camera_turned_away_or_too_dark_is_refused_naming_it():
     cam = rig.cameras[1]
     R = np.diag([-1.0, 1.0, -1.0]) @ cam.R  # turned half round about its own y axis, same place
     away = dict(rotation=tuple(map(tuple, R)), translation_mm=tuple(-R @ cam.position_mm))
-    with pytest.raises(UserError, match=r"cameras\[1\] \(right\): cannot see the gripper LED at 21 "
-                                        r"of 21 positions; at the start pose, .* behind the camera"):
+    with pytest.raises(UserError, match=r"cameras\[1\] \(right\): cannot see the gripper LED at 32 "
+                                        r"of 32 positions; at the start pose, .* behind the camera"):
         check_visible(_moved(rig, 1, **away), arm, pts)
     with pytest.raises(UserError, match=r"cameras\[0\] \(left\): exposure 0.1 makes an LED at most 25.5"):
         check_visible(_moved(rig, 0, exposure=0.1), arm, pts)
@@ -72,7 +72,7 @@ def test_a_camera_turned_away_or_too_dark_is_refused_naming_it():
 def test_long_links_take_the_elbow_out_of_view():
     rig = Rig.from_yaml(default_rig_path("two-link"))
     pts = named("ellipse-t1", 20).points_mm
-    with pytest.raises(UserError, match="cannot see the gripper LED at 1 of 21 positions; at the start pose"):
+    with pytest.raises(UserError, match="cannot see the gripper LED at 12 of 32 positions; at the start pose"):
         check_visible(rig, ArmSpec.from_args("two-link", (1000.0, 1000.0)), pts)
     # the same trajectory with links the rig frames is fine
     check_visible(rig, ArmSpec.from_args("two-link", (110.0, 90.0)), pts)
@@ -187,26 +187,44 @@ def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
     200 px wide centred on x = 35 mm sees x in [-56.5, 126.5] mm, the + branch only: accepted.
     130 px wide centred on x = 0 sees [-56.5, 56.5], neither branch: refused. Both are 200 px
     high around y = 130 mm ([38.5, 221.5] mm), framing the start pose's LEDs (0, 100), (0, 200)
-    and the gripper at the set point."""
+    and the gripper at the set point. Such a camera does not frame the start-up measurement's
+    base sweep (the next test), so the set points are checked alone (``start_up=False``)."""
     p = np.array([[0.0, 150.0, 0.0]])
-    check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], p)
+    check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], p, start_up=False)
     with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the elbow LED at set "
                                         r"point k = 0 \(trace.csv's k\): \(66.1, 75.0, 12.0\) mm"):
-        check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2], p)
+        check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2], p, start_up=False)
     # the set point is named by its index in the trajectory (trace.csv's k), out-of-reach points
     # before it counted (it said "set point 1 of those in reach", the count among those kept)
     with pytest.raises(UserError, match=r"elbow LED at set point k = 2 \(trace.csv's k\)"):
         check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2],
-                      np.vstack([[[500.0, 0.0, 0.0], [0.0, 300.0, 0.0]], p]))
-    check_visible(*_two_link(_down(-35.0, 130.0, 600.0))[:2], p)  # the - branch alone, as well
+                      np.vstack([[[500.0, 0.0, 0.0], [0.0, 300.0, 0.0]], p]), start_up=False)
+    check_visible(*_two_link(_down(-35.0, 130.0, 600.0))[:2], p, start_up=False)  # - branch
+
+
+def test_a_rig_that_frames_the_path_but_not_the_start_up_sweep_is_refused_naming_the_pose():
+    """The start-up measurement turns the base through -150..+150 deg (identify.start_up_poses):
+    the two-link gripper LED runs round a 200 mm circle. The previous test's camera (200 x 200
+    px, 1 mm per px, around (35, 130) mm: x in [-57, 127], y in [38, 222] mm after its 8 px
+    margin) frames the start pose and the set point (0, 150) but not the sweep's first pose,
+    base -150 deg, gripper at (-173.2, -100) mm. Of the 13 gripper positions (the start, 11
+    sweep poses, the set point) it sees the sweep's at base 60 and 90 deg ((100, 173.2) and
+    (0, 200) mm; at 120 deg x = -100 is outside), the start and the set point: 9 refused, the
+    first named. The sweep's poses are where the start-up looks, so a rig that misses them
+    used to fail only once the run began."""
+    p = np.array([[0.0, 150.0, 0.0]])
+    with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the gripper LED at 9 "
+                                        r"of 13 positions; in the start-up measurement, with the "
+                                        r"base at -150 deg, \(-173.2, -100.0, 12.0\) mm projects"):
+        check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], p)
 
 
 def test_a_camera_beyond_the_renderer_s_far_plane_is_refused():
     """The renderer draws nothing beyond its far plane (imaging.FAR_M, 5000 mm). A camera 6000 mm
     above the LEDs with f = 2000 px would otherwise do: LEDs of radius 2000 x 6 / 6000 = 2 px
     (>= MIN_LED_RADIUS_PX), the image 1920 x 1440 mm around the arm. At 4900 mm it is accepted."""
-    with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the gripper LED at 21 "
-                                        r"of 21 positions; at the start pose, .* mm farther than "
+    with pytest.raises(UserError, match=r"cameras\[0\] \(down\): cannot see the gripper LED at 32 "
+                                        r"of 32 positions; at the start pose, .* mm farther than "
                                         r"the renderer's 5000 mm \(depth 6000 mm\)"):
         check_visible(*_two_link(_down(0.0, 0.0, 6000.0, (640, 480), 2000.0)))
     check_visible(*_two_link(_down(0.0, 0.0, 4900.0, (640, 480), 2000.0)))
