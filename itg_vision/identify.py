@@ -7,9 +7,10 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
 - planar arms: the base joint (q1) is turned alone through most of a turn (:data:`BASE_SWEEP_DEG`,
   the other joints at the start pose), and the LEDs' circles, fitted with one centre
   (:func:`concentric_circles`), place the vertical base axis; L1 is the elbow LED's radius about
-  it (one link: the gripper's), L2 = |gripper_xy - elbow_xy|. A wrong world frame moves the
+  it (one link: the gripper's), L2 the mean |gripper_xy - elbow_xy| over the sweep. A wrong
+  world frame moves the
   arm in the eye's frame; lengths taken about the eye's x = y = 0 would then be off by the
-  shift (88-100 mm for 100 mm links under the benchmark's rig-perturbed), the measured axis
+  shift (L1 88-110 mm for 100 mm links under the benchmark's rig-perturbed), the measured axis
   moves with the arm.
 - three-link arm: the base axis is measured, not assumed: with the arm leaned
   (:data:`BASE_SWEEP_POSE_DEG`) the base joint (q1) is turned alone through most of a turn,
