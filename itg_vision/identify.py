@@ -8,10 +8,9 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
   the other joints at the start pose), and the LEDs' circles, fitted with one centre
   (:func:`concentric_circles`), place the vertical base axis; L1 is the elbow LED's radius about
   it (one link: the gripper's), L2 the mean |gripper_xy - elbow_xy| over the sweep. A wrong
-  world frame moves the
-  arm in the eye's frame; lengths taken about the eye's x = y = 0 would then be off by the
-  shift (L1 88-110 mm for 100 mm links under the benchmark's rig-perturbed), the measured axis
-  moves with the arm.
+  world frame moves the arm in the eye's frame; lengths taken about the eye's x = y = 0 would
+  then be off by the shift (L1 88-110 mm for 100 mm links under the benchmark's
+  rig-perturbed), while the measured axis moves with the arm.
 - three-link arm: the base axis is measured, not assumed: with the arm leaned
   (:data:`BASE_SWEEP_POSE_DEG`) the base joint (q1) is turned alone through most of a turn,
   and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
@@ -82,8 +81,8 @@ class ArmGeometry:
         crosses the shoulder's height L1).
     standoff_mm : the LEDs' offset from the links along the pitch axis (three-link), else 0.
     source : where the numbers come from: "nominal model" or how they were measured.
-    residual_mm : the largest RMS residual of the fits that produced them (0 for a single
-        observation).
+    residual_mm : the largest RMS residual of the fits that produced them (0 for the nominal
+        model).
     length_se_mm : the largest standard error of the lengths (mm), the rules' ``sL``: what the
         noise of the looks leaves uncertain in them, to first order (each look's scatter per
         axis, from the start-up's repeated looks, carried through the medians and the fits).
