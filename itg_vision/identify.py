@@ -446,19 +446,19 @@ def _planar_geometry(arm, leds: dict, scatter: list) -> ArmGeometry:
     (:func:`concentric_circles`): L1 the elbow LED's radius (one link: the gripper's), L2 the
     mean of |gripper_xy - elbow_xy| over the sweep (each pose's a median of its looks already,
     so the mean's standard error is one pose's over the square root of their number)."""
-    n = len(BASE_SWEEP_DEG)
-    if arm.n_joints == 1:
-        def lengths_of(p):
-            return concentric_circles([p])[1]
-        points = np.array(leds["gripper"])
-        what = "L1 the gripper LED's radius about it"
-    else:
-        def lengths_of(p):
-            radii = concentric_circles([p[:n], p[n:]])[1]
-            return radii[0], float(np.mean(np.linalg.norm(p[n:, :2] - p[:n, :2], axis=1)))
-        points = np.array(leds["elbow"] + leds["gripper"])
-        what = "L1 the elbow LED's radius about it, L2 |gripper_xy - elbow_xy|"
-    centre, _, rms = concentric_circles(list(leds.values()))
+    names = [m for m in ("elbow", "gripper") if m in arm.marker_names]  # the inner circle first
+    points = np.vstack([leds[m] for m in names])  # one LED's sweep after the other
+
+    def lengths_of(p):
+        sets = np.split(p, len(names))
+        radii = concentric_circles(sets)[1]
+        if len(sets) == 1:
+            return radii
+        return radii[0], float(np.mean(np.linalg.norm(sets[1][:, :2] - sets[0][:, :2], axis=1)))
+
+    what = ("L1 the gripper LED's radius about it" if len(names) == 1 else
+            "L1 the elbow LED's radius about it, L2 |gripper_xy - elbow_xy|")
+    centre, _, rms = concentric_circles(np.split(points, len(names)))
     return ArmGeometry(tuple(float(v) for v in lengths_of(points)),
                        (float(centre[0]), float(centre[1]), 0.0),
                        source=f"measured: base axis from the LEDs' circles with the base at "

@@ -382,14 +382,13 @@ def _arms_note(specs: list[RunSpec], spec: RunSpec) -> str:
 
 def spec_limits(specs: list[RunSpec], traj: str) -> dict:
     """What the runs of ``traj`` ran under, from their specs (every controller alike): its arm,
-    set points per lap (None: the path's own), laps, iterations, servo limit (as text) and the
-    number of seeds."""
+    set points per lap (the path's own where the sweep gives none), laps, iterations, servo
+    limit (as text) and the number of seeds."""
     mine = [s for s in specs if trajectory_label(s.trajectory) == traj]
     s = mine[0]
     servo = "no servo limit" if s.max_step_deg is None else f"servo {s.max_step_deg:g} deg/iteration"
-    return {"arm": s.arm, "points": s.points, "laps": s.laps, "iterations": s.iterations,
-            "servo": servo, "seeds": len({x.seed for x in mine}),
-            "per_lap": s.points or _default_points(s.trajectory)}
+    return {"arm": s.arm, "per_lap": s.points or _default_points(s.trajectory), "laps": s.laps,
+            "iterations": s.iterations, "servo": servo, "seeds": len({x.seed for x in mine})}
 
 
 def _sweep_line(specs: list[RunSpec], traj: str) -> str:
