@@ -10,7 +10,10 @@ the marker estimates alone (in the eye's frame, which calibration ties to the ro
   it (one link: the gripper's), L2 the mean |gripper_xy - elbow_xy| over the sweep. A wrong
   world frame moves the arm in the eye's frame; lengths taken about the eye's x = y = 0 would
   then be off by the shift (L1 88-110 mm for 100 mm links under the benchmark's
-  rig-perturbed), while the measured axis moves with the arm.
+  rig-perturbed), while the measured axis moves with the arm. A rig that frames the workspace
+  but not the whole turn is enough: a pose whose LEDs the rig does not see is left out, and
+  the poses seen place the axis if they cover :data:`MIN_BASE_ARC_DEG` (the lengths' standard
+  error grows as the arc shrinks; the run's table names the poses left out).
 - three-link arm: the base axis is measured, not assumed: with the arm leaned
   (:data:`BASE_SWEEP_POSE_DEG`) the base joint (q1) is turned alone through most of a turn,
   and the elbow and gripper LEDs' circles (:func:`base_axis`) have their centres on it,
@@ -62,6 +65,15 @@ BASE_SWEEP_DEG = (-150.0, -120.0, -90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0, 12
 #: Observations averaged (per coordinate, median) at each pose, and the most tried to get them
 #: (a dropped or rejected detection is tried again, as on a real rig).
 SAMPLES_PER_POSE = 5
+#: What a planar start-up needs of its base sweep, whose poses a rig of one's own may not all
+#: see: three poses (three points place a circle; the one-link arm has one LED) covering an
+#: arc of 120 deg or more (:func:`arc_covered_deg`). A circle's centre is as good as the arc
+#: its points cover: two-link, 1 px, 12 seeds, the RMS error of L1 and the median / largest
+#: offset of the axis were 6.05 mm and 4.8 / 13 mm from 60 deg of arc (3 poses), 1.62 mm and
+#: 1.75 / 3.4 mm from 90 deg, 0.85 mm and 0.68 / 2.1 mm from 120 deg, 0.20 mm and 0.22 /
+#: 0.57 mm from the whole 300 deg (20 seeds).
+MIN_BASE_POSES = 3
+MIN_BASE_ARC_DEG = 120.0
 MAX_TRIES_PER_POSE = 50
 #: The variance of the median of ``SAMPLES_PER_POSE`` (5) normal draws, in units of one draw's
 #: variance (the order statistics of the normal distribution; tests/test_identify.py draws it).
@@ -278,6 +290,10 @@ def zero_direction(centre_mm, axis, points_mm, angles_deg) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- start-up
+#: How a failed start-up's line ends.
+CANNOT_MEASURE = "; the arm's lengths cannot be measured"
+
+
 class StartUpFailed(UserError):
     """The start-up measurement saw too few LEDs: the run cannot start (the rig does not see
     the arm, or rejects every look). A user error for ``run``; an outcome of its condition for a
@@ -303,7 +319,7 @@ def _observe(world, feedback, names, where: str, scatter: list) -> dict[str, np.
     raise StartUpFailed(f"start-up measurement: the LEDs were measured in only {len(got)} of "
                         f"{MAX_TRIES_PER_POSE} observations {where}"
                         + (f" (missed: {causes})" if causes else "")
-                        + "; the arm's lengths cannot be measured")
+                        + CANNOT_MEASURE)
 
 
 def look_sigma(scatter) -> np.ndarray:
@@ -372,6 +388,28 @@ def _miss_cause(feedback, name: str) -> str:
     return f"{cause or 'not measured'} (check the rig)"
 
 
+def arc_covered_deg(angles_deg) -> float:
+    """The arc (deg) that base angles cover: 360 less the widest gap between neighbours on the
+    circle (-150..+150 deg in 30 deg steps: 300; -150, -30, +90: 240; one angle: 0)."""
+    a = np.sort(np.mod(np.asarray(angles_deg, float), 360.0))
+    if len(a) < 2:
+        return 0.0
+    return float(360.0 - np.max(np.diff(np.append(a, a[0] + 360.0))))
+
+
+def enough_of_the_sweep(angles_deg) -> bool:
+    """Whether the planar base sweep's poses seen at ``angles_deg`` place the base axis
+    (:data:`MIN_BASE_POSES`, :data:`MIN_BASE_ARC_DEG`)."""
+    return len(angles_deg) >= MIN_BASE_POSES and arc_covered_deg(angles_deg) >= MIN_BASE_ARC_DEG
+
+
+def sweep_need(seen, n_poses: int, seen_at: str = "the LEDs were seen at") -> str:
+    """What the base sweep needs and got (its angles ``seen``), in words (a refusal's)."""
+    return (f"the base axis needs {MIN_BASE_POSES} of the sweep's {n_poses} poses covering "
+            f"{MIN_BASE_ARC_DEG:g} deg of arc, and {seen_at} {len(seen)}"
+            + (f", covering {arc_covered_deg(seen):g} deg" if len(seen) > 1 else ""))
+
+
 def start_up_poses(arm, start_deg) -> list[tuple[str, np.ndarray, str]]:
     """The poses the start-up measurement looks at, in order: ``(sweep, q_deg, where)`` with
     sweep "base" (the base turned through :data:`BASE_SWEEP_DEG`; planar arms: the other
@@ -406,16 +444,27 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     """
     scatter: list = []
     start = np.array(world.q_deg, float)
+    poses = start_up_poses(arm, start)
     looks: dict[str, list] = {"base": [], "shoulder": []}
+    seen, unseen = [], []  # base angles (deg) seen; (angle, StartUpFailed) not (planar only)
     try:  # back at the start however it ends: a failed look leaves a sweep's pose otherwise
-        for sweep, q, where in start_up_poses(arm, start):
+        for sweep, q, where in poses:
             world.set_q(q)
-            looks[sweep].append(_observe(world, feedback, arm.marker_names, where, scatter))
+            try:
+                looks[sweep].append(_observe(world, feedback, arm.marker_names, where, scatter))
+                seen.append(float(q[0]))
+            except StartUpFailed as failed:
+                if not arm.planar:
+                    raise
+                unseen.append((float(q[0]), failed))
+        if unseen and not enough_of_the_sweep(seen):
+            first = str(unseen[0][1]).removesuffix(CANNOT_MEASURE)
+            raise StartUpFailed(f"{first}; {sweep_need(seen, len(poses))}{CANNOT_MEASURE}")
     finally:
         world.set_q(start)
     leds = {n: [m[n] for m in looks["base"]] for n in arm.marker_names}
     if arm.planar:
-        return _planar_geometry(arm, leds, scatter)
+        return _planar_geometry(arm, leds, scatter, seen, [q1 for q1, _ in unseen])
     elbows = [m["elbow"] for m in looks["shoulder"]]
     grippers = [m["gripper"] for m in looks["shoulder"]]
 
@@ -441,11 +490,13 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
                        _largest_se(lengths_of, sweep, scatter))
 
 
-def _planar_geometry(arm, leds: dict, scatter: list) -> ArmGeometry:
+def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen) -> ArmGeometry:
     """A planar arm's lengths and base axis from its LEDs' positions in the base sweep
     (:func:`concentric_circles`): L1 the elbow LED's radius (one link: the gripper's), L2 the
     mean of |gripper_xy - elbow_xy| over the sweep (each pose's a median of its looks already,
-    so the mean's standard error is one pose's over the square root of their number)."""
+    so the mean's standard error is one pose's over the square root of their number).
+    ``seen`` and ``unseen`` are the sweep's base angles (deg) the LEDs were and were not seen
+    at (the source names the latter)."""
     names = [m for m in ("elbow", "gripper") if m in arm.marker_names]  # the inner circle first
     points = np.vstack([leds[m] for m in names])  # one LED's sweep after the other
 
@@ -459,8 +510,12 @@ def _planar_geometry(arm, leds: dict, scatter: list) -> ArmGeometry:
     what = ("L1 the gripper LED's radius about it" if len(names) == 1 else
             "L1 the elbow LED's radius about it, L2 |gripper_xy - elbow_xy|")
     centre, _, rms = concentric_circles(np.split(points, len(names)))
+    arc = f"{seen[0]:+g}..{seen[-1]:+g} deg"
+    if unseen:
+        arc += (f" ({len(seen)} of {len(seen) + len(unseen)} poses; not seen at "
+                f"{', '.join(f'{q1:+g}' for q1 in unseen)} deg)")
     return ArmGeometry(tuple(float(v) for v in lengths_of(points)),
                        (float(centre[0]), float(centre[1]), 0.0),
                        source=f"measured: base axis from the LEDs' circles with the base at "
-                              f"{BASE_SWEEP_DEG[0]:+g}..{BASE_SWEEP_DEG[-1]:+g} deg; {what}",
+                              f"{arc}; {what}",
                        residual_mm=rms, length_se_mm=_largest_se(lengths_of, points, scatter))

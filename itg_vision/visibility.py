@@ -10,7 +10,10 @@ renders a frame (instead of ending with every detection missed and a meaningless
   ``min(255, 255 * exposure)`` grey levels.
 - **place**: the camera must be above the floor the arm stands on (z > 0 mm).
 - **points**: the gripper LED at every set point in reach, both LEDs at the start pose and at
-  every pose of the start-up measurement (:func:`itg_vision.identify.start_up_poses`), and the
+  every pose of the start-up measurement (:func:`itg_vision.identify.start_up_poses`; a planar
+  arm's base sweep: enough of its poses to place the base axis,
+  :func:`itg_vision.identify.enough_of_the_sweep`, every camera seeing every LED there, as the
+  start-up leaves out the poses it does not see), and the
   elbow LED of at least one of the two inverse-kinematics branches at each set point in reach
   must lie in front of the camera between the renderer's near and far planes, project inside
   the image with a margin (the LED's projected radius, fx r / z across and fy r / z down, +
@@ -61,17 +64,20 @@ def led_points(arm: ArmSpec, points_mm: np.ndarray,
     return _led_points(arm, points_mm, start_up)[:2]
 
 
-def _led_points(arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True):
+def _led_points(arm: ArmSpec, points_mm: np.ndarray, start_up=True):
     """:func:`led_points`, and for each of its gripper and elbow rows the index of its set
-    point in ``points_mm`` (trace.csv's k; None for the start pose; a start-up pose's words)."""
+    point in ``points_mm`` (trace.csv's k; None for the start pose; a start-up pose's words).
+    ``start_up``: True (every start-up pose), False (none) or the list of poses
+    (:func:`itg_vision.identify.start_up_poses`'s items) to check."""
     from .controllers import three_link_ik, two_link_ik
 
     from .identify import start_up_poses
 
     nominal = arm.with_joint_offset((0.0,) * arm.n_joints)
+    if start_up is True:
+        start_up = start_up_poses(arm, arm.start_q_deg)
     poses = [(None, arm.start_q_deg)] + [(f"in the start-up measurement, {where}", q)
-                                         for _, q, where in start_up_poses(arm, arm.start_q_deg)
-                                         if start_up]
+                                         for _, q, where in (start_up or [])]
     pts = np.asarray(points_mm, float).reshape(-1, 3)
     has_elbow = "elbow" in arm.marker_names
     gripper, g_k, elbows, e_k = [], [], [], []
@@ -156,6 +162,32 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
     return out
 
 
+def _start_up_seen(rig, arm: ArmSpec, near_mm: float, far_mm: float) -> tuple[list, str]:
+    """The start-up poses the check asks the rig to see, and words to add to a refusal at one
+    of them. All of them, but for a planar arm's base sweep only the poses at which every
+    camera sees every LED if they place the base axis
+    (:func:`~itg_vision.identify.enough_of_the_sweep`; the start-up leaves out the others);
+    if they do not, all of them (the first unseen is named) and the words say what the
+    start-up needs."""
+    from .identify import enough_of_the_sweep, start_up_poses, sweep_need
+
+    poses = start_up_poses(arm, arm.start_q_deg)
+    if not arm.planar:
+        return poses, ""
+
+    def sees(q) -> bool:
+        leds = forward_kinematics(arm, q)
+        X = np.array([leds[name] for name in arm.marker_names])
+        return not any(any(_visible(cam, X, near_mm, far_mm)) for cam in rig.cameras)
+
+    seen = [pose for pose in poses if sees(pose[1])]
+    angles = [float(q[0]) for _, q, _ in seen]
+    if enough_of_the_sweep(angles):
+        return seen, ""
+    return poses, ("; in the start-up, "
+                   + sweep_need(angles, len(poses), "every camera sees every LED at"))
+
+
 def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True) -> None:
     """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
     arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring.
@@ -171,12 +203,16 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
                         f"--links), is shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): "
                         f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()
-    gripper, elbows, g_k, e_k = _led_points(arm, points_mm, start_up)
+    poses, too_few = _start_up_seen(rig, arm, near_mm, far_mm) if start_up else ([], "")
+    gripper, elbows, g_k, e_k = _led_points(arm, points_mm, poses)
 
     def at(k: int | str | None) -> str:
         if isinstance(k, str):
             return k
         return "at the start pose" if k is None else f"at set point k = {k} (trace.csv's k)"
+
+    def more(k: int | str | None) -> str:  # the start-up's need, after a start-up pose's refusal
+        return too_few if isinstance(k, str) else ""
 
     where = rig.source or rig.name
     for i, cam in enumerate(rig.cameras):
@@ -197,11 +233,11 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
             what = at(g_k[k])
             raise UserError(f"{who}: cannot see the gripper LED at {len(bad)} of {len(why)} "
                             f"positions; {what}, {tuple(round(float(v), 1) for v in gripper[k])} mm "
-                            f"{why[k]}{hint}")
+                            f"{why[k]}{more(g_k[k])}{hint}")
         for k, branches in enumerate(elbows):
             whys = _visible(cam, branches, near_mm, far_mm)
             if all(whys):
                 what = at(e_k[k])
                 raise UserError(f"{who}: cannot see the elbow LED {what}: "
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
-                                f"{whys[0]}{hint}")
+                                f"{whys[0]}{more(e_k[k])}{hint}")

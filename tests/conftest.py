@@ -91,6 +91,21 @@ def main_in_process(capsys):
     return call
 
 
+def front_rig(path):
+    """A rig that frames the planar workspace but not the whole base sweep: the shipped planar
+    rig with both cameras 60 mm farther along +y and 220 mm lower (400 mm above the plane),
+    looking at (0, 60, 0). The two-link arm's LEDs are in view of both cameras with the base
+    at 0..150 deg of the start-up's sweep (at -150..-30 deg the gripper LED projects below
+    the bottom of one image or both), and along ellipse-t1 and ellipse-t2. Written to ``path`` (a YAML file, as a user
+    writes one); returns ``path``."""
+    text = (ROOT / "cameras" / "planar.yaml").read_text()
+    for x in ("-180.0", "180.0"):
+        text = text.replace(f"position_mm: [{x}, -60.0, 620.0]", f"position_mm: [{x}, 0.0, 400.0]")
+    text = text.replace("look_at_mm: [0.0, 0.0, 0.0]", "look_at_mm: [0.0, 60.0, 0.0]")
+    path.write_text(text.replace("name: planar", "name: front"))
+    return path
+
+
 def random_rotation(rng):
     """A random rotation matrix and its unit quaternion (x, y, z, w), from ``rng``."""
     q = rng.normal(size=4)

@@ -290,7 +290,7 @@ CASES = [
     ("rig-lens-folds", "run", ["--quiet", "--rig", "{rig-fold}"], "cameras[0].distortion_coefficients: the lens model folds back inside the image"),
     ("rig-rotation-1e300", "run", ["--quiet", "--rig", "{rig-spin}"], "cameras[1].pose.rotation_deg: each must be within +-3600 deg"),
     # a start-up measurement that fails names its cause, and the option that set it
-    ("start-up-dropout-1", "run", ["--quiet", "--dropout", "1"], "with the base at -150 deg (missed: dropped at random (--dropout 1): 50 looks); the arm's lengths cannot be measured"),
+    ("start-up-dropout-1", "run", ["--quiet", "--dropout", "1"], "with the base at -150 deg (missed: dropped at random (--dropout 1): 50 looks); the base axis needs 3 of the sweep's 11 poses covering 120 deg of arc, and the LEDs were seen at 0; the arm's lengths cannot be measured"),
     ("start-up-noise-1e6-px", "run", ["--quiet", "--noise-px", "1e6"], "(missed: reprojection residual above 2 px (--noise-px 1e+06): 50 looks)"),
     ("start-up-rig-sees-another-arm", "run", ["--quiet", "--arm", "three-link", "--rig", "planar"], "cameras/planar.yaml (--rig), arm three-link: start-up measurement: the LEDs were measured in only 0 of 50 observations leaned"),
     ("start-up-names-allow-unseen", "run", ["--quiet", "--dropout", "1"], "the arm's lengths cannot be measured (--allow-unseen runs on the nominal model's lengths instead)"),

@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import roundoff
+from conftest import front_rig, roundoff
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.camera import Camera, Rig, default_rig_path
@@ -217,6 +217,27 @@ def test_a_rig_that_frames_the_path_but_not_the_start_up_sweep_is_refused_naming
                                         r"of 13 positions; in the start-up measurement, with the "
                                         r"base at -150 deg, \(-173.2, -100.0, 12.0\) mm projects"):
         check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], p)
+
+
+def test_a_rig_that_frames_part_of_the_start_up_sweep_is_asked_for_the_part_it_sees(tmp_path):
+    """The planar start-up leaves out the base sweep's poses it does not see and needs the rest
+    to cover 120 deg of arc (identify.enough_of_the_sweep). conftest.front_rig sees both LEDs,
+    in both cameras, at 0..150 deg of the sweep: the check asks for those six poses (and the
+    start and the path) and accepts ellipse-t1 and ellipse-t2, where it refused the rig at
+    base -150 deg before. The previous test's camera sees two poses (60, 90 deg): refused,
+    the line saying what the start-up needs and what that rig gives."""
+    from itg_vision.visibility import _start_up_seen
+
+    rig, arm = Rig.from_yaml(front_rig(tmp_path / "front.yaml")), ArmSpec.from_args("two-link")
+    seen, words = _start_up_seen(rig, arm, *_render_range_mm())
+    assert [q[0] for _, q, _ in seen] == [0.0, 30.0, 60.0, 90.0, 120.0, 150.0] and words == ""
+    for name in ("ellipse-t1", "ellipse-t2"):
+        check_visible(rig, arm, named(name).points_mm)
+    with pytest.raises(UserError, match=r"; in the start-up, the base axis needs 3 of the "
+                                        r"sweep's 11 poses covering 120 deg of arc, and every "
+                                        r"camera sees every LED at 2, covering 30 deg; "
+                                        r"--allow-unseen runs anyway$"):
+        check_visible(*_two_link(_down(35.0, 130.0, 600.0))[:2], np.array([[0.0, 150.0, 0.0]]))
 
 
 def test_a_camera_beyond_the_renderer_s_far_plane_is_refused():
