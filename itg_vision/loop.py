@@ -37,7 +37,9 @@ from .outputs import unsigned_zero
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
 #: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. A
 #: lost elbow leaves the feedback's last elbow estimate, however old (measured in the README,
-#: "Lost looks": it misleads Table 2's rules, hardly ITG+ or the Jacobian tracker). After a
+#: "Lost looks": a look lost now and then misleads Table 2's rules, hardly ITG+ or the Jacobian
+#: tracker; an elbow out of view for a stretch, on a branch the rig does not frame, misleads
+#: them all, and ``run`` says so before and after: README, "Arms"). After a
 #: step flagged out of reach (it holds the arm) the gripper is taken to be where that decision
 #: saw it.
 AIM_ON_LOST = "gripper"
@@ -134,6 +136,8 @@ class Trace:
     records: list[SetPointRecord] = field(default_factory=list)
     est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
     n_missed: int = 0
+    #: looks that missed each marker (``n_missed`` is their sum)
+    missed_by: dict = field(default_factory=lambda: {m: 0 for m in MARKERS})
     n_at_last_aim: int = 0
     n_held: int = 0
     timing_ms: dict = field(default_factory=dict)
@@ -149,6 +153,8 @@ class Trace:
         for stage, ms in estimate.timing_ms.items():
             self.time(stage, ms)
         self.n_missed += len(estimate.missed)
+        for name in estimate.missed:
+            self.missed_by[name] = self.missed_by.get(name, 0) + 1
         for name, out in self.est_err_mm.items():
             if name in estimate.missed:
                 continue

@@ -288,6 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         if 2 * n_in < n:
             notes.append(f"note: {n - n_in} of the {n} set points are out of the arm's reach: "
                          f"every metric rests on the {n_in} in reach")
+        notes.extend(prep.notes)
         key = run_key(prep)
         if args.out is not None:  # '' is check_path's empty-path error, not the default folder
             out = outputs.check_path(args.out)
@@ -322,10 +323,16 @@ def main(argv: list[str] | None = None) -> int:
             unseen = summary["n_at_last_aim"] + summary["n_held"]
             looks = summary["n_setpoints"] * summary["iterations"]
             p = cfg.dropout  # beyond what the dropout asked for gives, and its 3 sigma
-            if unseen > (p + MISSED_NOTE) * looks + 3 * math.sqrt(looks * p * (1 - p)):
+            beyond = (p + MISSED_NOTE) * looks + 3 * math.sqrt(looks * p * (1 - p))
+            if unseen > beyond:
                 print(f"note: the gripper LED went unseen in {unseen} of the {looks} looks (hidden "
                       "by the arm, or off the image; trace.csv's flags say where): those "
                       "decisions were made on the last aim, not on a measurement", file=sys.stderr)
+            if trace.missed_by.get("elbow", 0) > beyond:
+                print(f"note: the elbow LED went unseen in {trace.missed_by['elbow']} of the "
+                      f"{looks} looks (hidden by the arm, or off the image; trace.csv's flags say "
+                      "where): those decisions were made on its last measured position, however "
+                      "old", file=sys.stderr)
             if args.video:
                 summary["video"] = recorder.path.name
                 summary["video_codec"] = recorder.codec_note

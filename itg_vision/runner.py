@@ -198,6 +198,7 @@ class Prepared:
     preview: Preview | None = None  # the preview's plan (None: no preview)
     n_in_reach: int = 0  # set points the simulated arm can reach: those the metrics count
     rig_arm: str | None = None  # the arm whose LEDs tied a calibrated rig to the base (calibrate --arm)
+    notes: tuple[str, ...] = ()  # what a run should tell before it starts (one line each)
 
 
 def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) -> Prepared:
@@ -254,6 +255,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                           f"({lo:g} to {hi:g} mm from its shoulder{beside}): nothing to "
                           f"track{metres}")
     info: dict = {}
+    notes: list = []
     given = given_rule_params(cfg)
     if not with_controller:
         controller = None
@@ -283,7 +285,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
     else:
         from .camera import Rig, load_true_rig
         from .feedback import VisionFeedback
-        from .visibility import check_visible
+        from .visibility import check_visible, elbow_partly_seen
 
         if estimate_rig is None:
             estimate_rig = Rig.from_yaml(cfg.rig_path)
@@ -292,6 +294,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
             render_rig = load_true_rig(estimate_rig, cfg.rig_path)
         if not cfg.allow_unseen:
             check_visible(render_rig, true_arm, trajectory.points_mm)
+            notes.append(elbow_partly_seen(render_rig, true_arm, trajectory.points_mm))
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
         rig_arm = ((estimate_rig.calibration or {}).get("base_frame") or {}).get("arm")
@@ -303,7 +306,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                                   dropout=cfg.dropout, strobe=cfg.strobe,
                                   supersample=supersample, full_frame=cfg.full_frame)
     return Prepared(cfg, model, true_arm, trajectory, controller, feedback_factory, info, planned,
-                    n_in_reach, rig_arm)
+                    n_in_reach, rig_arm, tuple(filter(None, notes)))
 
 
 def given_rule_params(cfg: RunConfig) -> dict[str, float]:

@@ -22,7 +22,9 @@ renders a frame (instead of ending with every detection missed and a meaningless
   radius at least :data:`MIN_LED_RADIUS_PX`).
 
 Pure numpy and the camera model: nothing is rendered. ``--allow-unseen`` skips the check
-(to measure the failure).
+(to measure the failure). Where only some of the elbow's branches are in view,
+:func:`elbow_partly_seen` words a note for the run to print: which branch a model-free
+controller takes is not known before it runs.
 """
 
 from __future__ import annotations
@@ -241,3 +243,27 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
                 raise UserError(f"{who}: cannot see the elbow LED {what}: "
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
                                 f"{whys[0]}{more(e_k[k])}{hint}")
+
+
+def elbow_partly_seen(rig, arm: ArmSpec, points_mm: np.ndarray) -> str | None:
+    """A note (one line) if at some set points in reach only some of the elbow LED's positions
+    (the arm's inverse-kinematics branches) are in view of every camera of ``rig``; else None.
+    :func:`check_visible` asks for one, as a model-free controller may take either branch and
+    the check cannot know which: on a branch out of view the run loses the elbow LED there,
+    and the controller decides on its last measured position."""
+    near_mm, far_mm = _render_range_mm()
+    _, elbows, _, e_k = _led_points(arm, points_mm, start_up=False)
+    at = [(k, branches) for k, branches in zip(e_k, elbows) if isinstance(k, int)]
+
+    def in_view(branches) -> int:
+        whys = [_visible(cam, branches, near_mm, far_mm) for cam in rig.cameras]
+        return sum(all(why[i] is None for why in whys) for i in range(len(branches)))
+
+    partly = [k for k, branches in at if in_view(branches) < len(branches)]
+    if not partly:
+        return None
+    return (f"note: {rig.source or rig.name}: at {len(partly)} of the {len(at)} set points in "
+            "reach only some of the elbow LED's positions (the arm's inverse-kinematics "
+            f"branches) are in view of every camera, the first at k = {partly[0]} (trace.csv's "
+            "k): a controller on a branch out of view loses the elbow LED there and decides on "
+            "its last measured position")

@@ -91,17 +91,20 @@ def main_in_process(capsys):
     return call
 
 
-def front_rig(path):
+def front_rig(path, look_y_mm=60.0):
     """A rig that frames the planar workspace but not the whole base sweep: the shipped planar
-    rig with both cameras 60 mm farther along +y and 220 mm lower (400 mm above the plane),
-    looking at (0, 60, 0). The two-link arm's LEDs are in view of both cameras with the base
-    at 0..150 deg of the start-up's sweep (at -150..-30 deg the gripper LED projects below
-    the bottom of one image or both), and along ellipse-t1 and ellipse-t2. Written to ``path`` (a YAML file, as a user
-    writes one); returns ``path``."""
+    rig with both cameras ``look_y_mm`` farther along +y and 220 mm lower (400 mm above the
+    plane), looking at (0, look_y_mm, 0). At 60 mm the two-link arm's LEDs are in view of both
+    cameras with the base at 0..150 deg of the start-up's sweep (at -150..-30 deg the gripper
+    LED projects below the bottom of one image or both), and both of the elbow's branches
+    along ellipse-t1 and ellipse-t2; at 100 mm at 30..150 deg, and along ellipse-t2 one branch
+    only at 78 of its 180 set points. Written to ``path`` (a YAML file, as a user writes one);
+    returns ``path``."""
     text = (ROOT / "cameras" / "planar.yaml").read_text()
     for x in ("-180.0", "180.0"):
-        text = text.replace(f"position_mm: [{x}, -60.0, 620.0]", f"position_mm: [{x}, 0.0, 400.0]")
-    text = text.replace("look_at_mm: [0.0, 0.0, 0.0]", "look_at_mm: [0.0, 60.0, 0.0]")
+        text = text.replace(f"position_mm: [{x}, -60.0, 620.0]",
+                            f"position_mm: [{x}, {look_y_mm - 60.0:.1f}, 400.0]")
+    text = text.replace("look_at_mm: [0.0, 0.0, 0.0]", f"look_at_mm: [0.0, {look_y_mm:.1f}, 0.0]")
     path.write_text(text.replace("name: planar", "name: front"))
     return path
 

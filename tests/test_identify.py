@@ -193,6 +193,33 @@ def test_a_run_on_a_rig_that_sees_part_of_the_sweep_tracks_and_says_what_it_left
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["n_missed"] == 0
     assert summary["track_max_mm"] < 3.0
+    assert "elbow" not in res.stderr  # both branches in view: no note
+
+
+@pytest.mark.slow
+def test_a_run_that_loses_the_elbow_along_its_path_says_so_before_and_after(main_in_process,
+                                                                               tmp_path):
+    """conftest.front_rig looking 100 mm out sees the start-up at 30..150 deg and, along
+    ellipse-t2, one of the elbow's two branches at some set points. The check accepts it (one
+    branch in view) with a note before the run; ITG+ takes the other branch there, the looks
+    miss the elbow, and a note after the run counts them: every look the run missed (the
+    gripper was never lost), beyond the 10 % the note allows."""
+    import re
+
+    from conftest import front_rig
+
+    rig = front_rig(tmp_path / "front.yaml", look_y_mm=100.0)
+    res = main_in_process("itg_vision.run", "--rig", rig, "--trajectory", "ellipse-t2",
+                          "--rules", "itg-plus-two-link", "--laps", 2, "--max-step", 20,
+                          "--out", tmp_path / "run", "--quiet")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    before = re.search(r"note: \S+front.yaml: at (\d+) of the 360 set points in reach only some "
+                       r"of the elbow LED's positions", res.stderr)
+    after = re.search(r"note: the elbow LED went unseen in (\d+) of the 360 looks", res.stderr)
+    assert before and after, res.stderr
+    assert summary["n_at_last_aim"] == summary["n_held"] == 0
+    assert int(after.group(1)) == summary["n_missed"] > 0.1 * 360
 
 
 def test_on_part_of_the_sweep_the_lengths_standard_error_is_still_their_scatter():

@@ -13,7 +13,7 @@ from itg_vision.errors import UserError
 from itg_vision.trajectory import named
 from itg_vision.urdf import LED_RADIUS_MM
 from itg_vision.visibility import (MARGIN_PX, MIN_LED_RADIUS_PX, _render_range_mm, _visible,
-                                   check_visible, led_points)
+                                   check_visible, elbow_partly_seen, led_points)
 
 
 @pytest.mark.parametrize("arm, trajectory", [("one-link", "arc"), ("two-link", "ellipse-t1"),
@@ -21,8 +21,11 @@ from itg_vision.visibility import (MARGIN_PX, MIN_LED_RADIUS_PX, _render_range_m
                                              ("three-link", "line-ab"), ("three-link", "line-ab-reach")])
 @pytest.mark.parametrize("calibrated", [False, True])
 def test_the_shipped_rigs_see_every_shipped_trajectory(arm, trajectory, calibrated):
-    a = ArmSpec.from_args(arm)
-    check_visible(Rig.from_yaml(default_rig_path(arm, calibrated)), a, named(trajectory).points_mm)
+    """And every branch of the elbow at every set point: no run of theirs is told that a
+    branch is out of view (elbow_partly_seen)."""
+    a, rig = ArmSpec.from_args(arm), Rig.from_yaml(default_rig_path(arm, calibrated))
+    check_visible(rig, a, named(trajectory).points_mm)
+    assert elbow_partly_seen(rig, a, named(trajectory).points_mm) is None
 
 
 def test_led_points_are_the_arm_s_leds_at_the_set_points_and_its_ik_elbows():
@@ -200,6 +203,21 @@ def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
         check_visible(*_two_link(_down(0.0, 130.0, 600.0, size=(130, 200)))[:2],
                       np.vstack([[[500.0, 0.0, 0.0], [0.0, 300.0, 0.0]], p]), start_up=False)
     check_visible(*_two_link(_down(-35.0, 130.0, 600.0))[:2], p, start_up=False)  # - branch
+
+
+def test_a_rig_that_sees_one_elbow_branch_is_accepted_with_a_note():
+    """The previous test's camera around (35, 130) mm sees the + branch's elbow (66.1, 75) mm
+    only: the check accepts it (a controller may take that branch), and elbow_partly_seen says
+    in one line that at that set point a branch is out of view. 300 px wide around x = 0
+    (x in [-142, 142] mm after the margin) it sees both: no note."""
+    p = np.array([[0.0, 150.0, 0.0]])
+    rig, arm, _ = _two_link(_down(35.0, 130.0, 600.0))
+    note = elbow_partly_seen(rig, arm, p)
+    assert note.startswith("note: ") and "\n" not in note
+    assert ("at 1 of the 1 set points in reach only some of the elbow LED's positions (the "
+            "arm's inverse-kinematics branches) are in view of every camera, the first at k = 0 "
+            "(trace.csv's k)") in note
+    assert elbow_partly_seen(*_two_link(_down(0.0, 130.0, 600.0, size=(300, 200)))[:2], p) is None
 
 
 def test_a_rig_that_frames_the_path_but_not_the_start_up_sweep_is_refused_naming_the_pose():
