@@ -13,11 +13,11 @@ renders a frame (instead of ending with every detection missed and a meaningless
   every pose of the start-up measurement (:func:`itg_vision.identify.start_up_poses`; a planar
   arm's base sweep: enough of its poses to place the base axis,
   :func:`itg_vision.identify.enough_of_the_sweep`, every camera seeing every LED there, as the
-  start-up leaves out the poses it does not see), and the
-  elbow LED of at least one of the two inverse-kinematics branches at each set point in reach
-  must lie in front of the camera between the renderer's near and far planes, project inside
-  the image with a margin (the LED's projected radius, fx r / z across and fy r / z down, +
-  :data:`MARGIN_PX`) on the lens's
+  start-up leaves out the poses it does not see), and the elbow LED of at least one of the
+  inverse-kinematics branches at each set point in reach (the same branch for both cameras,
+  as the eye triangulates an LED both see) must lie in front of the camera between the
+  renderer's near and far planes, project inside the image with a margin (the LED's
+  projected radius, fx r / z across and fy r / z down, + :data:`MARGIN_PX`) on the lens's
   invertible part (see :func:`_visible`), and look large enough to be detected (projected
   radius at least :data:`MIN_LED_RADIUS_PX`).
 
@@ -243,6 +243,17 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
                 raise UserError(f"{who}: cannot see the elbow LED {what}: "
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
                                 f"{whys[0]}{more(e_k[k])}{hint}")
+    for k, branches in enumerate(elbows):  # the eye triangulates what both cameras see
+        seen = [[w is None for w in _visible(cam, branches, near_mm, far_mm)]
+                for cam in rig.cameras]
+        if not any(all(s[i] for s in seen) for i in range(len(branches))):
+            only = ", ".join(
+                f"cameras[{c}] ({cam.name}) only "
+                f"{tuple(round(float(v), 1) for v in branches[s.index(True)])} mm"
+                for c, (cam, s) in enumerate(zip(rig.cameras, seen)))
+            raise UserError(f"{where}: no position of the elbow LED {at(e_k[k])} is seen by "
+                            f"both cameras ({only}): the eye measures an LED that both see"
+                            f"{more(e_k[k])}{hint}")
 
 
 def elbow_partly_seen(rig, arm: ArmSpec, points_mm: np.ndarray) -> str | None:

@@ -205,6 +205,28 @@ def test_the_elbow_needs_one_inverse_kinematics_branch_in_view():
     check_visible(*_two_link(_down(-35.0, 130.0, 600.0))[:2], p, start_up=False)  # - branch
 
 
+def test_the_elbow_branch_in_view_must_be_the_same_for_both_cameras():
+    """The eye triangulates an LED that both cameras see. Camera 0 around x = 35 mm sees the
+    elbow's + branch at set point (0, 150) only ((66.1, 75) mm; x in [-57, 127]), a camera
+    around x = -35 mm the - branch only ((-66.1, 75); x in [-127, 57]): each camera sees a
+    branch, but whichever the arm takes, one camera misses the elbow. Refused, naming what
+    each camera sees; the check accepted it before (it asked each camera for a branch of its
+    own). Both cameras around x = 35 mm: accepted."""
+    p = np.array([[0.0, 150.0, 0.0]])
+    rig, arm, _ = _two_link(_down(35.0, 130.0, 600.0))
+    crossed = dataclasses.replace(rig, cameras=(_down(35.0, 130.0, 600.0),
+                                                _down(-35.0, 130.0, 600.0)))
+    with pytest.raises(UserError, match=r"no position of the elbow LED at set point k = 0 "
+                                        r"\(trace.csv's k\) is seen by both cameras \(cameras\[0\] "
+                                        r"\(down\) only \(66.1, 75.0, 12.0\) mm, cameras\[1\] "
+                                        r"\(down\) only \(-66.1, 75.0, 12.0\) mm\): the eye "
+                                        r"measures an LED that both see; --allow-unseen runs "
+                                        r"anyway$"):
+        check_visible(crossed, arm, p, start_up=False)
+    same = dataclasses.replace(rig, cameras=(_down(35.0, 130.0, 600.0),) * 2)
+    check_visible(same, arm, p, start_up=False)
+
+
 def test_a_rig_that_sees_one_elbow_branch_is_accepted_with_a_note():
     """The previous test's camera around (35, 130) mm sees the + branch's elbow (66.1, 75) mm
     only: the check accepts it (a controller may take that branch), and elbow_partly_seen says
