@@ -10,22 +10,29 @@ from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.camera import Camera, Rig, default_rig_path
 from itg_vision.detect import MIN_SCORE
 from itg_vision.errors import UserError
-from itg_vision.trajectory import named
+from itg_vision.trajectory import load, named
 from itg_vision.urdf import LED_RADIUS_MM
 from itg_vision.visibility import (MARGIN_PX, MIN_LED_RADIUS_PX, _render_range_mm, _visible,
                                    check_visible, elbow_partly_seen, led_points)
 
 
+SHIPPED_CURVES = ("ellipse-by-base", "gerono", "lemniscate", "lemniscate-2", "limacon",
+                  "limacon-2", "peanut", "rose", "rounded-square", "thin-ellipse", "trefoil")
+
+
 @pytest.mark.parametrize("arm, trajectory", [("one-link", "arc"), ("two-link", "ellipse-t1"),
                                              ("two-link", "ellipse-t2"), ("two-link", "abcd"),
-                                             ("three-link", "line-ab"), ("three-link", "line-ab-reach")])
+                                             ("three-link", "line-ab"), ("three-link", "line-ab-reach"),
+                                             ("three-link", "helix"),
+                                             *(("two-link", c) for c in SHIPPED_CURVES)])
 @pytest.mark.parametrize("calibrated", [False, True])
 def test_the_shipped_rigs_see_every_shipped_trajectory(arm, trajectory, calibrated):
     """And every branch of the elbow at every set point: no run of theirs is told that a
-    branch is out of view (elbow_partly_seen)."""
+    branch is out of view (elbow_partly_seen). The shipped trajectory files too (data/)."""
     a, rig = ArmSpec.from_args(arm), Rig.from_yaml(default_rig_path(arm, calibrated))
-    check_visible(rig, a, named(trajectory).points_mm)
-    assert elbow_partly_seen(rig, a, named(trajectory).points_mm) is None
+    points = load(trajectory, arm=a).points_mm
+    check_visible(rig, a, points)
+    assert elbow_partly_seen(rig, a, points) is None
 
 
 def test_led_points_are_the_arm_s_leds_at_the_set_points_and_its_ik_elbows():
