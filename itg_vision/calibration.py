@@ -476,7 +476,9 @@ def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names, source: str = "") ->
             raise UserError(f"{where}base frame: {arm.label}, joint q{joint + 1}'s sweep: "
                             f"the {n} LED was seen by both cameras in only {len(pts[n])} of "
                             f"{len(shots)} poses; need at least {need}: both cameras must see "
-                            "the LEDs over the arm's joint sweeps (check the rig's camera poses)")
+                            "the LEDs over the arm's joint sweeps (check the rig's camera poses, "
+                            "or narrow the sweep to what the rig sees: the arm file's "
+                            "calibration.axis_sweeps)")
     axis = coaxial_normal([pts[n] for n in names])  # every LED turns about the same axis
     for n in names:
         centre, normal, radius, rms = fit_circle(pts[n], axis)

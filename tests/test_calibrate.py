@@ -439,7 +439,8 @@ def test_failures_exit_2_with_one_line_and_keep_the_old_file(cli, tmp_path, args
 
 
 SWEEP_HINT = ("both cameras must see the LEDs over the arm's joint sweeps (check the rig's camera "
-              "poses)")
+              "poses, or narrow the sweep to what the rig sees: the arm file's "
+              "calibration.axis_sweeps)")
 
 
 @pytest.mark.parametrize("seen", [7, 17])
