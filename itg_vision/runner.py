@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -103,6 +104,20 @@ class RunConfig:
             if not ((v is None and optional)
                     or (isinstance(v, numbers.Real) and not isinstance(v, bool))):
                 raise ConfigError(name, f"must be a number, got {v!r}")
+        for name in ("arm", "rules", "trajectory", "rig"):  # 3 or None: a bare TypeError
+            v = getattr(self, name)
+            if not ((v is None and name != "arm") or isinstance(v, (str, os.PathLike))):
+                raise ConfigError(name, f"must be a name or a file's path, got {v!r}")
+        for name, unit in (("links_mm", "mm"), ("true_links_mm", "mm"),
+                           ("joint_offset_deg", "deg")):  # "abc" read as three lengths
+            v = getattr(self, name)
+            if v is not None and not (
+                    (isinstance(v, (list, tuple)) or getattr(v, "ndim", None) == 1)  # an array
+                    and all(isinstance(x, numbers.Real) and not isinstance(x, bool) for x in v)):
+                raise ConfigError(name, f"must be a list of numbers ({unit}), one per joint, "
+                                        f"got {v!r}")
+        if not is_whole(self.laps):  # 2.5 and "2" ended in a bare TypeError
+            raise ConfigError("laps", f"must be a whole number, got {self.laps!r}")
         for name, what in (("rules", "a rule base"), ("trajectory", "a trajectory"),
                            ("rig", "a rig")):  # '' is given, not the arm's default
             if getattr(self, name) == "":

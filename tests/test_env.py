@@ -287,6 +287,38 @@ def test_number_fields_given_text_are_refused_by_name(field, value):
     assert exc.value.field == field and str(exc.value) == f"{field}: must be a number, got {value!r}"
 
 
+
+@pytest.mark.parametrize("field, value, said", [
+    ("arm", 3, "must be a name or a file's path, got 3"),
+    ("arm", None, "must be a name or a file's path, got None"),
+    ("trajectory", 5, "must be a name or a file's path, got 5"),
+    ("rig", 1.0, "must be a name or a file's path, got 1.0"),
+    ("laps", 2.5, "must be a whole number, got 2.5"),
+    ("laps", "2", "must be a whole number, got '2'"),
+    ("laps", True, "must be a whole number, got True"),
+    ("links_mm", 100, "must be a list of numbers (mm), one per joint, got 100"),
+    ("true_links_mm", "abc", "must be a list of numbers (mm), one per joint, got 'abc'"),
+    ("joint_offset_deg", ("1", "2"), "must be a list of numbers (deg), one per joint, "
+                                     "got ('1', '2')"),
+    ("joint_offset_deg", 5, "must be a list of numbers (deg), one per joint, got 5"),
+])
+def test_fields_of_the_wrong_type_are_refused_by_name(field, value, said):
+    """arm=3 or trajectory=5 ended in Python's "expected str, bytes or os.PathLike object",
+    laps=2.5 in "'float' object cannot be interpreted as an integer" (and laps=True ran one
+    lap), true_links_mm="abc" in "could not convert string to float": errors naming no field.
+    Now one ConfigError naming it; paths, lists and arrays are taken as before."""
+    from pathlib import Path
+
+    from itg_vision.errors import ConfigError
+
+    with pytest.raises(ConfigError) as exc:
+        TrackingEnv(feedback="truth", **{"points": 5, field: value})
+    assert exc.value.field == field and str(exc.value) == f"{field}: {said}"
+    RunConfig(arm=Path("data/arms/two-link.yaml"), links_mm=[100, 100.0],
+              true_links_mm=np.array([100.0, 100.0]), joint_offset_deg=(np.float64(1), 0),
+              laps=np.int64(2)).validate()
+
+
 def test_an_unknown_controller_is_refused_though_the_env_uses_none():
     """The env ignores a known controller (a run's config may be passed as it is), but
     controller="foo" was accepted without a word."""
