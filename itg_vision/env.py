@@ -104,6 +104,8 @@ class TrackingEnv(gym.Env):
         if cfg.max_step_deg is None:  # an action space needs bounds: the arm file's limit
             cfg = dataclasses.replace(cfg, max_step_deg=ArmSpec.from_args(cfg.arm).benchmark[
                 "max_step_deg"])
+        if not isinstance(images, bool):  # "no" asked for images
+            raise ValueError(f"images: must be true or false, got {images!r}")
         if images:
             if cfg.feedback != "vision":
                 raise ValueError(f"images: only vision feedback has camera images, "

@@ -116,6 +116,10 @@ class RunConfig:
                     and all(isinstance(x, numbers.Real) and not isinstance(x, bool) for x in v)):
                 raise ConfigError(name, f"must be a list of numbers ({unit}), one per joint, "
                                         f"got {v!r}")
+        for name in ("strobe", "full_frame", "allow_unseen", "preview"):  # "no" is true
+            v = getattr(self, name)
+            if not isinstance(v, bool):
+                raise ConfigError(name, f"must be true or false, got {v!r}")
         if not is_whole(self.laps):  # 2.5 and "2" ended in a bare TypeError
             raise ConfigError("laps", f"must be a whole number, got {self.laps!r}")
         for name, what in (("rules", "a rule base"), ("trajectory", "a trajectory"),
@@ -177,7 +181,6 @@ class RunConfig:
              f"must be in (0, 1], got {self.correction}"),
             ("correction", self.correction == 1 or self.controller != "ik",
              "applies to the closed-loop controllers (itg, jacobian); ik is open loop"),
-            ("preview", isinstance(self.preview, bool), f"must be true or false, got {self.preview!r}"),
         ]
         for name, ok, msg in checks:
             if not ok:

@@ -8,6 +8,7 @@ from gymnasium.utils.env_checker import check_env
 from itg_vision import TrackingEnv
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.controllers import JacobianTracker
+from itg_vision.errors import UserError
 from itg_vision.runner import RunConfig, execute, prepare
 
 
@@ -317,6 +318,18 @@ def test_fields_of_the_wrong_type_are_refused_by_name(field, value, said):
     RunConfig(arm=Path("data/arms/two-link.yaml"), links_mm=[100, 100.0],
               true_links_mm=np.array([100.0, 100.0]), joint_offset_deg=(np.float64(1), 0),
               laps=np.int64(2)).validate()
+
+
+
+@pytest.mark.parametrize("field, value", [("allow_unseen", "no"), ("strobe", 1),
+                                          ("full_frame", "yes"), ("images", "no")])
+def test_switches_are_true_or_false(field, value):
+    """allow_unseen="no" was read as true: the check that the cameras see the arm was skipped
+    without a word, as were strobe=1 and full_frame="yes" taken; images="no" added images.
+    Each is refused in one line naming it, as preview was."""
+    with pytest.raises(ValueError if field == "images" else UserError) as exc:
+        TrackingEnv(feedback="vision", points=5, **{field: value})
+    assert str(exc.value) == f"{field}: must be true or false, got {value!r}"
 
 
 def test_an_unknown_controller_is_refused_though_the_env_uses_none():
