@@ -116,12 +116,12 @@ def look_at_rotation(position_mm, look_at_mm, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     ------
     ValueError if the viewing direction is zero or parallel to ``up``.
     """
-    z = np.asarray(look_at_mm, float) - np.asarray(position_mm, float)
+    z = _finite_length(np.asarray(look_at_mm, float) - np.asarray(position_mm, float))
     nz = np.linalg.norm(z)
     if nz < 1e-9:
         raise ValueError("look_at equals position")
     z = z / nz
-    u = np.asarray(up, float)
+    u = _finite_length(np.asarray(up, float))
     y = -(u - (u @ z) * z)
     ny = np.linalg.norm(y)
     if ny < 1e-9 * max(1.0, np.linalg.norm(u)):
@@ -129,6 +129,15 @@ def look_at_rotation(position_mm, look_at_mm, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     y = y / ny
     x = np.cross(y, z)
     return np.stack([x, y, z])
+
+
+def _finite_length(v: np.ndarray) -> np.ndarray:
+    """``v`` (finite), or, where its length overflows to inf (a direction given with numbers
+    near 1e308: a look-at point that far off), ``v`` over its largest component, the same
+    direction: dividing by that inf length gave zeros, not a rotation. Any other ``v`` is
+    returned as it is, so the rotations of ordinary rigs stay the same to the bit."""
+    with np.errstate(over="ignore"):
+        return v if np.isfinite(np.linalg.norm(v)) else v / np.max(np.abs(v))
 
 
 def gl_view_matrix(R: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
@@ -641,7 +650,7 @@ def _pose_from_dict(F: Fields, d: Any, where: str) -> tuple[np.ndarray, np.ndarr
     if "look_at_mm" in d:
         target = F.array(d["look_at_mm"], 3, f"{where}.look_at_mm")
         up = F.array(d.get("up", [0, 0, 1]), 3, f"{where}.up")
-        if np.linalg.norm(target - C) < 1e-9:
+        if np.max(np.abs(target - C)) < 1e-9:
             F.fail(f"{where}.look_at_mm", "must differ from position_mm")
         try:
             R = look_at_rotation(C, target, up)

@@ -59,6 +59,43 @@ def test_look_at_rotation_is_a_rotation_and_looks_at_the_target():
     assert cam.project([10, 20, 60])[1] < 240
 
 
+def test_look_at_rotation_takes_directions_given_with_huge_numbers():
+    """look_at and up give directions: a look-at point 1e308 mm off, or an up of [0, 1e308,
+    1e308], is as good as a near one (a rig file's finite numbers). Their lengths overflowed to
+    inf and the 'rotation' came out zero rows (a rig file so read said its camera at z = 620 mm
+    was below the floor, at z = 0)."""
+    C = np.array([-180.0, -60.0, 620.0])
+    for target, up, same_target, same_up in (
+            ([0.0, 0.0, 1e308], [0.0, 1.0, 0.0], C + [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+            ([0.0, 0.0, 0.0], [0.0, 1e308, 1e308], [0.0, 0.0, 0.0], [0.0, 1.0, 1.0])):
+        R = look_at_rotation(C, target, up)
+        # (1e308 - 620 is 1e308: the direction is exactly +z); unit vectors' round-off
+        assert np.allclose(R, look_at_rotation(C, same_target, same_up), rtol=0,
+                           atol=roundoff(1.0))
+
+
+def test_an_ordinary_look_at_pose_is_the_same_rotation_to_the_bit():
+    """Directions of ordinary size are used as they are (the shipped rigs' rotations, and so
+    their renders and the benchmarks' numbers, unchanged): z / |z|, the up vector unscaled."""
+    C, T, up = np.array([-180.0, -60.0, 620.0]), np.zeros(3), np.array([0.0, 1.0, 0.0])
+    z = (T - C) / np.linalg.norm(T - C)
+    y = -(up - (up @ z) * z)
+    y = y / np.linalg.norm(y)
+    assert np.array_equal(look_at_rotation(C, T, up), np.stack([np.cross(y, z), y, z]))
+
+
+def test_a_rig_file_looking_at_a_far_off_point_is_read_as_a_rotation(tmp_path):
+    doc = yaml.safe_load(PLANAR.read_text())
+    doc["cameras"][0]["pose"]["look_at_mm"] = [0.0, 0.0, -1e308]  # straight down, y up
+    path = tmp_path / "far-look.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    cam = Rig.from_yaml(path).cameras[0]
+    assert np.allclose(cam.R @ cam.R.T, np.eye(3), rtol=0, atol=roundoff(1.0))
+    # its centre where the file puts it (float64 round-off at 620 mm)
+    assert np.allclose(cam.position_mm, [-180.0, -60.0, 620.0], rtol=0, atol=roundoff(1000))
+    assert np.allclose(cam.R[2], [0.0, 0.0, -1.0], rtol=0, atol=roundoff(1.0))
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**32 - 1))
 def test_project_back_project_round_trip(seed):
