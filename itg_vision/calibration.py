@@ -455,6 +455,44 @@ def axis_sweeps(arm) -> dict[int, tuple[np.ndarray, tuple[str, ...]]]:
     return out
 
 
+def _sweep_seen_enough(arm, joint: int, name: str, seen: int, poses: int, source: str = "",
+                       how: str = "was seen by both cameras", detail: str = "") -> None:
+    """Raise `UserError` unless the ``name`` LED was seen (``how``; ``detail`` follows the count)
+    in 3/4 of the ``poses`` of joint ``joint``'s sweep (0-based), the least its circle fit
+    takes."""
+    need = math.ceil(0.75 * poses)
+    if seen < need:
+        where = f"{source}: " if source else ""
+        raise UserError(f"{where}base frame: {arm.label}, joint q{joint + 1}'s sweep: the {name} "
+                        f"LED {how} in only {seen} of {poses} poses{detail}; need at least "
+                        f"{need}: both cameras must see the LEDs over the arm's joint sweeps "
+                        "(check the rig's camera poses, or narrow the sweep to what the rig "
+                        "sees: the arm file's calibration.axis_sweeps)")
+
+
+def sweeps_in_view(true_rig: Rig, arm, sweep_poses: dict, source: str = "",
+                   true_arm=None) -> None:
+    """Refuse, before anything is rendered, joint sweeps (:func:`axis_sweeps`) whose LEDs
+    ``true_rig``'s cameras cannot both show in 3/4 of the poses: counted by their fields of
+    view (:func:`itg_vision.visibility.in_view`), with no margin beyond the LED's disc (the
+    detector rejects an LED that reaches the image border), so a pose counted out could not
+    have been seen and a sweep refused here would have failed rendered.
+    ``true_arm``: the simulated arm, if it differs from ``arm``."""
+    from .arm import forward_kinematics
+    from .visibility import in_view
+
+    for j, (q, names) in sweep_poses.items():
+        for n in names:
+            X = np.array([forward_kinematics(true_arm or arm, qk)[n] for qk in q])
+            alone = [int(in_view([c], X, margin_px=0.0).sum()) for c in true_rig.cameras]
+            each = ", ".join(f"cameras[{i}] ({c.name}) {k}"
+                             for i, (c, k) in enumerate(zip(true_rig.cameras, alone)))
+            seen = int(in_view(true_rig.cameras, X, margin_px=0.0).sum())
+            _sweep_seen_enough(arm, j, n, seen, len(q), source, "is in view of both cameras",
+                               f" (their fields of view, before rendering; each camera alone: "
+                               f"{each})")
+
+
 def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names, source: str = "") -> dict[str, dict]:
     """Circle fits of the LEDs one joint's sweep moved (camera-1 coordinates); ``source``: the
     rig file a message names first."""
@@ -469,16 +507,8 @@ def _joint_fits(rig_c1: Rig, arm, joint: int, shots, names, source: str = "") ->
                 pts[n].append(X[n])
                 angles[n].append(float(q[joint]))
     out = {}
-    need = math.ceil(0.75 * len(shots))
-    where = f"{source}: " if source else ""
     for n in names:
-        if len(pts[n]) < need:
-            raise UserError(f"{where}base frame: {arm.label}, joint q{joint + 1}'s sweep: "
-                            f"the {n} LED was seen by both cameras in only {len(pts[n])} of "
-                            f"{len(shots)} poses; need at least {need}: both cameras must see "
-                            "the LEDs over the arm's joint sweeps (check the rig's camera poses, "
-                            "or narrow the sweep to what the rig sees: the arm file's "
-                            "calibration.axis_sweeps)")
+        _sweep_seen_enough(arm, joint, n, len(pts[n]), len(shots), source)
     axis = coaxial_normal([pts[n] for n in names])  # every LED turns about the same axis
     for n in names:
         centre, normal, radius, rms = fit_circle(pts[n], axis)
@@ -775,6 +805,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
     tick = (lambda stage: (lambda: progress(stage))) if progress else (lambda stage: None)
     t0 = time.perf_counter()
     sweep_poses = axis_sweeps(arm)
+    sweeps_in_view(true_rig, arm, sweep_poses, str(true_rig.source or true_rig.name), true_arm)
     with World(true_arm or arm) as world:
         vs = render_views(world, true_rig, board, poses, rng, supersample=supersample,
                           progress=tick("board"))

@@ -115,8 +115,10 @@ def _led_points(arm: ArmSpec, points_mm: np.ndarray, start_up=True):
 FOLD_TOL_PX = 0.5
 
 
-def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
-    """Per point: None if seen, else why not (a short phrase).
+def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float,
+             margin_px: float = MARGIN_PX):
+    """Per point: None if seen, else why not (a short phrase). ``margin_px``: the pixels kept
+    free between the LED's projected disc and the image border.
 
     A lens whose polynomial turns back outside the frame (k1 = -0.3, say: the rig file allows
     it, as its fold lies beyond the image) brings points far outside the field of view back
@@ -145,8 +147,8 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
                        f"{2 * MIN_LED_RADIUS_PX:g})")
         else:
             # the LED images as an ellipse fx r / z wide and fy r / z tall (non-square pixels)
-            mu = r_px[k] * camera.fx / min(camera.fx, camera.fy) + MARGIN_PX
-            mv = r_px[k] * camera.fy / min(camera.fx, camera.fy) + MARGIN_PX
+            mu = r_px[k] * camera.fx / min(camera.fx, camera.fy) + margin_px
+            mv = r_px[k] * camera.fy / min(camera.fx, camera.fy) + margin_px
             u, v = uv[k]
             inside = mu <= u <= W - 1 - mu and mv <= v <= H - 1 - mv
             if not inside:
@@ -162,6 +164,15 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float):
             else:
                 out.append(None)
     return out
+
+
+def in_view(cameras, X_mm, margin_px: float = MARGIN_PX) -> np.ndarray:
+    """Per point of ``X_mm`` (shape (n, 3), mm): whether an LED there is in view of every one of
+    ``cameras`` (:func:`_visible`; ``margin_px`` beyond its disc). Shape (n,), bool."""
+    near_mm, far_mm = _render_range_mm()
+    X = np.asarray(X_mm, float).reshape(-1, 3)
+    whys = [_visible(cam, X, near_mm, far_mm, margin_px) for cam in cameras]
+    return np.array([all(why[k] is None for why in whys) for k in range(len(X))], bool)
 
 
 def _start_up_seen(rig, arm: ArmSpec, near_mm: float, far_mm: float) -> tuple[list, str]:

@@ -418,9 +418,14 @@ def _camera_looking_away(tmp_path):
     # every message names the rig file first (this one did not before)
     (["--views", "12", "--tilt", "0"], "planar.yaml: degenerate board poses: the board's tilt "
                                        "spans only"),
-    # names the rig file and the camera's place in it (the file was not named before)
-    (["--views", "6", "--rig", "AWAY"], "away.yaml: cameras[1] (right): never found the board in "
-                                        "6 views: is it pointed at the workspace?"),
+    # names the rig file and the camera's place in it (the file was not named before); a
+    # camera looking away from the arm is refused before anything is rendered (it rendered the
+    # board's views first, then said it never found the board)
+    (["--views", "6", "--rig", "AWAY"], "away.yaml: base frame: arm two-link, joint q1's sweep: "
+                                        "the elbow LED is in view of both cameras in only 0 of "
+                                        "23 poses (their fields of view, before rendering; each "
+                                        "camera alone: cameras[0] (left) 23, cameras[1] (right) "
+                                        "0); need at least 18"),
     (["--views", "0"], "--views"),
     (["--rig", "no-such-rig"], "unknown rig 'no-such-rig' (shipped: planar,"),
 ])
@@ -436,6 +441,19 @@ def test_failures_exit_2_with_one_line_and_keep_the_old_file(cli, tmp_path, args
     assert out.read_text() == "old\n"
     assert sorted(p.name for p in tmp_path.iterdir()) in (["old.calib.yaml"],
                                                           ["away.yaml", "old.calib.yaml"])
+
+
+def test_a_camera_that_never_finds_the_board_is_named_with_its_rig_file():
+    """(The command reaches this only with the arm's sweeps in view of both cameras, which a
+    camera looking away is not: its own refusal comes first, before rendering.)"""
+    from itg_vision.board import Views
+
+    views = Views([None] * 6, [(np.zeros((54, 1, 2), np.float32), None)] * 6)
+    with pytest.raises(UserError) as exc:
+        cal.calibrate_views(views, Board(), ((640, 480), (640, 480)),
+                            ("cameras[0] (left)", "cameras[1] (right)"), source="away.yaml")
+    assert str(exc.value) == ("away.yaml: cameras[1] (right): never found the board in 6 views: "
+                              "is it pointed at the workspace?")
 
 
 SWEEP_HINT = ("both cameras must see the LEDs over the arm's joint sweeps (check the rig's camera "
@@ -462,22 +480,44 @@ def test_a_sweep_seen_in_too_few_poses_names_the_rig_the_arm_and_the_count_neede
         f"both cameras in only {seen} of 23 poses; need at least 18: {SWEEP_HINT}")
 
 
-@pytest.mark.slow
 def test_a_rig_that_sees_the_sweeps_poorly_fails_in_one_line_naming_its_file(cli, tmp_path):
-    """The right camera lowered to z = 300 mm sees the gripper over q1's sweep in only a few
-    poses (7 of 23 measured): the command's one line names the rig file, as its board error
-    does (18 s of work first)."""
+    """The right camera lowered to z = 300 mm has the gripper over q1's sweep in view in only 7
+    of 23 poses (7 seen, rendered): the command's one line names the rig file, as its board
+    error does, and comes before anything is rendered (it came after 18 s of work)."""
     near = tmp_path / "nearrig.yaml"
     near.write_text(PLANAR.read_text().replace("[180.0, -60.0, 620.0]", "[180.0, -60.0, 300.0]"))
     out = tmp_path / "near.calib.yaml"
     proc = cli("itg_vision.calibrate", "--rig", near, "--quiet", "--out", out)
     assert proc.returncode == 2
-    lines = proc.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith(
-        f"error: {near}: base frame: arm two-link, joint q1's sweep: the gripper LED was seen by "
-        "both cameras in only "), proc.stderr
-    assert lines[0].endswith(f" of 23 poses; need at least 18: {SWEEP_HINT}")
+    assert proc.stderr.splitlines() == [
+        f"error: {near}: base frame: arm two-link, joint q1's sweep: the gripper LED is in view "
+        "of both cameras in only 7 of 23 poses (their fields of view, before rendering; each "
+        f"camera alone: cameras[0] (left) 23, cameras[1] (right) 7); need at least 18: "
+        f"{SWEEP_HINT}"], proc.stderr
     assert not out.exists()
+
+
+def test_sweeps_out_of_view_are_refused_before_rendering_and_a_narrowed_one_is_not(tmp_path):
+    """conftest.front_rig has the gripper in view of both cameras over the shipped two-link q1
+    sweep (-165..+165 deg) in 14 of its 23 poses (14 seen, rendered: README): refused from the
+    fields of view alone (it was refused after rendering 60 board views and the sweeps, 15 s);
+    with the sweep narrowed to 0..+150 deg, as the README's copy of the arm file, nothing is
+    refused (calibrated, rendered: base frame 0.41 mm, 0.036 deg)."""
+    from conftest import front_rig
+
+    rig = Rig.from_yaml(front_rig(tmp_path / "front.yaml"))
+    shipped = ArmSpec.from_args("two-link")
+    with pytest.raises(UserError) as exc:
+        cal.sweeps_in_view(rig, shipped, cal.axis_sweeps(shipped), "front.yaml")
+    assert str(exc.value) == (
+        "front.yaml: base frame: arm two-link, joint q1's sweep: the gripper LED is in view of "
+        "both cameras in only 14 of 23 poses (their fields of view, before rendering; each camera "
+        f"alone: cameras[0] (left) 15, cameras[1] (right) 15); need at least 18: {SWEEP_HINT}")
+    copy = tmp_path / "two-link-front.yaml"
+    copy.write_text((ROOT / "data" / "arms" / "two-link.yaml").read_text().replace(
+        "from_deg: -165, to_deg: 165", "from_deg: 0, to_deg: 150"))
+    narrowed = ArmSpec.from_args(str(copy))
+    cal.sweeps_in_view(rig, narrowed, cal.axis_sweeps(narrowed), "front.yaml")
 
 
 def test_calibrate_help(cli):
