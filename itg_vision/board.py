@@ -331,8 +331,10 @@ def render_views(world, rig: Rig, board: Board, poses: list[BoardPose],
     """
     from .imaging import capture, check_whole_frame
 
-    for camera in rig.cameras:  # refused before any view is rendered
-        check_whole_frame(camera, supersample)
+    for i, camera in enumerate(rig.cameras):  # refused before any view is rendered
+        check_whole_frame(camera, supersample, who=f"{rig.source or rig.name}: cameras[{i}] "
+                                                   f"({camera.name})",
+                          fixed="the calibration's board views")
     corners = []
     sample = None
     with tempfile.TemporaryDirectory(prefix="itg_board_") as tmp:

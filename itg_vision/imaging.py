@@ -270,7 +270,8 @@ def _rounded_table(sigma_gray: float) -> np.ndarray:
     return np.rint(_gaussian_table(sigma_gray)).astype(np.int16)
 
 
-def check_whole_frame(camera: Camera, supersample: int, hint: str = "") -> None:
+def check_whole_frame(camera: Camera, supersample: int, hint: str = "", *, who: str = "",
+                      fixed: str = "") -> None:
     """Refuse a whole frame whose render (``supersample`` times the image and its lens margin,
     each way) exceeds :data:`~itg_vision.camera.MAX_IMAGE_PIXELS`, the rig files' limit on an
     image: a frame costs about :data:`~itg_vision.camera.BYTES_PER_PIXEL` per rendered pixel,
@@ -278,8 +279,10 @@ def check_whole_frame(camera: Camera, supersample: int, hint: str = "") -> None:
 
     Raises
     ------
-    UserError : naming the camera, the rendered size, the memory, the largest supersample that
-        fits, and ``hint`` (another way out, where the caller has one).
+    UserError : naming the camera (``who``, default its name), the rendered size, the memory,
+        the largest supersample that fits, and ``hint`` (another way out, where the caller has
+        one); where the caller's supersample cannot be changed (``fixed``: what renders at it),
+        the largest image that fits instead.
     """
     plan = render_plan(camera, supersample)
     if plan.width * plan.height <= MAX_IMAGE_PIXELS:
@@ -287,7 +290,12 @@ def check_whole_frame(camera: Camera, supersample: int, hint: str = "") -> None:
     per_s = plan.width * plan.height / plan.supersample ** 2  # pixels at supersample 1
     fits = int(math.isqrt(int(MAX_IMAGE_PIXELS // per_s)))
     way = f"supersample {fits} at most" if fits >= 1 else "a smaller image (no supersample fits)"
-    raise UserError(f"camera {camera.name!r}: a whole frame at supersample {plan.supersample} "
+    if fixed:
+        way = (f"{fixed} render at supersample {plan.supersample}, so the image with its lens "
+               f"margin must be at most {MAX_IMAGE_PIXELS / plan.supersample ** 2 / 1e6:.1f} Mpx "
+               f"(this one is {per_s / 1e6:.1f})")
+    who = who or f"camera {camera.name!r}"
+    raise UserError(f"{who}: a whole frame at supersample {plan.supersample} "
                     f"renders {plan.width} x {plan.height} px, about "
                     f"{plan.width * plan.height * BYTES_PER_PIXEL / 1e9:.3g} GB; the limit is "
                     f"{MAX_IMAGE_PIXELS / 1e6:.1f} Mpx rendered: {way}{hint}")

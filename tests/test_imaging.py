@@ -173,3 +173,26 @@ def test_calibration_refuses_a_rig_whose_frames_are_too_large_before_rendering_a
     rig = Rig("big", (big, big))
     with pytest.raises(UserError, match="supersample 2 renders 5800 x 5800 px"):
         render_views(_NoRender(), rig, Board(), [], None, supersample=2)
+
+
+def test_a_calibration_too_large_to_render_names_the_rig_file_and_the_image_that_fits(cam):
+    """The calibration cannot change its supersample (2, no option): its refusal names the rig
+    file and the camera's place in it, and the largest image that fits, MAX_IMAGE_PIXELS / 2^2
+    = 4.2 Mpx with the lens margin (a 4096 x 3072 camera without distortion, margin 0: 12.6
+    Mpx). It named the camera alone and said 'supersample 1 at most', which calibrate cannot
+    be asked for."""
+    import dataclasses
+
+    from itg_vision.board import Board, render_views
+    from itg_vision.errors import UserError
+
+    big = dataclasses.replace(cam, name="wide", image_width=4096, image_height=3072, cx=2047.5,
+                              cy=1535.5, dist=(0.0,) * 5)
+    rig = Rig("big", (cam, big), source="rigs/big.yaml")
+    with pytest.raises(UserError) as exc:
+        render_views(_NoRender(), rig, Board(), [], None, supersample=2)
+    assert str(exc.value) == (
+        "rigs/big.yaml: cameras[1] (wide): a whole frame at supersample 2 renders 8192 x 6144 px, "
+        "about 3.02 GB; the limit is 16.8 Mpx rendered: the calibration's board views render at "
+        "supersample 2, so the image with its lens margin must be at most 4.2 Mpx (this one is "
+        "12.6)")
