@@ -36,6 +36,9 @@ MIN_SCORE = 40
 MIN_AREA_PX = 3.0
 #: Coverage weights saturate at this fraction of the blob's peak score (see module doc).
 COVERAGE_CLIP = 0.7
+#: Least roundness (minor/major axis ratio of the half-peak mask) of an LED's blob: a rounder
+#: one is an LED, a less round one partly hidden (by its link, the other LED, the frame).
+MIN_ROUNDNESS = 0.75
 #: Half-size of the search window around a predicted position (px).
 HALF_WINDOW_PX = 24
 #: Intensity weights count scores from this level (grey levels): 4 sigma of a background
@@ -184,7 +187,7 @@ def expected_area_px(camera: Camera, X_mm, radius_mm: float) -> float:
     return float(np.pi * camera.fx * camera.fy * (radius_mm / z) ** 2)
 
 
-def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = 0.75,
+def locate_led(patch, rgb, *, method: str = "intensity", min_roundness: float = MIN_ROUNDNESS,
                aspect: float = 1.0) -> Detection:
     """Find one LED in a window of the frame, without undistorting it.
 
@@ -248,7 +251,7 @@ def locate_led_near(patch, rgb, predicted_uv, *, half_window: int = HALF_WINDOW_
 
 def find_led(image: np.ndarray, camera: Camera, rgb, *, predicted_uv=None,
              half_window: int = HALF_WINDOW_PX, method: str = "coverage",
-             min_roundness: float = 0.75) -> Detection:
+             min_roundness: float = MIN_ROUNDNESS) -> Detection:
     """Detect one LED in a whole captured frame (:func:`locate_led_near`) and undistort its
     centroid.
 

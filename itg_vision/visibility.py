@@ -19,7 +19,9 @@ renders a frame (instead of ending with every detection missed and a meaningless
   renderer's near and far planes, project inside the image with a margin (the LED's
   projected radius, fx r / z across and fy r / z down, + :data:`MARGIN_PX`) on the lens's
   invertible part (see :func:`_visible`), and look large enough to be detected (projected
-  radius at least :data:`MIN_LED_RADIUS_PX`).
+  radius at least :data:`MIN_LED_RADIUS_PX`) and round enough (:func:`led_roundness` at least
+  the detector's :data:`~itg_vision.detect.MIN_ROUNDNESS`: far off the optical axis an LED
+  images as an ellipse the detector takes for a partly hidden one).
 
 Pure numpy and the camera model: nothing is rendered. ``--allow-unseen`` skips the check
 (to measure the failure). Where only some of the elbow's branches are in view,
@@ -32,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arm import REACH_TOL_MM, ArmSpec, forward_kinematics
+from .detect import MIN_ROUNDNESS
 from .errors import UserError
 
 #: Pixels kept free between an LED's projected disc and the image border.
@@ -135,6 +138,8 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float,
         pin = camera.project(X, distort=False)
         uv = camera.project(X)
         drawn_from = camera.undistort(np.where(np.isfinite(uv), uv, 0.0))
+        Xc = camera.to_camera(X)
+        roundness = led_roundness(camera, X)
     out = []
     for k in range(len(X)):
         if not z[k] - LED_RADIUS_MM > near_mm:  # the LED's near side, as led_windows asks
@@ -161,8 +166,50 @@ def _visible(camera, X_mm: np.ndarray, near_mm: float, far_mm: float,
                 out.append(f"lies outside the field of view (pinhole ({pu:.0f}, {pv:.0f}) px), "
                            f"where the lens model folds back to ({u:.0f}, {v:.0f}) px: the "
                            "renderer draws that pixel from the lens's near side")
+            elif not roundness[k] >= MIN_ROUNDNESS:
+                off = np.degrees(np.arccos(np.clip(z[k] / np.linalg.norm(Xc[k]), -1.0, 1.0)))
+                out.append(f"images as an ellipse {roundness[k]:.2f} as wide as long ({off:.0f} "
+                           f"deg off the optical axis, at ({u:.0f}, {v:.0f}) px): the detector "
+                           f"takes a blob {MIN_ROUNDNESS:g} round or more as an LED")
             else:
                 out.append(None)
+    return out
+
+
+def led_roundness(camera, X_mm) -> np.ndarray:
+    """Per point (shape (n, 3), mm, in front of the camera): the minor/major axis ratio of an
+    LED's image there, as the detector judges it (v divided by fy / fx,
+    :func:`itg_vision.detect.blob_centroid`). Shape (n,).
+
+    A sphere of angular radius a seen t off the optical axis images (pinhole, on the plane at
+    unit depth) as an ellipse with semi-axes sin a cos a / (cos^2 t - sin^2 a) along the
+    radial direction and sin a / sqrt(cos^2 t - sin^2 a) across it: ratio about cos t (0.75 at
+    41 deg). The lens then stretches it by its local Jacobian (a barrel lens squeezes the
+    radial axis near the edge: rounder)."""
+    from .camera import plumb_bob
+    from .urdf import LED_RADIUS_MM
+
+    Xc = camera.to_camera(np.asarray(X_mm, float).reshape(-1, 3))
+    D = np.linalg.norm(Xc, axis=1)
+    sin_a = np.minimum(LED_RADIUS_MM / D, 1.0)
+    cos_t = Xc[:, 2] / D
+    with np.errstate(all="ignore"):
+        rest = np.sqrt(np.maximum(cos_t ** 2 - sin_a ** 2, 0.0))
+        radial, across = sin_a * np.sqrt(1 - sin_a ** 2) / rest ** 2, sin_a / rest
+        x, y = Xc[:, 0] / Xc[:, 2], Xc[:, 1] / Xc[:, 2]
+    out = np.zeros(len(Xc))
+    for k in np.flatnonzero((rest > 0) & (Xc[:, 2] > 0)):
+        rho = np.hypot(x[k], y[k])
+        e_r = np.array([x[k], y[k]]) / rho if rho > 0 else np.array([1.0, 0.0])
+        e_t = np.array([-e_r[1], e_r[0]])
+        h = 1e-6  # the lens's Jacobian by central differences (normalized coordinates)
+        J = np.column_stack([(np.array(plumb_bob(x[k] + h * e[0], y[k] + h * e[1], camera.dist))
+                              - np.array(plumb_bob(x[k] - h * e[0], y[k] - h * e[1],
+                                                   camera.dist))) / (2 * h)
+                             for e in np.eye(2)])
+        A = J @ np.column_stack([radial[k] * e_r, across[k] * e_t])  # the axes, imaged
+        lo, hi = np.linalg.svd(A, compute_uv=False)[::-1]
+        out[k] = lo / hi
     return out
 
 

@@ -1,6 +1,7 @@
 """The start-up check that the cameras can see the arm (pure geometry, nothing rendered)."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,14 +9,15 @@ from conftest import front_rig, roundoff
 
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.camera import Camera, Rig, default_rig_path
-from itg_vision.detect import MIN_SCORE
+from itg_vision.detect import MIN_ROUNDNESS, MIN_SCORE
 from itg_vision.errors import UserError
 from itg_vision.trajectory import load, named
 from itg_vision.urdf import LED_RADIUS_MM
 from itg_vision.visibility import (MARGIN_PX, MIN_LED_RADIUS_PX, _render_range_mm, _visible,
-                                   check_visible, elbow_partly_seen, led_points)
+                                   check_visible, elbow_partly_seen, led_points, led_roundness)
 
 
+ROOT_CAMERAS = Path(__file__).resolve().parents[1] / "cameras"
 SHIPPED_CURVES = ("ellipse-by-base", "gerono", "lemniscate", "lemniscate-2", "limacon",
                   "limacon-2", "peanut", "rose", "rounded-square", "thin-ellipse", "trefoil")
 
@@ -154,6 +156,104 @@ def test_an_led_must_image_at_least_two_pixels_across():
     small = _visible(_down(0.0, 0.0, 600.0, f_px=90.0), X, *_render_range_mm())[0]
     assert small == "an LED there would be 1.8 px across (the detector needs 2)", small
     assert _visible(_down(0.0, 0.0, 600.0, f_px=110.0), X, *_render_range_mm()) == [None]
+
+
+def test_an_led_far_off_the_optical_axis_images_too_elongated_for_the_detector():
+    """A sphere seen t off the optical axis images as an ellipse sqrt(cos^2 t - sin^2 a) / cos a
+    as wide as long (a its angular radius): beyond about 41 deg it is less round than the
+    detector's gate, MIN_ROUNDNESS (0.75), which takes it for a partly hidden LED. A camera 100
+    mm above the LED plane: 45 deg off (0.706) refused, 35 deg off (0.818) seen; both inside
+    the image (f = 100 px: 100 and 70 px from the centre). They were both 'seen', and a rig so
+    close and wide passed the check and failed at start-up after rendering."""
+    cam = _down(0.0, 0.0, 100.0, size=(640, 480), f_px=100.0)
+    X = np.array([[100.0, 0.0, 12.0], [70.0, 0.0, 12.0]])
+    t = np.arctan2(X[:, 0], 100.0)
+    sin_a = LED_RADIUS_MM / np.hypot(X[:, 0], 100.0)
+    expect = np.sqrt(np.cos(t) ** 2 - sin_a ** 2) / np.sqrt(1 - sin_a ** 2)
+    # the lens's Jacobian by central differences of step h = 1e-6: round-off eps / h
+    assert np.allclose(led_roundness(cam, X), expect, rtol=0, atol=np.finfo(float).eps / 1e-6)
+    assert expect[0] < MIN_ROUNDNESS == 0.75 < expect[1]
+    why = _visible(cam, X, *_render_range_mm())
+    assert why == ["images as an ellipse 0.71 as wide as long (45 deg off the optical axis, at "
+                   "(420, 240) px): the detector takes a blob 0.75 round or more as an LED",
+                   None], why
+
+
+@pytest.mark.parametrize("dist, aspect", [((-0.3, 0.1, 0.0, 0.0, 0.0), 1.0),
+                                          ((0.15, 0.0, 0.002, -0.001, 0.0), 1.0),
+                                          ((0.0,) * 5, 1.5)])
+def test_led_roundness_is_what_the_camera_makes_of_the_sphere_s_outline(dist, aspect):
+    """Independent of led_roundness's closed form and lens Jacobian: the sphere's outline (the
+    circle where the cone from the camera centre touches it) projected by Camera.project, lens
+    included, v divided by fy / fx as the detector does; its points' second moments give the
+    axes. led_roundness takes the lens as linear over the LED's image (its Jacobian at the
+    centre): it may be off by as much as that Jacobian changes across the outline, relative to
+    its smaller singular value (0.02 to 0.2 at k1 = -0.3 here, where the two agreed to 0.007;
+    0 without a lens, where they agreed to 3e-11: round-off, eps over the difference step
+    1e-6)."""
+    from itg_vision.camera import plumb_bob
+
+    def jacobian(x, y, h=1e-6):
+        return np.column_stack([(np.array(plumb_bob(x + h * e[0], y + h * e[1], cam.dist))
+                                 - np.array(plumb_bob(x - h * e[0], y - h * e[1], cam.dist)))
+                                / (2 * h) for e in np.eye(2)])
+
+    cam = dataclasses.replace(_down(0.0, 0.0, 130.0, size=(640, 480), f_px=130.0),
+                              dist=tuple(dist))
+    cam = dataclasses.replace(cam, fy=cam.fx * aspect)
+    rng = np.random.default_rng(3)
+    X = np.c_[rng.uniform(-120, 120, (40, 2)), np.full(40, 12.0)]
+    C = cam.position_mm
+    for x, got in zip(X, led_roundness(cam, X)):
+        d = x - C
+        D = np.linalg.norm(d)
+        u = d / D
+        a = np.arcsin(LED_RADIUS_MM / D)
+        e1 = np.cross(u, [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(u, e1)
+        phi = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)[:, None]
+        outline = C + D * np.cos(a) * (np.cos(a) * u + np.sin(a) * (np.cos(phi) * e1
+                                                                    + np.sin(phi) * e2))
+        uv = cam.project(outline) * [1.0, cam.fx / cam.fy]
+        lo, hi = np.linalg.eigvalsh(np.cov(uv.T))
+        xc, xo = cam.to_camera(x), cam.to_camera(outline)
+        J0 = jacobian(*(xc[:2] / xc[2]))
+        change = max(np.linalg.norm(jacobian(*(p[:2] / p[2])) - J0, 2) for p in xo[::30])
+        tol = change / np.linalg.svd(J0, compute_uv=False)[-1] + np.finfo(float).eps / 1e-6
+        assert got == pytest.approx(np.sqrt(lo / hi), abs=tol)
+
+
+def test_a_rig_too_close_and_wide_for_round_leds_is_refused_before_rendering(tmp_path):
+    """Cameras 150 mm above the plane, f = 150 px on 640 x 480 (130 deg across): the two-link
+    arm's gripper at its start pose, 49 deg off the left camera's axis, images 0.71 as wide as
+    long (its lens's barrel rounds the pinhole's 0.66); the check refuses the run in one line,
+    and the eye, rendered, finds the LED not round there (the run passed the check and failed
+    at start-up after rendering)."""
+    from itg_vision.detect import NOT_ROUND
+    from itg_vision.feedback import VisionFeedback
+    from itg_vision.world import World
+
+    text = (ROOT_CAMERAS / "planar.yaml").read_text()
+    for x in ("-180.0", "180.0"):
+        text = text.replace(f"position_mm: [{x}, -60.0, 620.0]",
+                            f"position_mm: [{float(x) / 3:.1f}, -20.0, 150.0]")
+    text = text.replace("600.0, 0.0, 319.5, 0.0, 600.0", "150.0, 0.0, 319.5, 0.0, 150.0")
+    text = text.replace("605.0, 0.0, 322.0, 0.0, 603.0", "150.0, 0.0, 322.0, 0.0, 150.0")
+    path = tmp_path / "wide.yaml"
+    path.write_text(text)
+    rig, arm = Rig.from_yaml(path), ArmSpec.from_args("two-link")
+    with pytest.raises(UserError) as exc:
+        check_visible(rig, arm, named("ellipse-t1", 20).points_mm)
+    assert str(exc.value).startswith(
+        f"{path}: cameras[0] (left): cannot see the gripper LED at "), exc.value
+    assert ("at the start pose, (0.0, 200.0, 12.0) mm images as an ellipse 0.71 as wide as long "
+            "(49 deg off the optical axis, at (323, 88) px): the detector takes a blob 0.75 round "
+            "or more as an LED; --allow-unseen runs anyway") in str(exc.value), exc.value
+    with World(arm, np.array(arm.start_q_deg, float)) as world:
+        eye = VisionFeedback(rig, rig, arm)
+        eye.observe(world)
+        assert eye.last_observation.causes["gripper"] == NOT_ROUND
 
 
 def test_the_image_check_reads_the_distorted_projection():
