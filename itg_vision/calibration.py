@@ -475,8 +475,9 @@ def sweeps_in_view(true_rig: Rig, arm, sweep_poses: dict, source: str = "",
     """Refuse, before anything is rendered, joint sweeps (:func:`axis_sweeps`) whose LEDs
     ``true_rig``'s cameras cannot both show in 3/4 of the poses: counted by their fields of
     view (:func:`itg_vision.visibility.in_view`), with no margin beyond the LED's disc (the
-    detector rejects an LED that reaches the image border), so a pose counted out could not
-    have been seen and a sweep refused here would have failed rendered.
+    detector rejects an LED that reaches the image border), so a pose counted out is one the
+    eye misses, but at the edges of its gates (a strong barrel lens shrinks an LED near the
+    border by a pixel or so; a roundness within a few hundredths of the detector's 0.75).
     ``true_arm``: the simulated arm, if it differs from ``arm``."""
     from .arm import forward_kinematics
     from .visibility import in_view
