@@ -405,10 +405,11 @@ def place_rig(rig_c1: Rig, R_w: np.ndarray, t_w: np.ndarray, name: str) -> Rig:
 def led_images(world, rig: Rig, arm, q_list, rng, *, progress=None):
     """What the tracker's eye sees of the LEDs at each joint pose: both cameras of ``rig``
     through :meth:`itg_vision.feedback.VisionFeedback.capture_pair` (sensor noise from
-    ``rng``). Returns a list of (q, patches, true LEDs)."""
-    from .feedback import VisionFeedback
+    ``rng``), at the rig file's supersample, as a run's eye. Returns a list of (q, patches,
+    true LEDs)."""
+    from .feedback import DEFAULT_SUPERSAMPLE, VisionFeedback
 
-    eye = VisionFeedback(rig, rig, arm)
+    eye = VisionFeedback(rig, rig, arm, supersample=rig.supersample or DEFAULT_SUPERSAMPLE)
     eye.reset(int(rng.integers(2**32)))
     out = []
     for q in q_list:
@@ -869,7 +870,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
                               "ratio": rms_cal / rms_true if rms_true > 0 else None},
     }
     record = _plain(record)
-    rig = Rig(name, rig.cameras, "", record, None)
+    rig = Rig(name, rig.cameras, "", record, None, true_rig.supersample)  # the eye's, kept
     picture = None
     if vs.sample is not None:
         k, img = vs.sample
@@ -928,7 +929,8 @@ def write_result(result: Result, out: Path, true_rig_path: Path,
             raise RuntimeError("cv2.imencode could not encode the corner picture as PNG")
         files[pic] = buf.tobytes()
     sha = true_rig_sha256 if true_rig_sha256 is not None else file_sha256(true_rig_path)
-    rig = Rig(result.rig.name, result.rig.cameras, "", result.record, rel, None, sha)
+    rig = Rig(result.rig.name, result.rig.cameras, "", result.record, rel,
+              result.rig.supersample, sha)
     files[out] = rig.yaml_text().encode()
     outputs.write_files(files)
     return pic

@@ -2,6 +2,7 @@
 helpers, a full calibration against the known rig, the failure cases and tracking on a
 calibrated rig. The board itself: test_board.py."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -918,6 +919,54 @@ def test_write_result_records_the_hash_of_the_true_rig_as_read(tmp_path):
     out = tmp_path / "planar.calib.yaml"
     assert cal.write_result(res, out, PLANAR, "ab" * 32) is None
     assert yaml.safe_load(out.read_text())["true_rig_sha256"] == "ab" * 32
+
+
+def test_write_result_keeps_the_rig_file_s_supersample(tmp_path):
+    """The rig file's supersample (the eye's rendering factor, README 'Camera rigs') goes into
+    its calibration, which a run reads it from: it was dropped, and a run on the calibration
+    of a rig saying 1 rendered at the default 3."""
+    rig = dataclasses.replace(Rig.from_yaml(PLANAR), supersample=1)
+    out = tmp_path / "planar.calib.yaml"
+    cal.write_result(cal.Result(rig, {"seed": 0}), out, PLANAR, "ab" * 32)
+    assert Rig.from_yaml(out).supersample == 1
+
+
+def test_the_calibration_s_eye_renders_at_the_rig_file_s_supersample(monkeypatch):
+    """The joint sweeps are seen by the tracker's own eye, at the rig's supersample as in a
+    run (it rendered them at the default 3 whatever the rig said)."""
+    from itg_vision import feedback
+
+    made = []
+
+    class Eye(feedback.VisionFeedback):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self.supersample)
+
+    monkeypatch.setattr(feedback, "VisionFeedback", Eye)
+    rig = dataclasses.replace(Rig.from_yaml(PLANAR), supersample=1)
+    arm = ArmSpec.from_args("two-link")
+    with World(arm) as world:
+        cal.led_images(world, rig, arm, [np.array(arm.start_q_deg, float)],
+                       np.random.default_rng(0))
+    assert made == [1]
+
+
+@pytest.mark.slow
+def test_a_run_on_the_calibration_renders_at_the_rig_file_s_supersample(cli, tmp_path):
+    """calibrate, then run, on a rig file saying supersample: 1: the run's summary says 1 (it
+    said 3)."""
+    rig = tmp_path / "ss1.yaml"
+    rig.write_text(PLANAR.read_text().replace("name: planar", "name: ss1") + "supersample: 1\n")
+    out = tmp_path / "ss1.calib.yaml"
+    proc = cli("itg_vision.calibrate", "--rig", rig, "--quiet", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert Rig.from_yaml(out).supersample == 1
+    proc = cli("itg_vision.run", "--rig", out, "--points", 12, "--quiet", "--out",
+               tmp_path / "run")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["feedback_params"]["supersample"] == 1
 
 
 def test_check_out_replaces_this_rigs_calibration_only(tmp_path):
