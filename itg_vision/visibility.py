@@ -222,7 +222,7 @@ def in_view(cameras, X_mm, margin_px: float = MARGIN_PX) -> np.ndarray:
     return np.array([all(why[k] is None for why in whys) for k in range(len(X))], bool)
 
 
-def _start_up_seen(rig, arm: ArmSpec, near_mm: float, far_mm: float) -> tuple[list, str]:
+def _start_up_seen(rig, arm: ArmSpec) -> tuple[list, str]:
     """The start-up poses the check asks the rig to see, and words to add to a refusal at one
     of them. All of them, but for a planar arm's base sweep only the poses at which every
     camera sees every LED if they place the base axis
@@ -237,8 +237,7 @@ def _start_up_seen(rig, arm: ArmSpec, near_mm: float, far_mm: float) -> tuple[li
 
     def sees(q) -> bool:
         leds = forward_kinematics(arm, q)
-        X = np.array([leds[name] for name in arm.marker_names])
-        return not any(any(_visible(cam, X, near_mm, far_mm)) for cam in rig.cameras)
+        return bool(in_view(rig.cameras, [leds[name] for name in arm.marker_names]).all())
 
     seen = [pose for pose in poses if sees(pose[1])]
     angles = [float(q[0]) for _, q, _ in seen]
@@ -263,7 +262,7 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
                         f"--links), is shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): "
                         f"the elbow and gripper LEDs overlap in every image{hint}")
     near_mm, far_mm = _render_range_mm()
-    poses, too_few = _start_up_seen(rig, arm, near_mm, far_mm) if start_up else ([], "")
+    poses, too_few = _start_up_seen(rig, arm) if start_up else ([], "")
     gripper, elbows, g_k, e_k = _led_points(arm, points_mm, poses)
 
     def at(k: int | str | None) -> str:
@@ -302,13 +301,11 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
                                 f"{whys[0]}{more(e_k[k])}{hint}")
     for k, branches in enumerate(elbows):  # the eye triangulates what both cameras see
-        seen = [[w is None for w in _visible(cam, branches, near_mm, far_mm)]
-                for cam in rig.cameras]
-        if not any(all(s[i] for s in seen) for i in range(len(branches))):
+        if not in_view(rig.cameras, branches).any():
             only = ", ".join(
                 f"cameras[{c}] ({cam.name}) only "
-                f"{tuple(round(float(v), 1) for v in branches[s.index(True)])} mm"
-                for c, (cam, s) in enumerate(zip(rig.cameras, seen)))
+                f"{tuple(round(float(v), 1) for v in branches[in_view([cam], branches).argmax()])}"
+                " mm" for c, cam in enumerate(rig.cameras))
             raise UserError(f"{where}: no position of the elbow LED {at(e_k[k])} is seen by "
                             f"both cameras ({only}): the eye measures an LED that both see"
                             f"{more(e_k[k])}{hint}")
@@ -320,15 +317,9 @@ def elbow_partly_seen(rig, arm: ArmSpec, points_mm: np.ndarray) -> str | None:
     :func:`check_visible` asks for one, as a model-free controller may take either branch and
     the check cannot know which: on a branch out of view the run loses the elbow LED there,
     and the controller decides on its last measured position."""
-    near_mm, far_mm = _render_range_mm()
     _, elbows, _, e_k = _led_points(arm, points_mm, start_up=False)
     at = [(k, branches) for k, branches in zip(e_k, elbows) if isinstance(k, int)]
-
-    def in_view(branches) -> int:
-        whys = [_visible(cam, branches, near_mm, far_mm) for cam in rig.cameras]
-        return sum(all(why[i] is None for why in whys) for i in range(len(branches)))
-
-    partly = [k for k, branches in at if in_view(branches) < len(branches)]
+    partly = [k for k, branches in at if not in_view(rig.cameras, branches).all()]
     if not partly:
         return None
     return (f"note: {rig.source or rig.name}: at {len(partly)} of the {len(at)} set points in "

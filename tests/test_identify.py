@@ -158,10 +158,10 @@ def test_a_rendered_start_up_leaves_out_the_poses_the_visibility_check_predicted
 
     from itg_vision.camera import Rig
     from itg_vision.feedback import VisionFeedback
-    from itg_vision.visibility import _render_range_mm, _start_up_seen
+    from itg_vision.visibility import _start_up_seen
 
     rig, arm = Rig.from_yaml(front_rig(tmp_path / "front.yaml")), ArmSpec.from_args("two-link")
-    predicted = {q[0] for _, q, _ in _start_up_seen(rig, arm, *_render_range_mm())[0]}
+    predicted = {q[0] for _, q, _ in _start_up_seen(rig, arm)[0]}
     unseen = [q1 for q1 in (-150, -120, -90, -60, -30, 0, 30, 60, 90, 120, 150)
               if q1 not in predicted]
     eye = VisionFeedback(rig, rig, arm)

@@ -376,7 +376,7 @@ def test_a_rig_that_frames_part_of_the_start_up_sweep_is_asked_for_the_part_it_s
     from itg_vision.visibility import _start_up_seen
 
     rig, arm = Rig.from_yaml(front_rig(tmp_path / "front.yaml")), ArmSpec.from_args("two-link")
-    seen, words = _start_up_seen(rig, arm, *_render_range_mm())
+    seen, words = _start_up_seen(rig, arm)
     assert [q[0] for _, q, _ in seen] == [0.0, 30.0, 60.0, 90.0, 120.0, 150.0] and words == ""
     for name in ("ellipse-t1", "ellipse-t2"):
         check_visible(rig, arm, named(name).points_mm)
