@@ -797,8 +797,10 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
 
     Raises
     ------
-    UserError : see :func:`calibrate_views`, :func:`base_frame_from_axes`.
+    UserError : see :func:`calibrate_views`, :func:`base_frame_from_axes`; before anything is
+        rendered, :func:`itg_vision.visibility.check_cameras` and :func:`sweeps_in_view`.
     """
+    from .visibility import check_cameras
     from .world import World
 
     rng = np.random.default_rng(seed)
@@ -807,6 +809,7 @@ def calibrate(true_rig: Rig, arm, *, views: int = DEFAULT_VIEWS, seed: int = 0,
     tick = (lambda stage: (lambda: progress(stage))) if progress else (lambda stage: None)
     t0 = time.perf_counter()
     sweep_poses = axis_sweeps(arm)
+    check_cameras(true_rig)  # an LED too dark to find, a camera below the floor: before rendering
     sweeps_in_view(true_rig, arm, sweep_poses, str(true_rig.source or true_rig.name), true_arm)
     with World(true_arm or arm) as world:
         vs = render_views(world, true_rig, board, poses, rng, supersample=supersample,

@@ -247,13 +247,32 @@ def _start_up_seen(rig, arm: ArmSpec) -> tuple[list, str]:
                    + sweep_need(angles, len(poses), "every camera sees every LED at"))
 
 
+def check_cameras(rig, hint: str = "") -> None:
+    """Raise `UserError` (one line naming the rig file and the camera, then ``hint``) unless
+    every camera of ``rig`` can see an LED at all: its exposure makes an LED stand out from
+    the sensor's noise by the detector's threshold, and it is above the floor (the module
+    docstring's **sensor** and **place**). Needs no arm: ``calibrate`` asks it before it
+    renders."""
+    from .detect import MIN_SCORE
+
+    for i, cam in enumerate(rig.cameras):
+        who = f"{rig.source or rig.name}: cameras[{i}] ({cam.name})"
+        score = min(255.0, 255.0 * cam.exposure)
+        need = MIN_SCORE + 3.0 * cam.noise_sigma_gray
+        if score < need:
+            raise UserError(f"{who}: exposure {cam.exposure:g} makes an LED at most {score:.3g} "
+                            f"grey levels bright; the detector needs {need:g} (threshold "
+                            f"{MIN_SCORE} + 3 x noise {cam.noise_sigma_gray:g}){hint}")
+        if not cam.position_mm[2] > 0:
+            raise UserError(f"{who}: is below the floor the arm stands on (z = "
+                            f"{cam.position_mm[2]:.0f} mm){hint}")
+
+
 def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True) -> None:
     """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
     arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring.
     ``start_up=False`` leaves out the start-up measurement's poses (the start pose and the set
     points alone)."""
-    from .detect import MIN_SCORE
-
     from .urdf import LED_RADIUS_MM
 
     hint = "; --allow-unseen runs anyway"
@@ -274,17 +293,9 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
         return too_few if isinstance(k, str) else ""
 
     where = rig.source or rig.name
+    check_cameras(rig, hint)
     for i, cam in enumerate(rig.cameras):
         who = f"{where}: cameras[{i}] ({cam.name})"
-        score = min(255.0, 255.0 * cam.exposure)
-        need = MIN_SCORE + 3.0 * cam.noise_sigma_gray
-        if score < need:
-            raise UserError(f"{who}: exposure {cam.exposure:g} makes an LED at most {score:.3g} "
-                            f"grey levels bright; the detector needs {need:g} (threshold "
-                            f"{MIN_SCORE} + 3 x noise {cam.noise_sigma_gray:g}){hint}")
-        if not cam.position_mm[2] > 0:
-            raise UserError(f"{who}: is below the floor the arm stands on (z = "
-                            f"{cam.position_mm[2]:.0f} mm){hint}")
         why = _visible(cam, gripper, near_mm, far_mm)
         bad = [k for k, w in enumerate(why) if w]
         if bad:

@@ -1322,3 +1322,29 @@ def test_too_few_views_seen_by_both_say_whether_more_views_would_help(seen_by_bo
     with pytest.raises(UserError) as exc:
         cal.calibrate_views(views, Board(), ((640, 480), (640, 480)), apart_deg=129.9)
     assert str(exc.value).endswith(hint), str(exc.value)
+
+
+@pytest.mark.parametrize("edit, expect", [
+    (("position_mm: [180.0, -60.0, 620.0]", "position_mm: [180.0, -60.0, -620.0]"),
+     "cameras[1] (right): is below the floor the arm stands on (z = -620 mm)"),
+    (("exposure: 1.0}", "exposure: 0.1}"),
+     "cameras[0] (left): exposure 0.1 makes an LED at most 25.5 grey levels bright; the "
+     "detector needs 46 (threshold 40 + 3 x noise 2)"),
+])
+def test_a_camera_that_cannot_see_an_led_at_all_is_refused_before_rendering(monkeypatch,
+                                                                           tmp_path, edit,
+                                                                           expect):
+    """A camera below the floor, or too dark for the detector to find an LED (exposure 0.1:
+    25.5 grey levels against the 40 + 3 x 2 it needs): `run` refuses such a rig before
+    rendering (visibility), and so does `calibrate` now, with the same line naming the rig
+    file and the camera. It rendered its 60 board views first and ended 18-49 s later on a
+    message about the board or the joint sweeps."""
+    def rendered(*args, **kwargs):
+        raise AssertionError("rendered")
+
+    monkeypatch.setattr(cal, "render_views", rendered)
+    rig_file = tmp_path / "mine.yaml"
+    rig_file.write_text(PLANAR.read_text().replace(*edit, 1))
+    with pytest.raises(UserError) as exc:
+        cal.calibrate(Rig.from_yaml(rig_file), ArmSpec.from_args("two-link"))
+    assert str(exc.value) == f"{rig_file}: {expect}"
