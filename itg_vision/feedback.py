@@ -67,6 +67,16 @@ class ModelFeedback:
         return Markers(m["gripper"], m["elbow"])
 
 
+def check_full_frames(render_rig, supersample: int) -> None:
+    """Refuse whole frames of ``render_rig``'s cameras too large to render at ``supersample``
+    (:func:`itg_vision.imaging.check_whole_frame`), before anything renders."""
+    from .imaging import check_whole_frame
+
+    for camera in render_rig.cameras:
+        check_whole_frame(camera, supersample, ", or windows around the LEDs instead of whole "
+                                               "frames")
+
+
 class TruthFeedback:
     """The simulator's LED positions: ideal sensors, or with seeded Gaussian noise.
 
@@ -149,7 +159,7 @@ class VisionFeedback:
                  dropout: float = 0.0, max_residual_px: float = 2.0,
                  supersample: int = DEFAULT_SUPERSAMPLE, strobe: bool = False,
                  min_area_ratio: float = 0.5, full_frame: bool = False):
-        from .imaging import FLAT_LIGHT, check_whole_frame
+        from .imaging import FLAT_LIGHT
 
         self.render_rig = render_rig
         self.estimate_rig = estimate_rig
@@ -168,9 +178,7 @@ class VisionFeedback:
         self.min_area_ratio = float(min_area_ratio)
         self.full_frame = bool(full_frame)
         if self.full_frame:  # refused now, not at the first look
-            for camera in render_rig.cameras:
-                check_whole_frame(camera, self.supersample,
-                                  ", or windows around the LEDs instead of whole frames")
+            check_full_frames(render_rig, self.supersample)
         self.lighting = FLAT_LIGHT
         self._last: dict[str, np.ndarray] = {}
         self.last_observation: Observation | None = None

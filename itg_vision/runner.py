@@ -302,7 +302,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
             return TruthFeedback(noise_mm=cfg.noise_mm)
     else:
         from .camera import Rig, load_true_rig
-        from .feedback import VisionFeedback
+        from .feedback import VisionFeedback, check_full_frames
         from .visibility import check_visible, elbow_partly_seen
 
         if estimate_rig is None:
@@ -318,6 +318,8 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         rig_arm = ((estimate_rig.calibration or {}).get("base_frame") or {}).get("arm")
 
         supersample = supersample_of(cfg, estimate_rig)
+        if cfg.full_frame:  # refused with the other inputs, not when the feedback is built
+            check_full_frames(render_rig, supersample)
 
         def feedback_factory():
             return VisionFeedback(render_rig, estimate_rig, model, noise_px=cfg.noise_px,

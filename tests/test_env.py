@@ -435,3 +435,13 @@ def test_a_config_that_is_not_a_run_config_is_refused_by_name():
                                         r"keyword arguments\), got dict$"):
         TrackingEnv({"feedback": "truth", "points": 5})
     TrackingEnv(**{"feedback": "truth", "points": 5}).close()
+
+
+def test_whole_frames_too_large_to_render_are_refused_when_the_env_is_built():
+    """full_frame at supersample 8 renders the shipped 640 x 480 rig's frames (with their lens
+    margin) at 5504 x 4224 px, over the 16.8 Mpx limit: refused when the environment is built,
+    as `run --full-frame --supersample 8` is before its run; it was refused only at the first
+    reset (with images=True it already was at construction, as images build a feedback)."""
+    with pytest.raises(UserError, match=r"supersample 8 renders 5504 x 4224 px.*supersample 6 "
+                                        r"at most"):
+        TrackingEnv(full_frame=True, supersample=8)
