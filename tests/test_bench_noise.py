@@ -132,6 +132,21 @@ def test_a_report_or_plot_the_user_changed_is_kept_aside_not_written_over(tmp_pa
     assert len(list(tmp_path.glob("*.replaced-*"))) == 2
 
 
+def test_a_failures_log_of_the_users_is_kept_aside_not_deleted(tmp_path, capsys):
+    """A rerun where no run failed deletes the failures.log an earlier run wrote: one the
+    benchmark never wrote (the user's own, in the folder it resumes into) is kept as
+    failures.replaced-1.log with a note instead. It was deleted."""
+    args = ["--quick", "--controllers", "itg-model", "--seeds", "1", "--out", str(tmp_path),
+            "--quiet", "--workers", "1", *FEW_PLOTS]
+    assert main(args) == 0 and not (tmp_path / "failures.log").exists()
+    (tmp_path / "failures.log").write_text("my notes on the runs\n")
+    capsys.readouterr()
+    assert main(args) == 0
+    assert (tmp_path / "failures.replaced-1.log").read_text() == "my notes on the runs\n"
+    assert "is not a file the benchmark wrote; kept as" in capsys.readouterr().err
+    assert not (tmp_path / "failures.log").exists()
+
+
 def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
     """Run ids cover parameters and input files, not the code: each row records the code that
     made it, and a resume says how many rows other code made (silent when none did)."""

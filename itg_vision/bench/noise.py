@@ -68,6 +68,17 @@ def keep_edits(out: Path) -> None:
         outputs.keep_aside(out / name, f"{out / name} was changed since the benchmark wrote it")
 
 
+def keep_theirs(out: Path, name: str) -> None:
+    """Keep aside (:func:`outputs.keep_aside`) ``out/name`` if it is there and no run of this
+    benchmark wrote it (its manifest has no digest of it): a file of the user's, about to be
+    written over or deleted."""
+    made = outputs.read_manifest(out) or {}
+    recorded = made.get("sha256") if isinstance(made.get("sha256"), dict) else {}
+    path = out / name
+    if (path.exists() or path.is_symlink()) and name not in recorded:
+        outputs.keep_aside(path, f"{path} is not a file the benchmark wrote")
+
+
 def record_written(out: Path, command: str, names: list[str]) -> None:
     """The manifest of ``out``, with the digests of the files named that exist (what
     :func:`keep_edits` compares)."""
@@ -317,6 +328,7 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     rows = list(store.rows.values())
     keep_edits(out)
     plots = write_report(out, rows, specs, command, failures, plot_metrics)
+    keep_theirs(out, "failures.log")  # written or deleted below: a file of the user's is kept
     failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
     if failures:
         outputs.write_text(out / "failures.log",
