@@ -147,6 +147,28 @@ def test_a_failures_log_of_the_users_is_kept_aside_not_deleted(tmp_path, capsys)
     assert not (tmp_path / "failures.log").exists()
 
 
+def test_a_plot_of_the_users_under_a_name_a_rerun_writes_is_kept_aside(tmp_path, capsys):
+    """A file of the user's under a name the benchmark had not written there (a plot of a
+    metric the first run did not draw) is kept aside with a note before a rerun writes that
+    plot; it was written over. A plot an earlier run wrote and a later run with other
+    --plot-metrics left alone is still the benchmark's: written over without a note."""
+    args = ["--quick", "--controllers", "itg-model", "--seeds", "1", "--out", str(tmp_path),
+            "--quiet", "--workers", "1"]
+    assert main(args + list(FEW_PLOTS)) == 0
+    mine = tmp_path / "track_max_by_condition-ellipse-t1.png"
+    assert not mine.exists()
+    mine.write_bytes(b"my own figure")
+    capsys.readouterr()
+    assert main(args + ["--plot-metrics", "e_av,track_max"]) == 0
+    assert "is not a file the benchmark wrote; kept as" in capsys.readouterr().err
+    assert (tmp_path / f"{mine.stem}.replaced-1.png").read_bytes() == b"my own figure"
+    assert mine.read_bytes().startswith(b"\x89PNG")
+    assert main(args + list(FEW_PLOTS)) == 0
+    assert main(args + ["--plot-metrics", "e_av,track_max"]) == 0
+    assert "kept as" not in capsys.readouterr().err
+    assert len(list(tmp_path.glob("*.replaced-*"))) == 1
+
+
 def test_a_resume_by_other_code_warns_and_keeps_every_row(tmp_path, capsys):
     """Run ids cover parameters and input files, not the code: each row records the code that
     made it, and a resume says how many rows other code made (silent when none did)."""

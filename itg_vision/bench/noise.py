@@ -81,10 +81,14 @@ def keep_theirs(out: Path, name: str) -> None:
 
 def record_written(out: Path, command: str, names: list[str]) -> None:
     """The manifest of ``out``, with the digests of the files named that exist (what
-    :func:`keep_edits` compares)."""
+    :func:`keep_edits` compares) and of those an earlier run wrote that are still as it wrote
+    them (a plot of other ``--plot-metrics``: the benchmark's, not the user's)."""
+    earlier = (outputs.read_manifest(out) or {}).get("sha256")
+    earlier = earlier if isinstance(earlier, dict) else {}
+    kept = {n: h for n, h in outputs.digests(out, list(earlier)).items() if h == earlier[n]}
     written = [n for n in names if (out / n).is_file()]
-    outputs.write_json(out / outputs.MANIFEST,
-                       outputs.manifest(command, digests=outputs.digests(out, written)))
+    outputs.write_json(out / outputs.MANIFEST, outputs.manifest(
+        command, digests={**kept, **outputs.digests(out, written)}))
 
 
 def command_line(name: str, argv: list[str]) -> str:
@@ -327,7 +331,8 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
     rows = list(store.rows.values())
     keep_edits(out)
-    plots = write_report(out, rows, specs, command, failures, plot_metrics)
+    plots = write_report(out, rows, specs, command, failures, plot_metrics,
+                         keep=lambda path: keep_theirs(out, path.name))
     keep_theirs(out, "failures.log")  # written or deleted below: a file of the user's is kept
     failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
     if failures:

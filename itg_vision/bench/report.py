@@ -258,9 +258,10 @@ def missing_lines(summary) -> list[str]:
 
 
 def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str,
-                 failures: dict[str, str], plot_metrics=DEFAULT_PLOT_METRICS
-                 ) -> list[Path]:
-    """report.md and the plots from the rows of this sweep; returns the plot paths."""
+                 failures: dict[str, str], plot_metrics=DEFAULT_PLOT_METRICS,
+                 keep=lambda path: None) -> list[Path]:
+    """report.md and the plots from the rows of this sweep; returns the plot paths. ``keep``
+    is called with each path before it is written (to keep a file of the user's aside)."""
     from .. import plot
 
     ids = {s.run_id for s in specs}
@@ -355,11 +356,12 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
             + _table(summary, t, conds, ctrls, "e_av") + [""]
         L += [f"## {t}: tracking phase (mm): median / mean / p95 / max of E_i (worst seed's max)",
               "", lim, ""] + _tail_table(summary, t, conds, ctrls) + [""]
-    plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics, specs)
+    plots = _plots(out, summary, trajs, conds, ctrls, plot, plot_metrics, specs, keep)
     if plots:
         L += ["## Plots", ""] + [f"![{p.stem}]({quote(p.name)})" for p in plots] + [""]
     elif not rows:
         L += ["## Plots", "", "None: no run of this sweep has finished.", ""]
+    keep(out / "report.md")
     outputs.write_text(out / "report.md", "\n".join(L))
     return plots
 
@@ -400,7 +402,8 @@ def _sweep_line(specs: list[RunSpec], traj: str) -> str:
             f"{count(lim['seeds'], 'seed')}")
 
 
-def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> list[Path]:
+def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs,
+           keep=lambda path: None) -> list[Path]:
     made = []
 
     def cell(t, c, k, metric):  # (median, q1, q3); NaN where a run did not start or has no row
@@ -447,6 +450,7 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
                     continue  # no run of its conditions but one finished: no curve to draw
                 gone = sorted({k for k in ctrls for _, c in pairs if diverged(t, c, k)})
                 path = out / f"{metric}_vs_{name}-{t}.png"
+                keep(path)
                 plot.lines_figure(series, xlabel, f"{label} (mm), median over seeds",
                                   f"{t}: {label} against {xlabel}\n{about}"
                                   + (f"\ndiverged runs (tracking median > {DIVERGED_MM:g} mm) in: "
@@ -460,6 +464,7 @@ def _plots(out: Path, summary, trajs, conds, ctrls, plot, metrics, specs) -> lis
             if not any(math.isfinite(v) for vs in values.values() for v in vs):
                 continue  # no finished run: a log axis has nothing to scale
             path = out / f"{metric}_by_condition-{t}.png"
+            keep(path)
             plot.grouped_dots_figure(
                 conds, values, f"{PLOT_METRICS[metric]} (mm), median over seeds",
                 f"{t}: {PLOT_METRICS[metric]} per controller and condition\n{about}", path,
