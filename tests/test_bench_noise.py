@@ -451,6 +451,22 @@ def test_cells_missing_a_run_say_so_and_are_left_out_of_the_comparisons():
     assert missing_lines(summarize(rows)) == []  # without the sweep's counts nothing is missing
 
 
+def test_a_cell_whose_every_run_failed_says_so_and_is_listed(tmp_path, monkeypatch):
+    """A cell none of whose runs has a row (each stopped by the input, or failed) says how many
+    have no result in both tables and is named among the runs without a result; it was a "-",
+    the mark of a cell the sweep does not run, and no line named it."""
+    monkeypatch.chdir(tmp_path)
+    _write_rules(tmp_path / "div0.rules", "RULE 1: IF 1 > 0 THEN q1 += 1 / (xd - xd), q2 HOLD\n")
+    assert main(["--quick", "--conditions", "clean", "--seeds", "2", "--controllers",
+                 "itg-model,div0-model", "--rules", "div0.rules", "--out", "o", "--workers",
+                 "1", "--quiet", *FEW_PLOTS]) == 2
+    report = (tmp_path / "o" / "report.md").read_text()
+    assert report.count("| clean | ") == 2
+    assert report.count(" | no result (2 of 2 have no result) |") == 2
+    assert "their cells are over the other seeds" in report
+    assert "div0-model clean on ellipse-t1: 2 of 2." in report
+
+
 def test_the_conclusion_counts_ties_within_5_percent_plus_0_01_mm_and_names_the_largest_loss():
     """A cell is a tie when the two medians are within 5 % of the larger plus 0.01 mm (1.04
     against 1.00, and 0.02 against 0.011 by the 0.01 mm), a loss beyond it (1.10 against 1.00;

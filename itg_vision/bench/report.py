@@ -79,7 +79,7 @@ def summarize(rows: list[dict], expected: dict | None = None) -> dict:
     of runs ``expected`` (a cell's count of runs in the sweep) has that have no row (failed, or
     not run yet). The statistics are over the runs that started.
     """
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[tuple, list[dict]] = {key: [] for key in expected or {}}  # a cell without rows
     for r in rows:
         groups.setdefault((trajectory_label(r["trajectory"]), r["condition"], r["controller"]),
                           []).append(r)
@@ -111,6 +111,9 @@ def complete(s) -> bool:
 
 
 def _no_start_cell(s) -> str:
+    """A cell none of whose runs started or has a row (every run failed, or none ran yet)."""
+    if s["missing"]:
+        return "no result" + _no_start_note(s)
     return f"none of {s['no_start']} started"
 
 
