@@ -415,14 +415,17 @@ TIE_BIAS_MM = 0.05
 TIE_LINKS_MM = ((100.0, 100.0, 100.0), (105.0, 105.0, 105.0))
 
 
-def tie_experiment(max_step_deg: float = 2.0, iterations: int = 5) -> list[dict]:
+def tie_experiment(max_step_deg: float = 2.0, iterations: int = 5,
+                   gain_deg_per_mm: float | None = None) -> list[dict]:
     """Three-link, line-ab-reach, ideal sensors: the straight-up start's rg2 == re2 tie decided
-    by a deterministic +-0.05 mm elbow bias, for nominal and 5 % long links."""
+    by a deterministic +-0.05 mm elbow bias, for nominal and 5 % long links; f is
+    ``gain_deg_per_mm`` (None: the rules' default), the run's ``--gain`` in :func:`exp6`."""
     rows = []
     for links in TIE_LINKS_MM:
         for bias in (+TIE_BIAS_MM, -TIE_BIAS_MM, 0.0):
             prep = prepare(RunConfig(arm="three-link", feedback="truth", max_step_deg=max_step_deg,
-                                     iterations=iterations, true_links_mm=links))
+                                     iterations=iterations, true_links_mm=links,
+                                     gain_deg_per_mm=gain_deg_per_mm))
             with World(prep.true_arm) as w:
                 from .identify import measure_geometry
 
@@ -488,7 +491,7 @@ def exp6(base, out) -> dict:
                               (EXP6_FACTOR * PAPER_EXP6_E_AV_MM, f"agrees if E_av (the mean of E_i) "
                                f"<= {EXP6_FACTOR:g} x that", "C3")]
                       + [(eav, None, f"C{i}", ":") for i, (_, _, eav) in enumerate(panels)])
-    res["start_tie"] = tie_experiment()
+    res["start_tie"] = tie_experiment(gain_deg_per_mm=base.gain_deg_per_mm)  # the run's f
     return res
 
 

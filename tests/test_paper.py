@@ -3,6 +3,7 @@
 import copy
 import json
 from pathlib import Path
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -611,3 +612,21 @@ def test_experiment_5a_polar_readings_match_the_ellipse_closed_form(paper_run):
                 want = np.degrees(np.arctan2(vec[1], vec[0])) % 360
                 gap = abs(got - want) % 360
                 assert min(gap, 360 - gap) < 1e-6, (t, got, want)
+
+
+def test_experiment_6s_tie_study_runs_at_the_runs_gain(monkeypatch, tmp_path, no_figures):
+    """The report's header says every run is at --gain's f unless swept: the three-link tie
+    study of experiment 6 too (it ran at the default 0.5 deg/mm whatever --gain said)."""
+    gains = []
+    real = paper.prepare
+
+    def spy(cfg):
+        gains.append(cfg.gain_deg_per_mm)
+        return real(cfg)
+
+    monkeypatch.setattr(paper, "prepare", spy)
+    monkeypatch.setattr(paper, "_run", lambda base, *a, **k: execute(
+        real(replace(base, arm="three-link", trajectory="line-ab-reach", points=4))))
+    paper.exp6(RunConfig(feedback="model", gain_deg_per_mm=0.3), tmp_path)
+    assert len(gains) == 3 * len(paper.TIE_LINKS_MM)  # the tie study: three biases per links
+    assert set(gains) == {0.3}
