@@ -630,3 +630,27 @@ def test_experiment_6s_tie_study_runs_at_the_runs_gain(monkeypatch, tmp_path, no
     paper.exp6(RunConfig(feedback="model", gain_deg_per_mm=0.3), tmp_path)
     assert len(gains) == 3 * len(paper.TIE_LINKS_MM)  # the tie study: three biases per links
     assert set(gains) == {0.3}
+
+
+@pytest.mark.slow
+def test_a_jump_never_forgotten_and_a_run_never_settled_are_said_so(paper_run):
+    """Where E_i never comes within 0.1 mm of the control on C-D (experiment 1) or never settles
+    (experiment 2), as at --gain 1e6, the report says 'never', not 'from set point 100 of C-D
+    on, E_i is within 0.1 mm' nor 'settled from set point 360: E_av nan mm'."""
+    _, r = paper_run
+    bad = copy.deepcopy(r)
+    n = bad["exp1"]["cd_setpoints"] = 100
+    nan = float("nan")  # as exp1 and exp2 return them (results.json writes null)
+    bad["exp1"].update(forgotten_after_setpoints=n, e_av_cd_after_mm=nan, e_av_cd_control_after_mm=nan)
+    bad["exp2"].update(settled_at=360, e_av_after_settling_mm=nan, e_max_after_settling_mm=nan,
+                       papers_lap_e_av_after_settling_mm=nan, papers_lap_e_max_after_settling_mm=nan)
+    text = paper.report(bad, RunConfig(feedback="model"))
+    row1, row2 = _row(text, 1), _row(text, 2)
+    assert "never within 0.1 mm" in row1 and f"from set point {n} of C-D on" not in row1
+    assert _verdict(text, 1).startswith(f"disagrees: never forgotten on C-D's {n} set points")
+    assert "settled (E_i below 10 mm for 10 set points in a row) never" in row2
+    assert "nan" not in row2 and _verdict(text, 2).startswith("disagrees")
+    # a run that does forget and settle reads as before
+    text = paper.report(r, RunConfig(feedback="model"))
+    assert f"from set point {r['exp1']['forgotten_after_setpoints']} of C-D on" in _row(text, 1)
+    assert f"from set point {r['exp2']['settled_at']} to the end of lap 2" in _row(text, 2)
