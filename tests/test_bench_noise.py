@@ -1786,6 +1786,28 @@ def test_a_lost_runs_error_of_several_lines_is_one_line_of_failures_log(tmp_path
     assert capsys.readouterr().err.count("run failed: ik clean") == 2
 
 
+def test_the_reports_failed_runs_line_says_it_shows_the_first_three(tmp_path, monkeypatch):
+    """Five runs fail (an executor that cannot run them): the report's line names three and
+    said neither that they were the first 3 of 5 nor where the rest are; and it said 'rerun to
+    retry', wrong where your input stopped them (the command's last line tells the two
+    apart). Now it says 'the first 3 of them' and points to failures.log, which lists all 5."""
+    class Broken(Executor):
+        def submit(self, fn, /, *args, **kwargs):
+            fut = Future()
+            fut.set_exception(RuntimeError("no worker"))
+            return fut
+
+    monkeypatch.setattr(noise, "local_executor", lambda workers: Broken())
+    out = tmp_path / "o"
+    assert main(["--quick", "--controllers", "ik", "--conditions", "clean", "--seeds", "5",
+                 "--points", "8", "--out", str(out), "--workers", "1", "--quiet", *FEW_PLOTS]) == 1
+    assert len((out / "failures.log").read_text().splitlines()) == 5
+    [line] = [ln for ln in (out / "report.md").read_text().splitlines() if "runs failed" in ln]
+    assert line.startswith("**5 runs failed** this time (the first 3 of them; `failures.log` "
+                           "lists every one and why")
+    assert line.count("RuntimeError: no worker") == 3 and "rerun to retry" not in line
+
+
 def test_a_dot_chart_says_why_a_controllers_cell_is_left_out(monkeypatch):
     """`--conditions ...,rig-perturbed-cams --quick`: one seed of each vision controller did not
     start there, so its cell is left out of the plots (its median is not over every seed); the

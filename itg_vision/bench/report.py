@@ -296,8 +296,12 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
                  "for rows of one code."), ""]
     L += no_start_lines(summary) + missing_lines(summary)
     if failures:
-        L += [f"**{len(failures)} runs failed** this time (rerun to retry): "
-              + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3]), ""]
+        shown = min(3, len(failures))
+        L += [f"**{len(failures)} runs failed** this time ("
+              + (f"the first {shown} of them" if shown < len(failures) else "each")
+              + "; `failures.log` lists every one and why, and the command's last line says "
+              "whether rerunning it retries them or your input must be fixed first): "
+              + "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:shown]), ""]
     L += ["## Setup", "",
           "Controllers, on the same runs (same trajectory, condition, seed, servo limit):", ""]
     first = {}
