@@ -486,10 +486,10 @@ def sweeps_in_view(true_rig: Rig, arm, sweep_poses: dict, source: str = "",
     for j, (q, names) in sweep_poses.items():
         for n in names:
             X = np.array([forward_kinematics(true_arm or arm, qk)[n] for qk in q])
-            alone = [int(in_view([c], X, margin_px=0.0).sum()) for c in true_rig.cameras]
-            each = ", ".join(f"cameras[{i}] ({c.name}) {k}"
+            alone = [in_view([c], X, margin_px=0.0) for c in true_rig.cameras]
+            each = ", ".join(f"cameras[{i}] ({c.name}) {int(k.sum())}"
                              for i, (c, k) in enumerate(zip(true_rig.cameras, alone)))
-            seen = int(in_view(true_rig.cameras, X, margin_px=0.0).sum())
+            seen = int(np.logical_and.reduce(alone).sum())  # in view of both
             _sweep_seen_enough(arm, j, n, seen, len(q), source, "is in view of both cameras",
                                f" (their fields of view, before rendering; each camera alone: "
                                f"{each})")

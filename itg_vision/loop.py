@@ -135,8 +135,7 @@ class Trace:
     tracking_start: int = 0
     records: list[SetPointRecord] = field(default_factory=list)
     est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
-    n_missed: int = 0
-    #: looks that missed each marker (``n_missed`` is their sum)
+    #: looks that missed each marker (:attr:`n_missed` is their sum)
     missed_by: dict = field(default_factory=lambda: {m: 0 for m in MARKERS})
     n_at_last_aim: int = 0
     n_held: int = 0
@@ -145,6 +144,11 @@ class Trace:
     #: joint and set point (1-based): a run can say that a step turned a joint a full turn
     largest_step: tuple[float, int, int] = (0.0, 0, 0)
 
+    @property
+    def n_missed(self) -> int:
+        """LED detections missed, all markers."""
+        return sum(self.missed_by.values())
+
     def record(self, rec: SetPointRecord) -> None:
         self.records.append(rec)
 
@@ -152,7 +156,6 @@ class Trace:
         """One observation: its timings, missed markers and error against the truth it saw."""
         for stage, ms in estimate.timing_ms.items():
             self.time(stage, ms)
-        self.n_missed += len(estimate.missed)
         for name in estimate.missed:
             self.missed_by[name] = self.missed_by.get(name, 0) + 1
         for name, out in self.est_err_mm.items():

@@ -303,7 +303,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
     else:
         from .camera import Rig, load_true_rig
         from .feedback import VisionFeedback, check_full_frames
-        from .visibility import check_visible, elbow_partly_seen
+        from .visibility import check_visible
 
         if estimate_rig is None:
             estimate_rig = Rig.from_yaml(cfg.rig_path)
@@ -311,8 +311,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         if estimate_rig.true_rig:  # checked against the hash it was calibrated with
             render_rig = load_true_rig(estimate_rig, cfg.rig_path)
         if not cfg.allow_unseen:
-            check_visible(render_rig, true_arm, trajectory.points_mm)
-            notes.append(elbow_partly_seen(render_rig, true_arm, trajectory.points_mm))
+            notes.append(check_visible(render_rig, true_arm, trajectory.points_mm))
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
         rig_arm = ((estimate_rig.calibration or {}).get("base_frame") or {}).get("arm")

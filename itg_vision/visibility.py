@@ -198,18 +198,20 @@ def led_roundness(camera, X_mm) -> np.ndarray:
         radial, across = sin_a * np.sqrt(1 - sin_a ** 2) / rest ** 2, sin_a / rest
         x, y = Xc[:, 0] / Xc[:, 2], Xc[:, 1] / Xc[:, 2]
     out = np.zeros(len(Xc))
-    for k in np.flatnonzero((rest > 0) & (Xc[:, 2] > 0)):
-        rho = np.hypot(x[k], y[k])
-        e_r = np.array([x[k], y[k]]) / rho if rho > 0 else np.array([1.0, 0.0])
-        e_t = np.array([-e_r[1], e_r[0]])
-        h = 1e-6  # the lens's Jacobian by central differences (normalized coordinates)
-        J = np.column_stack([(np.array(plumb_bob(x[k] + h * e[0], y[k] + h * e[1], camera.dist))
-                              - np.array(plumb_bob(x[k] - h * e[0], y[k] - h * e[1],
-                                                   camera.dist))) / (2 * h)
-                             for e in np.eye(2)])
-        A = J @ np.column_stack([radial[k] * e_r, across[k] * e_t])  # the axes, imaged
-        lo, hi = np.linalg.svd(A, compute_uv=False)[::-1]
-        out[k] = lo / hi
+    k = np.flatnonzero((rest > 0) & (Xc[:, 2] > 0))  # all points at once: no loop per point
+    x, y = x[k], y[k]
+    rho = np.hypot(x, y)
+    off_axis = (rho > 0)[:, None]
+    e_r = np.where(off_axis, np.column_stack([x, y]) / np.where(off_axis, rho[:, None], 1.0),
+                   [1.0, 0.0])
+    e_t = np.column_stack([-e_r[:, 1], e_r[:, 0]])
+    h = 1e-6  # the lens's Jacobian by central differences (normalized coordinates)
+    J = np.stack([(np.array(plumb_bob(x + h * dx, y + h * dy, camera.dist))
+                   - np.array(plumb_bob(x - h * dx, y - h * dy, camera.dist))).T / (2 * h)
+                  for dx, dy in np.eye(2)], axis=2)  # (n, 2, 2): d(xd, yd) / d(x, y)
+    axes = np.stack([radial[k, None] * e_r, across[k, None] * e_t], axis=2)
+    s = np.linalg.svd(J @ axes, compute_uv=False)  # the axes, imaged: their lengths
+    out[k] = s[:, 1] / s[:, 0]
     return out
 
 
@@ -268,11 +270,43 @@ def check_cameras(rig, hint: str = "") -> None:
                             f"{cam.position_mm[2]:.0f} mm){hint}")
 
 
-def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True) -> None:
+def _branch_views(rig, elbows, near_mm: float, far_mm: float) -> list[list[list]]:
+    """For each set of elbow positions (:func:`_led_points`' ``elbows``), per camera of
+    ``rig``, per position: None if seen, else why not. One :func:`_visible` call a camera for
+    all of them (a call per set point cost seconds on long paths)."""
+    if not elbows:
+        return []
+    flat = np.vstack(elbows)
+    cuts = np.cumsum([len(b) for b in elbows])[:-1]
+    per_cam = [np.split(np.array(_visible(cam, flat, near_mm, far_mm), dtype=object), cuts)
+               for cam in rig.cameras]
+    return [[list(whys[k]) for whys in per_cam] for k in range(len(elbows))]
+
+
+def _seen_by_all(views) -> list[bool]:
+    """Per elbow position: whether every camera sees it (``views``: one set's per camera)."""
+    return [all(why[i] is None for why in views) for i in range(len(views[0]))]
+
+
+def _partly_seen_note(rig, e_k, views) -> str | None:
+    """:func:`elbow_partly_seen`'s note from the set points' branch views."""
+    at = [(k, v) for k, v in zip(e_k, views) if isinstance(k, int)]
+    partly = [k for k, v in at if not all(_seen_by_all(v))]
+    if not partly:
+        return None
+    return (f"note: {rig.source or rig.name}: at {len(partly)} of the {len(at)} set points in "
+            "reach only some of the elbow LED's positions (the arm's inverse-kinematics "
+            f"branches) are in view of every camera, the first at k = {partly[0]} (trace.csv's "
+            "k): a controller on a branch out of view loses the elbow LED there and decides on "
+            "its last measured position")
+
+
+def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True) -> str | None:
     """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
     arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring.
     ``start_up=False`` leaves out the start-up measurement's poses (the start pose and the set
-    points alone)."""
+    points alone). Returns :func:`elbow_partly_seen`'s note (None if every branch is seen),
+    from the same look at the elbow's positions."""
     from .urdf import LED_RADIUS_MM
 
     hint = "; --allow-unseen runs anyway"
@@ -294,6 +328,7 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
 
     where = rig.source or rig.name
     check_cameras(rig, hint)
+    views = _branch_views(rig, elbows, near_mm, far_mm)
     for i, cam in enumerate(rig.cameras):
         who = f"{where}: cameras[{i}] ({cam.name})"
         why = _visible(cam, gripper, near_mm, far_mm)
@@ -305,21 +340,22 @@ def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = Tru
                             f"positions; {what}, {tuple(round(float(v), 1) for v in gripper[k])} mm "
                             f"{why[k]}{more(g_k[k])}{hint}")
         for k, branches in enumerate(elbows):
-            whys = _visible(cam, branches, near_mm, far_mm)
+            whys = views[k][i]
             if all(whys):
                 what = at(e_k[k])
                 raise UserError(f"{who}: cannot see the elbow LED {what}: "
                                 f"{tuple(round(float(v), 1) for v in branches[0])} mm "
                                 f"{whys[0]}{more(e_k[k])}{hint}")
     for k, branches in enumerate(elbows):  # the eye triangulates what both cameras see
-        if not in_view(rig.cameras, branches).any():
-            only = ", ".join(
-                f"cameras[{c}] ({cam.name}) only "
-                f"{tuple(round(float(v), 1) for v in branches[in_view([cam], branches).argmax()])}"
-                " mm" for c, cam in enumerate(rig.cameras))
+        if not any(_seen_by_all(views[k])):
+            first_seen = [[w is None for w in whys].index(True) for whys in views[k]]
+            only = ", ".join(f"cameras[{c}] ({cam.name}) only "
+                             f"{tuple(round(float(v), 1) for v in branches[first_seen[c]])} mm"
+                             for c, cam in enumerate(rig.cameras))
             raise UserError(f"{where}: no position of the elbow LED {at(e_k[k])} is seen by "
                             f"both cameras ({only}): the eye measures an LED that both see"
                             f"{more(e_k[k])}{hint}")
+    return _partly_seen_note(rig, e_k, views)
 
 
 def elbow_partly_seen(rig, arm: ArmSpec, points_mm: np.ndarray) -> str | None:
@@ -327,14 +363,7 @@ def elbow_partly_seen(rig, arm: ArmSpec, points_mm: np.ndarray) -> str | None:
     (the arm's inverse-kinematics branches) are in view of every camera of ``rig``; else None.
     :func:`check_visible` asks for one, as a model-free controller may take either branch and
     the check cannot know which: on a branch out of view the run loses the elbow LED there,
-    and the controller decides on its last measured position."""
+    and the controller decides on its last measured position. (:func:`check_visible` returns
+    the same note from its own look: a run asks that alone.)"""
     _, elbows, _, e_k = _led_points(arm, points_mm, start_up=False)
-    at = [(k, branches) for k, branches in zip(e_k, elbows) if isinstance(k, int)]
-    partly = [k for k, branches in at if not in_view(rig.cameras, branches).all()]
-    if not partly:
-        return None
-    return (f"note: {rig.source or rig.name}: at {len(partly)} of the {len(at)} set points in "
-            "reach only some of the elbow LED's positions (the arm's inverse-kinematics "
-            f"branches) are in view of every camera, the first at k = {partly[0]} (trace.csv's "
-            "k): a controller on a branch out of view loses the elbow LED there and decides on "
-            "its last measured position")
+    return _partly_seen_note(rig, e_k, _branch_views(rig, elbows, *_render_range_mm()))

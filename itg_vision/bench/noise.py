@@ -68,15 +68,19 @@ def keep_edits(out: Path) -> None:
         outputs.keep_aside(out / name, f"{out / name} was changed since the benchmark wrote it")
 
 
-def keep_theirs(out: Path, name: str) -> None:
-    """Keep aside (:func:`outputs.keep_aside`) ``out/name`` if it is there and no run of this
-    benchmark wrote it (its manifest has no digest of it): a file of the user's, about to be
-    written over or deleted."""
+def keep_theirs(out: Path):
+    """A function of a file's name in ``out`` that keeps it aside (:func:`outputs.keep_aside`)
+    if it is there and no run of this benchmark wrote it (its manifest, read once here, has no
+    digest of it): a file of the user's, about to be written over or deleted."""
     made = outputs.read_manifest(out) or {}
     recorded = made.get("sha256") if isinstance(made.get("sha256"), dict) else {}
-    path = out / name
-    if (path.exists() or path.is_symlink()) and name not in recorded:
-        outputs.keep_aside(path, f"{path} is not a file the benchmark wrote")
+
+    def keep(name: str) -> None:
+        path = out / name
+        if (path.exists() or path.is_symlink()) and name not in recorded:
+            outputs.keep_aside(path, f"{path} is not a file the benchmark wrote")
+
+    return keep
 
 
 def record_written(out: Path, command: str, names: list[str]) -> None:
@@ -331,9 +335,10 @@ def _run_locked(specs, out, options, command, definition, executor, n_workers, c
     store.reorder([s.run_id for s in specs])  # the sweep's order, not the order runs finished
     rows = list(store.rows.values())
     keep_edits(out)
+    theirs = keep_theirs(out)
     plots = write_report(out, rows, specs, command, failures, plot_metrics,
-                         keep=lambda path: keep_theirs(out, path.name))
-    keep_theirs(out, "failures.log")  # written or deleted below: a file of the user's is kept
+                         keep=lambda path: theirs(path.name))
+    theirs("failures.log")  # written or deleted below: a file of the user's is kept
     failures = {**_earlier_failures(out / "failures.log", store, todo), **failures}
     if failures:
         outputs.write_text(out / "failures.log",
