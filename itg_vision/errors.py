@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 import threading
+from contextlib import contextmanager
 from typing import Callable
 
 
@@ -88,12 +89,56 @@ class Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
-def _terminate(signum, frame):
-    raise Terminated(signum)
-
-
 #: The signals a command turns into :class:`Terminated` (where the platform has them).
 TERMINATING = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+#: What carries a signal that landed inside an import to the import's end (see `_on_signal`).
+_CARRIER = getattr(signal, "SIGALRM", None)
+_DEFER_S = 0.01
+_deferred: list[int] = []  # the signal being carried, if any
+_held = [0]  # how many sections that no signal may cut are under way (`signals_held`)
+
+
+@contextmanager
+def signals_held():
+    """A section that a command's signal must not cut in two (a file descriptor pointed
+    elsewhere and put back, see `stdio.quiet_c_streams`): one that lands there is raised where
+    the section ends. For short sections only: a held Ctrl-C waits for the end."""
+    _held[0] += 1
+    try:
+        yield
+    finally:
+        _held[0] -= 1
+
+
+def _importing(frame) -> bool:
+    """Whether ``frame`` runs inside an import (importlib's frames are below it)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _on_signal(signum, frame):
+    """Ctrl-C, SIGTERM and SIGHUP in a command's body: raise `KeyboardInterrupt` or
+    `Terminated` where the command is, to be cleaned up and said by `run_main`.
+
+    Not inside an import: a C extension's module code can swallow the exception (numpy.random's
+    did: the run went on to its end, status 0, its results written as if no signal had come).
+    Nor inside `signals_held` (stderr pointed at /dev/null for PyBullet's banner and never put
+    back: the run ended, status 143, without a word). There the signal is taken up again every
+    10 ms (on SIGALRM) until the import or the section is done."""
+    if signum == _CARRIER:
+        signum = _deferred[0] if _deferred else signum  # SIGALRM from outside: its default
+    if _CARRIER and (_held[0] or _importing(frame)) and signal.getsignal(_CARRIER) is _on_signal:
+        _deferred[:] = [signum]
+        signal.setitimer(signal.ITIMER_REAL, _DEFER_S)
+        return
+    _deferred.clear()
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise Terminated(signum)
 
 
 def run_main(body: Callable[[], int]) -> int:
@@ -104,10 +149,6 @@ def run_main(body: Callable[[], int]) -> int:
     read-only disk) is one line too, status 2; a closed standard output (``| head``) ends the
     command quietly, status 1; a current folder deleted before the start is said, status 2.
     """
-    package = sys.modules.get(__package__)
-    start_handler = getattr(package, "_interrupted_at_start", None)  # only under python -m
-    if start_handler is not None and signal.getsignal(signal.SIGINT) is start_handler:
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C in the body: below
     try:
         os.getcwd()
     except FileNotFoundError:
@@ -115,12 +156,18 @@ def run_main(body: Callable[[], int]) -> int:
               file=sys.stderr)
         return 2
     # SIGTERM / SIGHUP end the body as Ctrl-C does (their default kills the process on the
-    # spot, leaving a staging folder behind); only where nobody else handles them
+    # spot, leaving a staging folder behind); only where nobody else handles them. Ctrl-C is
+    # taken over from the start-up's handler (under python -m), and afterwards left to Python.
     previous = {}
+    package = sys.modules.get(__package__)
+    start_handler = getattr(package, "_interrupted_at_start", None)  # only under python -m
+    if start_handler is not None and signal.getsignal(signal.SIGINT) is start_handler:
+        signal.signal(signal.SIGINT, _on_signal)
+        previous[signal.SIGINT] = signal.default_int_handler
     if threading.current_thread() is threading.main_thread():
-        for sig in TERMINATING:
+        for sig in (*TERMINATING, *([_CARRIER] if _CARRIER else [])):
             if signal.getsignal(sig) is signal.SIG_DFL:
-                previous[sig] = signal.signal(sig, _terminate)
+                previous[sig] = signal.signal(sig, _on_signal)
     try:
         return body()
     except UserError as exc:
@@ -142,6 +189,9 @@ def run_main(body: Callable[[], int]) -> int:
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     finally:
+        if _CARRIER in previous:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+        _deferred.clear()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
