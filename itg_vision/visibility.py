@@ -39,9 +39,13 @@ from .errors import UserError
 
 #: Pixels kept free between an LED's projected disc and the image border.
 MARGIN_PX = 2.0
-#: Smallest projected LED radius (px) the detector can use: its blobs need
-#: ``detect.MIN_AREA_PX`` (3 px) of area, pi * 1^2 = 3.1.
-MIN_LED_RADIUS_PX = 1.0
+#: Smallest projected LED radius (px) the detector takes at every sub-pixel position. Its gate
+#: on a blob's roundness (``detect.MIN_ROUNDNESS``, of the half-peak pixel set) sees the pixel
+#: grid: a disc of radius 1.7-2.08 px falls under it at some positions (10-28 % of them, 0.727
+#: at worst), one of 2.1 px or more at none (computed on a 16 x 16 grid of positions for radii
+#: up to 6 px: tests/test_visibility.py). Rendered, LEDs of 1.8 and 2.0 px were missed in 29
+#: and 24 % of looks (supersample 1; 30 and 26 % at 3), of 2.1-2.6 px in none of 120 each.
+MIN_LED_RADIUS_PX = 2.1
 
 
 def _render_range_mm() -> tuple[float, float]:
