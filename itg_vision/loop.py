@@ -35,13 +35,9 @@ from .outputs import unsigned_zero
 #: step before: deciding on it again repeated that step open-loop, once per lost look (under
 #: 4 px noise the eye rejects about 1 LED detection in 3); holding the joints instead lagged a
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
-#: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. A
-#: lost elbow leaves the feedback's last elbow estimate, however old (measured in the README,
-#: "Lost looks": a look lost now and then misleads Table 2's rules, hardly ITG+ or the Jacobian
-#: tracker; an elbow out of view for a stretch, on a branch the rig does not frame, misleads
-#: them all, and ``run`` says so before and after: README, "Arms"). After a
-#: step flagged out of reach (it holds the arm) the gripper is taken to be where that decision
-#: saw it.
+#: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. After
+#: a step flagged out of reach (it holds the arm) the gripper is taken to be where that decision
+#: saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm``.
 AIM_ON_LOST = "gripper"
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
@@ -102,7 +98,9 @@ class SetPointRecord:
     flags : "out_of_reach", "aim_out_of_reach" (the controller flagged the aim out of reach and
         was asked again with the set point), "missed:<marker>", "at_last_aim" (a look missed the
         gripper: the controller was given the last decision's aim for it, :data:`AIM_ON_LOST`),
-        "held" (the same before the first decision: the joints held for that iteration).
+        "held" (the same before the first decision: the joints held for that iteration),
+        "elbow_turned" (a look missed the elbow: its last measured position turned with the
+        base was used, :class:`Session`'s ``base_axis_mm``).
     out_of_reach : whether the controller flagged the set point out of reach.
     in_reach : whether the simulated arm can reach the set point (the metrics count it).
     """
@@ -139,6 +137,8 @@ class Trace:
     missed_by: dict = field(default_factory=lambda: {m: 0 for m in MARKERS})
     n_at_last_aim: int = 0
     n_held: int = 0
+    #: looks whose missed elbow was turned with the base (:class:`Session`'s ``base_axis_mm``)
+    n_elbow_turned: int = 0
     timing_ms: dict = field(default_factory=dict)
     #: the largest joint increment applied in one iteration (deg, after the servo limit), its
     #: joint and set point (1-based): a run can say that a step turned a joint a full turn
@@ -255,6 +255,7 @@ class Trace:
             "n_missed": int(self.n_missed),
             "n_at_last_aim": int(self.n_at_last_aim),
             "n_held": int(self.n_held),
+            "n_elbow_turned": int(self.n_elbow_turned),
             "est_gripper_rms_mm": rms(self.est_err_mm["gripper"]),
             "est_elbow_rms_mm": rms(self.est_err_mm["elbow"]),
             "timing_ms": {k: float(np.median(v)) for k, v in self.timing_ms.items() if v},
@@ -334,13 +335,20 @@ class Session:
     max_step_deg : the servo rate limit: no joint moves more per iteration, whatever the
         controller (None: no limit).
     tracking_start : first set point of the tracking phase (default: the second half).
+    base_axis_mm : (x, y), the base's axis as measured (planar arms only). A look that misses
+        the elbow then gives its last measured position turned about that axis by the base's
+        commanded turn since, where a planar arm's elbow is (it moves with q1 alone), flagged
+        ``elbow_turned``. None (the default): the feedback's last elbow estimate, however old;
+        an elbow out of view for a stretch (on a branch the rig does not frame) then misled
+        every controller: ITG+ max 102 mm, the Jacobian tracker 79 (README, "Lost looks").
     progress : called with 1 when a set point is done.
     recorder : optional video recorder (``frame(feedback, desired_mm, label)`` per set point, labelled ``k N`` as trace.csv).
     """
 
     def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool | None = None,
                  max_step_deg: float | None = None, tracking_start: int | None = None,
-                 progress: Callable[[int], None] | None = None, recorder=None):
+                 base_axis_mm=None, progress: Callable[[int], None] | None = None,
+                 recorder=None):
         self.world = world
         self.feedback = feedback
         points = np.asarray(points_mm, float)
@@ -363,6 +371,15 @@ class Session:
             raise ValueError(f"planar={planar!r}, but arm {world.arm.name} is "
                              f"{'' if world.arm.planar else 'not '}planar (leave planar out)")
         self.planar = bool(planar)
+        if base_axis_mm is not None:
+            if not self.planar:  # its elbow moves with q2 too, about an axis that turns with q1
+                raise ValueError(f"base_axis_mm turns a planar arm's lost elbow; arm "
+                                 f"{world.arm.name} is not planar (leave it out)")
+            base_axis_mm = np.asarray(base_axis_mm, float)
+            if base_axis_mm.shape != (2,) or not np.isfinite(base_axis_mm).all():
+                raise ValueError(f"base_axis_mm: (x, y) in mm expected, got {base_axis_mm!r}")
+        self.base_axis_mm = base_axis_mm
+        self._elbow_seen: tuple[np.ndarray, float] | None = None  # and the base's angle then
         self.iterations = int(iterations)
         self.max_step_deg = max_step_deg
         self.progress = progress
@@ -405,7 +422,26 @@ class Session:
         self.trace.observed(self._estimate, self._seen)
         for m in self._estimate.missed:
             self.flag(f"missed:{m}")
+        self._estimate = self._elbow_on_lost(self._estimate)
         return self._estimate
+
+    def _elbow_on_lost(self, estimate: Markers) -> Markers:
+        """``estimate`` with a missed elbow turned with the base since it was last seen (see
+        ``base_axis_mm``); the base's angle is the one the loop commanded."""
+        q1 = float(self.world.q_deg[0])
+        if "elbow" not in estimate.missed:
+            self._elbow_seen = (np.array(estimate.elbow_mm, float), q1)
+            return estimate
+        if self.base_axis_mm is None or self._elbow_seen is None:
+            return estimate
+        elbow, q1_then = self._elbow_seen
+        t = math.radians(q1 - q1_then)  # q1 turns the arm counter-clockwise seen from above
+        (dx, dy), (c, s) = elbow[:2] - self.base_axis_mm, (math.cos(t), math.sin(t))
+        turned = np.array([self.base_axis_mm[0] + c * dx - s * dy,
+                           self.base_axis_mm[1] + s * dx + c * dy, elbow[2]])
+        self.trace.n_elbow_turned += 1
+        self.flag("elbow_turned")
+        return replace(estimate, elbow_mm=turned)
 
     def flag(self, name: str) -> None:
         """Add ``name`` to the current set point's flags (once)."""
@@ -497,7 +533,7 @@ class Session:
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool | None = None, max_step_deg: float | None = None,
              tracking_start: int | None = None, correction: float = 1.0,
-             aims_mm: np.ndarray | None = None,
+             aims_mm: np.ndarray | None = None, base_axis_mm=None,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) with ``controller`` and return the trace.
 
@@ -515,7 +551,7 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
                          f"measured error corrected per decision), got {correction!r}")
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
-                      progress=progress, recorder=recorder)
+                      base_axis_mm=base_axis_mm, progress=progress, recorder=recorder)
     if aims_mm is not None:  # one short ran its set points, then failed as an IndexError
         aims_mm = np.asarray(aims_mm, float)
         if aims_mm.shape != session.points_mm.shape or not np.isfinite(aims_mm).all():

@@ -329,10 +329,12 @@ def main(argv: list[str] | None = None) -> int:
                       "by the arm, or off the image; trace.csv's flags say where): those "
                       "decisions were made on the last aim, not on a measurement", file=sys.stderr)
             if trace.missed_by.get("elbow", 0) > beyond:
+                held = ("turned with the base's commanded turn since" if trace.n_elbow_turned
+                        else "however old")
                 print(f"note: the elbow LED went unseen in {trace.missed_by['elbow']} of the "
                       f"{looks} looks (hidden by the arm, or off the image; trace.csv's flags say "
-                      "where): those decisions were made on its last measured position, however "
-                      "old", file=sys.stderr)
+                      f"where): those decisions were made on its last measured position, {held}",
+                      file=sys.stderr)
             if args.video:
                 summary["video"] = recorder.path.name
                 summary["video_codec"] = recorder.codec_note
@@ -444,6 +446,8 @@ def summary_table(s: dict, out: Path) -> str:
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),
                  ("LED detections missed", f(s["n_missed"])),
                  ("iterations given the last aim (the gripper missed)", f(s["n_at_last_aim"])),
+                 *([("looks whose lost elbow was turned with the base", f(s["n_elbow_turned"]))]
+                   if s.get("n_elbow_turned") else []),
                  ("iterations held (missed before any aim)", f(s["n_held"]))]
         t = s.get("timing_ms", {})
         rows.append(("median ms render/detect/triang./rules",

@@ -437,6 +437,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          tracking_start=prep.trajectory.tracking_start,
                          correction=cfg.correction,
                          aims_mm=None if prep.preview is None else prep.preview.aims_mm,
+                         base_axis_mm=geometry.base_axis_mm if prep.model.planar else None,
                          progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {

@@ -197,29 +197,46 @@ def test_a_run_on_a_rig_that_sees_part_of_the_sweep_tracks_and_says_what_it_left
 
 
 @pytest.mark.slow
-def test_a_run_that_loses_the_elbow_along_its_path_says_so_before_and_after(main_in_process,
-                                                                               tmp_path):
+def test_a_run_that_loses_the_elbow_along_its_path_says_so_and_tracks(main_in_process, tmp_path,
+                                                                        monkeypatch):
     """conftest.front_rig looking 100 mm out sees the start-up at 30..150 deg and, along
     ellipse-t2, one of the elbow's two branches at some set points. The check accepts it (one
     branch in view) with a note before the run; ITG+ takes the other branch there, the looks
     miss the elbow, and a note after the run counts them: every look the run missed (the
-    gripper was never lost), beyond the 10 % the note allows."""
+    gripper was never lost), beyond the 10 % the note allows. Each lost elbow is turned with
+    the base, and the run tracks within issue 13's 3 mm (0.15 mm measured); handed the last
+    elbow measurement however old instead (the cause changed, nothing else), the same run
+    flailed: max 102 mm."""
     import re
 
     from conftest import front_rig
 
+    import itg_vision.runner as runner
+
     rig = front_rig(tmp_path / "front.yaml", look_y_mm=100.0)
-    res = main_in_process("itg_vision.run", "--rig", rig, "--trajectory", "ellipse-t2",
-                          "--rules", "itg-plus-two-link", "--laps", 2, "--max-step", 20,
-                          "--out", tmp_path / "run", "--quiet")
-    assert res.returncode == 0, res.stderr
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+
+    def run(out):
+        res = main_in_process("itg_vision.run", "--rig", rig, "--trajectory", "ellipse-t2",
+                              "--rules", "itg-plus-two-link", "--laps", 2, "--max-step", 20,
+                              "--out", tmp_path / out, "--quiet")
+        assert res.returncode == 0, res.stderr
+        return res, json.loads((tmp_path / out / "summary.json").read_text())
+
+    res, summary = run("run")
     before = re.search(r"note: \S+front.yaml: at (\d+) of the 360 set points in reach only some "
                        r"of the elbow LED's positions", res.stderr)
-    after = re.search(r"note: the elbow LED went unseen in (\d+) of the 360 looks", res.stderr)
+    after = re.search(r"note: the elbow LED went unseen in (\d+) of the 360 looks \(.*, turned "
+                      r"with the base's commanded turn since$", res.stderr, re.M)
     assert before and after, res.stderr
     assert summary["n_at_last_aim"] == summary["n_held"] == 0
-    assert int(after.group(1)) == summary["n_missed"] > 0.1 * 360
+    assert int(after.group(1)) == summary["n_missed"] == summary["n_elbow_turned"] > 0.1 * 360
+    assert summary["track_max_mm"] < 3.0
+    simulate = runner.simulate
+    monkeypatch.setattr(runner, "simulate",
+                        lambda *a, **kw: simulate(*a, **{**kw, "base_axis_mm": None}))
+    res, held = run("held")
+    assert "its last measured position, however old" in res.stderr
+    assert held["n_elbow_turned"] == 0 and held["track_max_mm"] > 20.0
 
 
 def test_on_part_of_the_sweep_the_lengths_standard_error_is_still_their_scatter():

@@ -460,6 +460,75 @@ def test_a_look_that_lost_the_gripper_is_given_the_last_aim():
     assert np.allclose(trace.records[-1].q_deg - trace.records[0].q_deg, [5.0, -5.0])  # all decide
 
 
+class _ElbowSpy(Constant):
+    """A Constant controller that records the elbow estimates it was given."""
+
+    def __init__(self, dq):
+        super().__init__(dq)
+        self.elbows = []
+
+    def step(self, desired_mm, markers, q_deg):
+        self.elbows.append(np.array(markers.elbow_mm, float))
+        return super().step(desired_mm, markers, q_deg)
+
+
+@pytest.mark.parametrize("offset_deg", [0.0, 7.0])
+def test_a_lost_elbow_is_its_last_measured_position_turned_with_the_base(offset_deg):
+    """A planar arm's elbow moves with q1 alone: from its last measured position turned about
+    the base axis by q1's commanded turn since, it is where the simulator has it (PyBullet's
+    float32, a few ulps at 100 mm), whatever q2 did, and with a joint offset the commanded
+    angles do not know of (7 deg: only turns count). Looks 3-8 lose it (6 in a row: 1.5 deg
+    of q1 a look, 9 deg in all); the first look and the others measure it. Left out, the
+    controller is handed the last measurement however old: at the sixth lost look, the chord of
+    9 deg at L1 = 100 mm, 2 x 100 x sin(4.5 deg) = 15.7 mm off."""
+    arm = dataclasses.replace(ArmSpec.from_args("two-link"), joint_offset_deg=(offset_deg, 0.0))
+    points = np.zeros((10, 3))
+    lost = lambda n: 3 <= n <= 8  # noqa: E731
+
+    def run(base_axis_mm):
+        ctrl = _ElbowSpy([1.5, -4.0])
+        with World(arm) as world:
+            trace = simulate(world, ctrl, _LosesLooks("elbow", lost), points,
+                             base_axis_mm=base_axis_mm)
+        return ctrl.elbows, trace
+
+    elbows, trace = run((0.0, 0.0))
+    truth = [r.true_at_estimate_mm["elbow"] for r in trace.records]
+    tol = 8 * PYBULLET_RTOL * 100.0
+    for k in range(10):
+        assert np.allclose(elbows[k], truth[k], rtol=0, atol=tol), (k, elbows[k] - truth[k])
+        assert ("elbow_turned" in trace.records[k].flags) == lost(k + 1)
+    assert trace.metrics()["n_elbow_turned"] == 6
+    held, trace = run(None)
+    off = np.linalg.norm(held[7] - truth[7])
+    assert off == pytest.approx(2 * 100.0 * np.sin(np.radians(4.5)), abs=tol)
+    assert trace.metrics()["n_elbow_turned"] == 0
+    assert all(np.allclose(held[k], held[1]) for k in range(2, 8))
+
+
+def test_a_lost_elbow_is_turned_about_the_axis_given():
+    """The turn is about the base axis given (the one the start-up measured), not the world's
+    origin: with the axis 10 mm off, the turned elbow is off the truth by the chord that offset
+    sweeps, 2 x 10 x sin(turn / 2) (closed form), at each of the lost looks."""
+    arm = ArmSpec.from_args("two-link")
+    ctrl = _ElbowSpy([2.0, 0.0])
+    with World(arm) as world:
+        trace = simulate(world, ctrl, _LosesLooks("elbow", lambda n: n >= 2), np.zeros((5, 3)),
+                         base_axis_mm=(10.0, 0.0))
+    truth = [r.true_at_estimate_mm["elbow"] for r in trace.records]
+    for k in range(1, 5):
+        chord = 2 * 10.0 * np.sin(np.radians(2.0 * k) / 2)
+        assert np.linalg.norm(ctrl.elbows[k] - truth[k]) == pytest.approx(chord, abs=1e-4)
+
+
+def test_only_a_planar_arm_s_lost_elbow_is_turned():
+    """The three-link elbow moves with q2 too, about an axis that turns with q1: refused."""
+    with World(ArmSpec.from_args("three-link")) as world:
+        with pytest.raises(ValueError, match="base_axis_mm turns a planar arm's lost elbow"):
+            simulate(world, Constant([0.0, 0.0, 0.0]), TruthFeedback(), np.zeros((2, 3)),
+                     base_axis_mm=(0.0, 0.0))
+
+
 def test_a_look_lost_before_any_decision_holds_the_joints():
     """No decision yet, no aim: the joints hold for that iteration, flagged and counted."""
     arm = ArmSpec.from_args("two-link")
