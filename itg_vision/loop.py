@@ -340,7 +340,7 @@ class Session:
         commanded turn since, where a planar arm's elbow is (it moves with q1 alone), flagged
         ``elbow_turned``. None (the default): the feedback's last elbow estimate, however old;
         an elbow out of view for a stretch (on a branch the rig does not frame) then misled
-        every controller: ITG+ max 102 mm, the Jacobian tracker 79 (README, "Lost looks").
+        every controller: ITG+ max 102 mm, the Jacobian tracker 79 (README, "Arms").
     progress : called with 1 when a set point is done.
     recorder : optional video recorder (``frame(feedback, desired_mm, label)`` per set point, labelled ``k N`` as trace.csv).
     """
