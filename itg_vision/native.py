@@ -21,7 +21,9 @@ independent evaluator). Compiled with ``-ffp-contract=off`` (no fused multiply-a
 operation rounds as Python's does), without fast-math, with ``-fno-builtin-pow`` (libm's pow
 at run time, as Python calls it: GCC would otherwise turn ``x ^ -1`` into ``1 / x``, a power
 that folds to 2 into a product and a constant to a constant power into its exact value, where
-libm's pow may differ by an ulp) and with ``-fno-math-errno``; ``itg_pow`` is declared a pure
+libm's pow may differ by an ulp), with ``-frounding-math`` (GCC 12 folds ``0 - fabs(x)`` into
+``-fabs(x)``, -0 at x = 0 where Python gives +0, unless it may not assume the rounding mode)
+and with ``-fno-math-errno``; ``itg_pow`` is declared a pure
 function, so that the compiler computes a definition only on the paths that read it (the C
 function computes every definition first, in file order). Modules are cached by the hash of
 their source, the compiler (command, flags, version), the machine and its C library under
@@ -52,7 +54,7 @@ from .rules import Name, Node, Num, RuleBase, Unary, _is_square, _moves
 
 #: Flags that keep C's arithmetic Python's: every operation rounded on its own.
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno",
-          "-fno-builtin-pow")
+          "-fno-builtin-pow", "-frounding-math")
 
 
 class NativeUnavailable(UserError):

@@ -73,6 +73,19 @@ def test_powers_and_divisions_at_their_edges_equal_python():
             _assert_same(fn, rb, args)
 
 
+def test_a_zero_minus_an_absolute_value_keeps_its_sign_as_in_python():
+    """0 - |x| at x = 0 is +0, as Python computes it: GCC 12 folds it into -|x| (-0), even at
+    -O0, unless told not to assume the rounding mode (-frounding-math); so does a LET's zero
+    the optimiser propagates."""
+    rb = RuleBase.from_text("LET z = 0\n"
+                            "RULE 1: IF 1 > 0 THEN q1 += 0 - |xd|, q2 += z - |yd|, q3 -= |xd| - 0",
+                            3, (100.0,) * 3)
+    fn = native.native_step(rb)
+    for x in (0.0, -0.0, 1.0, math.nan):
+        args = rb.arguments(np.array([x, x, 0.0]), markers([0, 0, 0], [0, 0, 0]), [0, 0, 0])
+        _assert_same(fn, rb, args)
+
+
 def test_powers_of_ordinary_numbers_are_libms_as_in_python():
     """Powers the C compiler could rewrite (x ^ -1 into 1 / x, a power that folds to 2 into a
     product, a constant to a constant power into its exact value) call libm's pow as Python
