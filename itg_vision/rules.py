@@ -232,6 +232,7 @@ class Rule:
     line: int
     text: str = ""
     col: int = field(default=0, compare=False)  # of 'RULE'
+    end: tuple[int, int] = field(default=(0, 0), compare=False)  # (line, col) just past its last token
 
     @property
     def out_of_reach(self) -> bool:
@@ -389,7 +390,9 @@ class _Parser:
                 raise self.error(f"q{joint} has two actions in one rule", tok)
         if not self._at_statement_end():
             raise self.error("expected ',' or the next 'RULE'")
-        return Rule(int(num.text), cond, tuple(actions), start.line, col=start.col)
+        last = self.t[self.i - 1]
+        return Rule(int(num.text), cond, tuple(actions), start.line, col=start.col,
+                    end=(last.line, last.col + len(last.text)))
 
     def action(self) -> Action:
         tok = self.tok
@@ -909,7 +912,7 @@ class RuleBase:
         parser = _Parser(tokenize(text, source), source)
         rules = parser.rules()
         lines = text.split("\n")  # the tokenizer's lines
-        rules = [replace(r, text=lines[r.line - 1].strip()) for r in rules]
+        rules = [replace(r, text=_statement_text(lines, r)) for r in rules]
         declared = [(k, line) for k, line in enumerate(lines, 1) if line.lstrip().startswith("#!")]
         for k, line in declared:  # a '#!' line is the parser's: no slips
             if not SERVO_STEP.fullmatch(line):
@@ -1189,6 +1192,15 @@ class RuleBase:
                     f"{value} deg ({values}): division by zero, overflow or a negative number "
                     f"to a fractional power in '{clip(rule.text, 80)}'; the run is stopped")
         return 0.0
+
+
+def _statement_text(lines: list[str], rule: Rule) -> str:
+    """A rule's text as one line, for messages: from its 'RULE' to its last token, over as
+    many lines as it spans, comments left out."""
+    (line, col), (end_line, end_col) = (rule.line, rule.col), rule.end
+    parts = [lines[k - 1][col - 1 if k == line else 0: end_col - 1 if k == end_line else None]
+             for k in range(line, end_line + 1)]
+    return " ".join(" ".join(p.split("#", 1)[0].split()) for p in parts if p.split("#", 1)[0].strip())
 
 
 def resolve_rules_path(name_or_path: str) -> Path:

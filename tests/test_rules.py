@@ -370,6 +370,21 @@ def test_a_non_finite_step_is_judged_by_its_own_joints_inputs():
     assert "'RULE 1: IF 1 > 0 THEN q1 += xe, q2 += 1 / (xd - xg)'" in msg
 
 
+def test_a_non_finite_step_of_a_rule_over_several_lines_quotes_the_whole_rule():
+    """A rule may span lines (the ITG+ files' do): the message quotes all of it, its comments
+    left out, and nothing of the statements beside it (it quoted the first line alone,
+    'RULE 1: IF xd > 0', without the step that divided by zero)."""
+    rb = RuleBase.from_text("LET z = 0 RULE 1: IF xd > 0   # near\n"
+                            "   THEN q1 += 1 / (xd - xg),  # the step\n"
+                            "        q2 HOLD RULE 2: IF xd < 0 THEN q2 += 1\n", 2, TWO,
+                            source="my.rules")
+    with pytest.raises(UserError) as exc:
+        rb.step(np.array([50.0, 0, 0]), markers([50.0, 0, 0], [0, 0, 0]), [0, 0])
+    msg = str(exc.value)
+    assert msg.startswith("my.rules:1: RULE 1 gives q1 a step of inf deg (xd = 50, xg = 50)")
+    assert "in 'RULE 1: IF xd > 0 THEN q1 += 1 / (xd - xg), q2 HOLD';" in msg
+
+
 @pytest.mark.parametrize("n, j", [(n, j) for n in (1, 2, 3) for j in range(1, n + 1)])
 def test_a_rule_base_reading_any_joint_angle_is_given_the_encoders(n, j):
     """Reading q_j alone (the last joint too) makes the rule base ask for the encoders, and
