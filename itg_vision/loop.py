@@ -221,7 +221,8 @@ class Trace:
         included), and the tracking phase's median, mean, 95th percentile and max;
         ``diverged``: that median is above :data:`DIVERGED_MM` (None without a tracking phase).
         ``n_out_of_reach``: set points the simulated arm cannot reach (left out of them all);
-        ``n_flagged``: set points the controller flagged out of reach; ``n_aim_out_of_reach``:
+        ``n_flagged``: set points the controller flagged out of reach; ``n_missed_by``: looks that
+        missed each marker (their sum is ``n_missed``); ``n_aim_out_of_reach``:
         set points whose aim (moved by a correction or a preview) the controller flagged, and
         was asked again with the set point."""
         e = self.error_mm()
@@ -253,6 +254,7 @@ class Trace:
             "n_flagged": int(self.out_of_reach.sum()),
             "n_aim_out_of_reach": sum("aim_out_of_reach" in r.flags for r in self.records),
             "n_missed": int(self.n_missed),
+            "n_missed_by": {m: int(v) for m, v in self.missed_by.items()},
             "n_at_last_aim": int(self.n_at_last_aim),
             "n_held": int(self.n_held),
             "n_elbow_turned": int(self.n_elbow_turned),

@@ -444,7 +444,8 @@ def summary_table(s: dict, out: Path) -> str:
     if s["feedback"] == "vision":
         rows += [("estimate RMS gripper / elbow",
                   f"{f(s['est_gripper_rms_mm'])} / {f(s['est_elbow_rms_mm'])} mm"),
-                 ("LED detections missed", f(s["n_missed"])),
+                 ("LED detections missed", f(s["n_missed"]) + (" ({})".format(", ".join(
+                     f"{m} {k}" for m, k in s["n_missed_by"].items())) if s["n_missed"] else "")),
                  ("iterations given the last aim (the gripper missed)", f(s["n_at_last_aim"])),
                  *([("looks whose lost elbow was turned with the base", f(s["n_elbow_turned"]))]
                    if s.get("n_elbow_turned") else []),

@@ -230,6 +230,11 @@ def test_a_run_that_loses_the_elbow_along_its_path_says_so_and_tracks(main_in_pr
     assert before and after, res.stderr
     assert summary["n_at_last_aim"] == summary["n_held"] == 0
     assert int(after.group(1)) == summary["n_missed"] == summary["n_elbow_turned"] > 0.1 * 360
+    assert summary["n_missed_by"] == {"gripper": 0, "elbow": summary["n_missed"]}
+    from itg_vision.run import summary_table
+
+    assert re.search(rf"^LED detections missed +{summary['n_missed']} \(gripper 0, elbow "
+                     rf"{summary['n_missed']}\)$", summary_table(summary, tmp_path / "run"), re.M)
     assert summary["track_max_mm"] < 3.0
     simulate = runner.simulate
     monkeypatch.setattr(runner, "simulate",

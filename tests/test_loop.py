@@ -499,6 +499,7 @@ def test_a_lost_elbow_is_its_last_measured_position_turned_with_the_base(offset_
         assert np.allclose(elbows[k], truth[k], rtol=0, atol=tol), (k, elbows[k] - truth[k])
         assert ("elbow_turned" in trace.records[k].flags) == lost(k + 1)
     assert trace.metrics()["n_elbow_turned"] == 6
+    assert trace.metrics()["n_missed_by"] == {"gripper": 0, "elbow": 6}  # which LED was missed
     held, trace = run(None)
     off = np.linalg.norm(held[7] - truth[7])
     assert off == pytest.approx(2 * 100.0 * np.sin(np.radians(4.5)), abs=tol)

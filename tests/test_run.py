@@ -53,7 +53,7 @@ def test_run_end_to_end_writes_all_outputs(cli, tmp_path):
         "arm", "arm_file", "code", "controller", "controller_params", "controller_params_from", "e_av_mm", "e_max_mm", "e_rms_mm",
         "est_elbow_rms_mm", "est_gripper_rms_mm", "feedback", "feedback_params", "geometry",
         "iterations", "joint_offset_deg", "laps", "links_mm", "max_step_deg", "correction", "preview",
-        "n_missed", "n_at_last_aim", "n_held", "n_elbow_turned",
+        "n_missed", "n_missed_by", "n_at_last_aim", "n_held", "n_elbow_turned",
         "n_out_of_reach", "n_flagged", "n_aim_out_of_reach", "n_setpoints", "rules", "seed", "start_error_mm", "first_error_mm",
         "timing_ms", "track_max_mm", "diverged",
         "track_mean_mm", "track_median_mm", "track_p95_mm", "tracking_from", "trajectory",
