@@ -430,11 +430,13 @@ class Session:
     def _elbow_on_lost(self, estimate: Markers) -> Markers:
         """``estimate`` with a missed elbow turned with the base since it was last seen (see
         ``base_axis_mm``); the base's angle is the one the loop commanded."""
+        if self.base_axis_mm is None:  # nothing to turn: no copy per look
+            return estimate
         q1 = float(self.world.q_deg[0])
         if "elbow" not in estimate.missed:
             self._elbow_seen = (np.array(estimate.elbow_mm, float), q1)
             return estimate
-        if self.base_axis_mm is None or self._elbow_seen is None:
+        if self._elbow_seen is None:
             return estimate
         elbow, q1_then = self._elbow_seen
         t = math.radians(q1 - q1_then)  # q1 turns the arm counter-clockwise seen from above

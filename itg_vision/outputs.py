@@ -176,11 +176,18 @@ def digests(folder: Path, entries: list[str]) -> dict[str, str]:
             if not e.endswith("/") and (folder / e).is_file() and not (folder / e).is_symlink()}
 
 
+def recorded_digests(made: dict | None) -> dict:
+    """The SHA-256 of each file the manifest ``made`` recorded (:func:`manifest`'s
+    ``digests``; empty for no manifest, or one without them)."""
+    recorded = (made or {}).get("sha256")
+    return recorded if isinstance(recorded, dict) else {}
+
+
 def edited(folder: Path, made: dict) -> list[str]:
     """The files of ``folder`` whose bytes differ from what the manifest ``made`` recorded of
     them (none for a manifest without digests)."""
-    recorded = made.get("sha256")
-    if not isinstance(recorded, dict):
+    recorded = recorded_digests(made)
+    if not recorded:
         return []
     try:
         now = digests(folder, [e for e in recorded if isinstance(e, str)])

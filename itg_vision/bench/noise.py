@@ -72,8 +72,7 @@ def keep_theirs(out: Path):
     """A function of a file's name in ``out`` that keeps it aside (:func:`outputs.keep_aside`)
     if it is there and no run of this benchmark wrote it (its manifest, read once here, has no
     digest of it): a file of the user's, about to be written over or deleted."""
-    made = outputs.read_manifest(out) or {}
-    recorded = made.get("sha256") if isinstance(made.get("sha256"), dict) else {}
+    recorded = outputs.recorded_digests(outputs.read_manifest(out))
 
     def keep(name: str) -> None:
         path = out / name
@@ -87,8 +86,7 @@ def record_written(out: Path, command: str, names: list[str]) -> None:
     """The manifest of ``out``, with the digests of the files named that exist (what
     :func:`keep_edits` compares) and of those an earlier run wrote that are still as it wrote
     them (a plot of other ``--plot-metrics``: the benchmark's, not the user's)."""
-    earlier = (outputs.read_manifest(out) or {}).get("sha256")
-    earlier = earlier if isinstance(earlier, dict) else {}
+    earlier = outputs.recorded_digests(outputs.read_manifest(out))
     kept = {n: h for n, h in outputs.digests(out, list(earlier)).items() if h == earlier[n]}
     written = [n for n in names if (out / n).is_file()]
     outputs.write_json(out / outputs.MANIFEST, outputs.manifest(
