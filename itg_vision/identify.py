@@ -100,6 +100,12 @@ class ArmGeometry:
         axis, from the start-up's repeated looks, carried through the medians and the fits).
         A bias (a rig's, a rendering's: the same in every look) is not in it. 0 for the
         nominal model.
+    pitch_axis : three-link, measured: the shoulder joint's (q2's) axis with the base at its
+        commanded 0 deg, a unit vector oriented by the right-hand rule of a positive q2 step:
+        the normal of the elbow LED's circle in the shoulder sweep, oriented so that the
+        sweep's increasing q2 turns counter-clockwise about it, and turned back about the
+        vertical by the base's commanded angle at the start (it turns with the base: at q1,
+        turned by q1 about the vertical). None: not measured (planar arms, the nominal model).
     """
 
     links_mm: tuple[float, ...]
@@ -108,6 +114,7 @@ class ArmGeometry:
     source: str = "nominal model"
     residual_mm: float = 0.0
     length_se_mm: float = 0.0
+    pitch_axis: tuple[float, float, float] | None = None
 
     @property
     def base_axis_mm(self) -> tuple[float, float]:
@@ -120,7 +127,10 @@ class ArmGeometry:
         return {"links_mm": [round(v, 4) for v in self.links_mm],
                 "base_axis_mm": [round(v, 4) for v in self.base_axis_mm],
                 "shoulder_mm": [round(v, 4) for v in self.shoulder_mm],
-                "standoff_mm": round(self.standoff_mm, 4), "source": self.source,
+                "standoff_mm": round(self.standoff_mm, 4),
+                "pitch_axis": None if self.pitch_axis is None
+                else [round(v, 6) for v in self.pitch_axis],
+                "source": self.source,
                 "residual_mm": round(self.residual_mm, 4),
                 "length_se_mm": round(self.length_se_mm, 4)}
 
@@ -476,7 +486,8 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
     sweep = np.array(elbows + grippers)
     links = lengths_of(sweep)
     axis_point, axis_dir, axis_rms = base_axis(list(leds.values()))
-    centre, _, _, rms = fit_circle(elbows)
+    centre, normal, _, rms = fit_circle(elbows)
+    pitch = turn_about([0.0, 0.0, 1.0], -start[0]) @ rotation_sense_axis(centre, normal, elbows)
     L1 = links[0]
     shoulder = axis_at_height(axis_point, axis_dir, L1)  # the axis as measured, tilt and all
     standoff = float(np.linalg.norm(np.cross(centre - shoulder, axis_dir)))
@@ -487,7 +498,8 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
                        "through the elbow LED with the shoulder moved "
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
                        "|gripper - elbow|", max(rms, axis_rms),
-                       _largest_se(lengths_of, sweep, scatter))
+                       _largest_se(lengths_of, sweep, scatter),
+                       tuple(float(v) for v in pitch))
 
 
 def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen) -> ArmGeometry:

@@ -26,6 +26,7 @@ import numpy as np
 
 from .contracts import MARKERS, Controller, Markers, Step
 from .errors import UserError
+from .identify import turn_about
 from .inputs import is_real, is_whole
 from .outputs import unsigned_zero
 
@@ -37,12 +38,14 @@ from .outputs import unsigned_zero
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
 #: the README, "Lost looks"). Before the first decision there is no aim: the joints hold. After
 #: a step flagged out of reach (it holds the arm) the gripper is taken to be where that decision
-#: saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm``.
+#: saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm`` and ``pitch_axis_mm``.
 AIM_ON_LOST = "gripper"
 
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
 #: two- and three-link arms' 200 mm reach (a line, not a gap in the data: README, "Diverged runs").
 DIVERGED_MM = 20.0
+
+_UP = np.array([0.0, 0.0, 1.0])  # the vertical base axis's direction
 
 
 def aim_mm(desired_mm, previous_mm, gripper_mm, correction: float, planar: bool) -> np.ndarray:
@@ -100,7 +103,7 @@ class SetPointRecord:
         gripper: the controller was given the last decision's aim for it, :data:`AIM_ON_LOST`),
         "held" (the same before the first decision: the joints held for that iteration),
         "elbow_turned" (a look missed the elbow: its last measured position turned with the
-        base was used, :class:`Session`'s ``base_axis_mm``).
+        joints was used, :class:`Session`'s ``base_axis_mm`` and ``pitch_axis_mm``).
     out_of_reach : whether the controller flagged the set point out of reach.
     in_reach : whether the simulated arm can reach the set point (the metrics count it).
     """
@@ -137,7 +140,8 @@ class Trace:
     missed_by: dict = field(default_factory=lambda: {m: 0 for m in MARKERS})
     n_at_last_aim: int = 0
     n_held: int = 0
-    #: looks whose missed elbow was turned with the base (:class:`Session`'s ``base_axis_mm``)
+    #: looks whose missed elbow was turned with the joints (:class:`Session`'s ``base_axis_mm``,
+    #: ``pitch_axis_mm``)
     n_elbow_turned: int = 0
     timing_ms: dict = field(default_factory=dict)
     #: the largest joint increment applied in one iteration (deg, after the servo limit), its
@@ -343,14 +347,22 @@ class Session:
         ``elbow_turned``. None (the default): the feedback's last elbow estimate, however old;
         an elbow out of view for a stretch (on a branch the rig does not frame) then misled
         every controller: ITG+ max 102 mm, the Jacobian tracker 79 (README, "Arms").
+    pitch_axis_mm : ``(shoulder_mm, direction)``, the three-link arm's shoulder axis as measured
+        (:attr:`itg_vision.identify.ArmGeometry.pitch_axis`): a point on it, the shoulder on
+        the vertical base axis (mm), and its unit direction with the base at its commanded
+        0 deg (the right-hand rule of a positive q2 step). A look that misses the elbow then gives its
+        last measured position turned about the shoulder axis (as the base had turned it
+        then) by the shoulder's commanded turn since, and about the vertical base axis through
+        the shoulder by the base's: where a three-link arm's elbow is (it moves with q1 and q2
+        alone), flagged ``elbow_turned``. None (the default): the feedback's last estimate.
     progress : called with 1 when a set point is done.
     recorder : optional video recorder (``frame(feedback, desired_mm, label)`` per set point, labelled ``k N`` as trace.csv).
     """
 
     def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool | None = None,
                  max_step_deg: float | None = None, tracking_start: int | None = None,
-                 base_axis_mm=None, progress: Callable[[int], None] | None = None,
-                 recorder=None):
+                 base_axis_mm=None, pitch_axis_mm=None,
+                 progress: Callable[[int], None] | None = None, recorder=None):
         self.world = world
         self.feedback = feedback
         points = np.asarray(points_mm, float)
@@ -373,15 +385,29 @@ class Session:
             raise ValueError(f"planar={planar!r}, but arm {world.arm.name} is "
                              f"{'' if world.arm.planar else 'not '}planar (leave planar out)")
         self.planar = bool(planar)
+        # the axes a lost elbow turns about: (a point, its direction with the base at 0 deg)
+        self._axes: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
         if base_axis_mm is not None:
             if not self.planar:  # its elbow moves with q2 too, about an axis that turns with q1
                 raise ValueError(f"base_axis_mm turns a planar arm's lost elbow; arm "
-                                 f"{world.arm.name} is not planar (leave it out)")
+                                 f"{world.arm.name} is not planar (give pitch_axis_mm)")
             base_axis_mm = np.asarray(base_axis_mm, float)
             if base_axis_mm.shape != (2,) or not np.isfinite(base_axis_mm).all():
                 raise ValueError(f"base_axis_mm: (x, y) in mm expected, got {base_axis_mm!r}")
+            self._axes = ((np.array([*base_axis_mm, 0.0]), _UP),)
+        if pitch_axis_mm is not None:
+            if self.planar or world.arm.n_joints != 3:
+                raise ValueError(f"pitch_axis_mm turns a three-link arm's lost elbow; arm "
+                                 f"{world.arm.name} is not one (give base_axis_mm)")
+            point, direction = (np.asarray(v, float) for v in pitch_axis_mm)
+            if (point.shape != (3,) or direction.shape != (3,)
+                    or not np.isfinite([*point, *direction]).all()
+                    or not abs(np.linalg.norm(direction) - 1.0) < 1e-6):
+                raise ValueError(f"pitch_axis_mm: (shoulder (x, y, z) in mm, unit direction) "
+                                 f"expected, got {pitch_axis_mm!r}")
+            self._axes = ((point, _UP), (point, direction))
         self.base_axis_mm = base_axis_mm
-        self._elbow_seen: tuple[np.ndarray, float] | None = None  # and the base's angle then
+        self._elbow_seen: tuple[np.ndarray, np.ndarray] | None = None  # and the joints then
         self.iterations = int(iterations)
         self.max_step_deg = max_step_deg
         self.progress = progress
@@ -428,24 +454,33 @@ class Session:
         return self._estimate
 
     def _elbow_on_lost(self, estimate: Markers) -> Markers:
-        """``estimate`` with a missed elbow turned with the base since it was last seen (see
-        ``base_axis_mm``); the base's angle is the one the loop commanded."""
-        if self.base_axis_mm is None:  # nothing to turn: no copy per look
+        """``estimate`` with a missed elbow turned with the joints since it was last seen (see
+        ``base_axis_mm``, ``pitch_axis_mm``); the angles are the ones the loop commanded."""
+        if not self._axes:  # nothing to turn: no copy per look
             return estimate
-        q1 = float(self.world.q_deg[0])
+        q = np.array(self.world.q_deg, float)
         if "elbow" not in estimate.missed:
-            self._elbow_seen = (np.array(estimate.elbow_mm, float), q1)
+            self._elbow_seen = (np.array(estimate.elbow_mm, float), q)
             return estimate
         if self._elbow_seen is None:
             return estimate
-        elbow, q1_then = self._elbow_seen
-        t = math.radians(q1 - q1_then)  # q1 turns the arm counter-clockwise seen from above
-        (dx, dy), (c, s) = elbow[:2] - self.base_axis_mm, (math.cos(t), math.sin(t))
-        turned = np.array([self.base_axis_mm[0] + c * dx - s * dy,
-                           self.base_axis_mm[1] + s * dx + c * dy, elbow[2]])
+        elbow, q_then = self._elbow_seen
         self.trace.n_elbow_turned += 1
         self.flag("elbow_turned")
-        return replace(estimate, elbow_mm=turned)
+        return replace(estimate, elbow_mm=self._turned(elbow, q_then, q))
+
+    def _turned(self, elbow: np.ndarray, q_then: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Where ``elbow``, seen at joints ``q_then``, is at ``q``: turned about the shoulder's
+        axis (as the base had turned it at ``q_then``) by q2's turn since, then about the
+        vertical base axis by q1's. Both axes pass through the shoulder, so the order is
+        immaterial as long as the shoulder's axis is the one of ``q_then``."""
+        (base_point, up), *pitch = self._axes
+        turn = turn_about(up, q[0] - q_then[0])  # q1 turns the arm counter-clockwise from above
+        if pitch:
+            (point, at_zero), = pitch
+            then = turn_about(up, q_then[0]) @ at_zero
+            turn = turn @ turn_about(then, q[1] - q_then[1])
+        return base_point + turn @ (elbow - base_point)
 
     def flag(self, name: str) -> None:
         """Add ``name`` to the current set point's flags (once)."""
@@ -537,7 +572,7 @@ class Session:
 def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool | None = None, max_step_deg: float | None = None,
              tracking_start: int | None = None, correction: float = 1.0,
-             aims_mm: np.ndarray | None = None, base_axis_mm=None,
+             aims_mm: np.ndarray | None = None, base_axis_mm=None, pitch_axis_mm=None,
              progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) with ``controller`` and return the trace.
 
@@ -555,7 +590,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
                          f"measured error corrected per decision), got {correction!r}")
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
-                      base_axis_mm=base_axis_mm, progress=progress, recorder=recorder)
+                      base_axis_mm=base_axis_mm, pitch_axis_mm=pitch_axis_mm, progress=progress,
+                      recorder=recorder)
     if aims_mm is not None:  # one short ran its set points, then failed as an IndexError
         aims_mm = np.asarray(aims_mm, float)
         if aims_mm.shape != session.points_mm.shape or not np.isfinite(aims_mm).all():

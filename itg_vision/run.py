@@ -329,8 +329,9 @@ def main(argv: list[str] | None = None) -> int:
                       "by the arm, or off the image; trace.csv's flags say where): those "
                       "decisions were made on the last aim, not on a measurement", file=sys.stderr)
             if trace.missed_by.get("elbow", 0) > beyond:
-                held = ("turned with the base's commanded turn since" if trace.n_elbow_turned
-                        else "however old")
+                held = ("however old" if not trace.n_elbow_turned
+                        else "turned with the base's commanded turn since" if prep.model.planar
+                        else "turned with the base's and the shoulder's commanded turns since")
                 print(f"note: the elbow LED went unseen in {trace.missed_by['elbow']} of the "
                       f"{looks} looks (hidden by the arm, or off the image; trace.csv's flags say "
                       f"where): those decisions were made on its last measured position, {held}",
@@ -447,7 +448,7 @@ def summary_table(s: dict, out: Path) -> str:
                  ("LED detections missed", f(s["n_missed"]) + (" ({})".format(", ".join(
                      f"{m} {k}" for m, k in s["n_missed_by"].items())) if s["n_missed"] else "")),
                  ("iterations given the last aim (the gripper missed)", f(s["n_at_last_aim"])),
-                 *([("looks whose lost elbow was turned with the base", f(s["n_elbow_turned"]))]
+                 *([("looks whose lost elbow was turned with the joints", f(s["n_elbow_turned"]))]
                    if s.get("n_elbow_turned") else []),
                  ("iterations held (missed before any aim)", f(s["n_held"]))]
         t = s.get("timing_ms", {})

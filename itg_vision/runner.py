@@ -438,6 +438,8 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          correction=cfg.correction,
                          aims_mm=None if prep.preview is None else prep.preview.aims_mm,
                          base_axis_mm=geometry.base_axis_mm if prep.model.planar else None,
+                         pitch_axis_mm=None if geometry.pitch_axis is None
+                         else (geometry.shoulder_mm, geometry.pitch_axis),
                          progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {

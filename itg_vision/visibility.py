@@ -302,7 +302,7 @@ def _partly_seen_note(rig, e_k, views) -> str | None:
             "reach only some of the elbow LED's positions (the arm's inverse-kinematics "
             f"branches) are in view of every camera, the first at k = {partly[0]} (trace.csv's "
             "k): a controller on a branch out of view loses the elbow LED there, and is given "
-            "its last measured position (on a planar arm turned with the base since)")
+            "its last measured position, turned with the joints' commanded turns since")
 
 
 def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True) -> str | None:
@@ -367,8 +367,8 @@ def elbow_partly_seen(rig, arm: ArmSpec, points_mm: np.ndarray) -> str | None:
     (the arm's inverse-kinematics branches) are in view of every camera of ``rig``; else None.
     :func:`check_visible` asks for one, as a model-free controller may take either branch and
     the check cannot know which: on a branch out of view the run loses the elbow LED there,
-    and the controller is given its last measured position (a planar arm's turned with the base
-    since, :class:`itg_vision.loop.Session`). (:func:`check_visible` returns
+    and the controller is given its last measured position, turned with the joints' commanded
+    turns since (:class:`itg_vision.loop.Session`). (:func:`check_visible` returns
     the same note from its own look: a run asks that alone.)"""
     _, elbows, _, e_k = _led_points(arm, points_mm, start_up=False)
     return _partly_seen_note(rig, e_k, _branch_views(rig, elbows, *_render_range_mm()))

@@ -522,12 +522,95 @@ def test_a_lost_elbow_is_turned_about_the_axis_given():
         assert np.linalg.norm(ctrl.elbows[k] - truth[k]) == pytest.approx(chord, abs=1e-4)
 
 
-def test_only_a_planar_arm_s_lost_elbow_is_turned():
-    """The three-link elbow moves with q2 too, about an axis that turns with q1: refused."""
+def test_each_arm_is_given_the_axes_its_elbow_turns_about():
+    """A planar arm's elbow turns about the base axis alone; the three-link elbow about the
+    shoulder's axis too, which turns with the base: each refuses the other's."""
     with World(ArmSpec.from_args("three-link")) as world:
-        with pytest.raises(ValueError, match="base_axis_mm turns a planar arm's lost elbow"):
+        with pytest.raises(ValueError, match="base_axis_mm turns a planar arm's lost elbow.*"
+                                             "give pitch_axis_mm"):
             simulate(world, Constant([0.0, 0.0, 0.0]), TruthFeedback(), np.zeros((2, 3)),
                      base_axis_mm=(0.0, 0.0))
+        with pytest.raises(ValueError, match="unit direction"):
+            simulate(world, Constant([0.0, 0.0, 0.0]), TruthFeedback(), np.zeros((2, 3)),
+                     pitch_axis_mm=((0.0, 0.0, 100.0), (2.0, 0.0, 0.0)))
+    with World(ArmSpec.from_args("two-link")) as world:
+        with pytest.raises(ValueError, match="pitch_axis_mm turns a three-link arm's lost elbow"):
+            simulate(world, Constant([0.0, 0.0]), TruthFeedback(), np.zeros((2, 3)),
+                     pitch_axis_mm=((0.0, 0.0, 100.0), (1.0, 0.0, 0.0)))
+
+
+def _three_link_axes(arm):
+    """The three-link shoulder axis as the start-up measures it, from the simulator's LEDs, with
+    the arm straight up and the base at 25 deg (the axis is turned back to the base's 0)."""
+    from itg_vision.identify import measure_geometry
+
+    with World(arm) as world:
+        world.set_q([25.0, 90.0, 0.0])
+        geometry = measure_geometry(world, TruthFeedback(), arm)
+    return np.array(geometry.shoulder_mm), np.array(geometry.pitch_axis)
+
+
+@pytest.mark.parametrize("offset_deg", [0.0, 7.0])
+def test_the_measured_shoulder_axis_moves_the_elbow_as_the_simulator_does(offset_deg):
+    """The start-up's shoulder axis a (the elbow's circle's normal, oriented by the sweep)
+    against finite differences of the simulator: a small q2 step moves the elbow LED by
+    a x (elbow - shoulder) dq2, with the base at 0 and at 40 deg (a turned with it from the
+    base's 0), and with joint offsets the commanded angles do not know of. A reversed axis is
+    off by twice the motion, an axis 25 deg off (as the start-up saw it, not turned back to the
+    base's 0) by 2 sin(12.5 deg) = 0.43 of it."""
+    from itg_vision.identify import turn_about
+
+    arm = dataclasses.replace(ArmSpec.from_args("three-link"),
+                              joint_offset_deg=(offset_deg, -offset_deg, 0.0))
+    shoulder, axis = _three_link_axes(arm)
+    dq = 0.01  # deg: the motion 100 x 1.7e-4 = 0.017 mm, its second order 1.5e-6 mm
+    with World(arm) as world:
+        for q1 in (0.0, 40.0):
+            q = np.array([q1, 60.0, -30.0])
+            world.set_q(q)
+            e0 = world.true_markers()["elbow"]
+            world.set_q(q + [0.0, dq, 0.0])
+            moved = world.true_markers()["elbow"] - e0
+            a = turn_about([0.0, 0.0, 1.0], q1) @ axis
+            predicted = np.radians(dq) * np.cross(a, e0 - shoulder)
+            # float32 positions: a few ulps of 200 mm in each look and in the start-up's fits
+            tol = 8 * PYBULLET_RTOL * 200.0
+            assert np.allclose(moved, predicted, rtol=0, atol=tol), (q1, moved, predicted)
+            assert np.linalg.norm(moved) > 0.015
+
+
+@pytest.mark.parametrize("offset_deg", [0.0, 7.0])
+def test_a_three_link_lost_elbow_is_turned_with_the_shoulder_and_the_base(offset_deg):
+    """The three-link elbow moves with q1 and q2 alone: its last measured position turned about
+    the measured shoulder axis (as the base had turned it then) by q2's commanded turn since,
+    and about the base axis by q1's, is where the simulator has it (to the float32 of its
+    looks and of the start-up's fits), with joint offsets the commanded angles do not know of.
+    The base turns before the elbow is lost (looks 1-2), so an axis left as the start-up saw it
+    would be wrong. Looks 3-8 lose it (q1 1.5, q2 -4, q3 3 deg a look); held instead, it is
+    tens of mm off: 24 deg of q2 at 100 mm is a 41.6 mm chord."""
+    arm = dataclasses.replace(ArmSpec.from_args("three-link"),
+                              joint_offset_deg=(offset_deg, -offset_deg, offset_deg))
+    shoulder, axis = _three_link_axes(arm)
+    lost = lambda n: 3 <= n <= 8  # noqa: E731
+
+    def run(pitch_axis_mm):
+        ctrl = _ElbowSpy([1.5, -4.0, 3.0])
+        with World(arm) as world:
+            world.set_q([10.0, 60.0, -30.0])
+            trace = simulate(world, ctrl, _LosesLooks("elbow", lost), np.zeros((10, 3)),
+                             pitch_axis_mm=pitch_axis_mm)
+        return ctrl.elbows, trace
+
+    elbows, trace = run((shoulder, axis))
+    truth = [r.true_at_estimate_mm["elbow"] for r in trace.records]
+    tol = 8 * PYBULLET_RTOL * 200.0  # float32 looks (ulps of 200 mm), and the fits on them
+    for k in range(10):
+        assert np.allclose(elbows[k], truth[k], rtol=0, atol=tol), (k, elbows[k] - truth[k])
+        assert ("elbow_turned" in trace.records[k].flags) == lost(k + 1)
+    assert trace.metrics()["n_elbow_turned"] == 6
+    held, trace = run(None)
+    assert np.linalg.norm(held[7] - truth[7]) > 30.0
+    assert trace.metrics()["n_elbow_turned"] == 0
 
 
 def test_a_look_lost_before_any_decision_holds_the_joints():
@@ -857,3 +940,20 @@ def test_aims_that_are_not_one_per_set_point_are_refused_before_the_arm_moves(ai
                                              r"\(3, 3\), expected, " + said):
             simulate(world, Constant([1.0, 0.0]), TruthFeedback(), points, aims_mm=aims)
         assert np.array_equal(world.q_deg, q0)  # nothing moved
+
+
+def test_a_three_link_run_turns_a_lost_elbow_about_the_axes_its_start_up_measured():
+    """Through the runner: the start-up measures the shoulder axis and the loop turns a lost
+    elbow about it. Every third look after the start-up (80 looks) loses the elbow; the
+    estimate used there is the simulator's elbow (float32 looks through the start-up's fits),
+    where the last measurement held is the elbow of a look ago (each joint up to 1 deg off)."""
+    prep = prepare(RunConfig(arm="three-link", trajectory="helix", controller="jacobian",
+                             feedback="truth", max_step_deg=1.0))
+    prep.feedback_factory = lambda: _LosesLooks("elbow", lambda n: n > 100 and n % 3 == 0)
+    trace, summary = execute(prep)
+    turned = [r for r in trace.records if "elbow_turned" in r.flags]
+    assert summary["n_elbow_turned"] == summary["n_missed_by"]["elbow"] == len(turned) >= 5
+    assert summary["geometry"]["pitch_axis"] is not None
+    for r in turned:
+        assert np.allclose(r.estimate.elbow_mm, r.true_at_estimate_mm["elbow"], rtol=0,
+                           atol=8 * PYBULLET_RTOL * 200.0)
