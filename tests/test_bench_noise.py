@@ -70,6 +70,10 @@ def test_quick_sweep_end_to_end(tmp_path):
         assert 0 <= v["track_median_mm"] <= v["track_p95_mm"] <= v["track_max_mm"], r
         assert v["track_mean_mm"] <= v["track_max_mm"] and float(r["wall_s"]) > 0, r
         assert int(r["n_missed"]) >= 0 and int(r["n_out_of_reach"]) >= 0
+        # which LED each miss lost, and the lost elbows turned with the joints (vision only)
+        assert int(r["n_missed"]) == int(r["n_missed_gripper"]) + int(r["n_missed_elbow"]), r
+        assert int(r["n_elbow_turned"]) <= int(r["n_missed_elbow"]), r
+    assert any(int(r["n_missed_elbow"]) > 0 for r in rows)  # the dropout conditions lose some
     report = (out / "report.md").read_text()
     assert "## Conclusion" in report and "vs `itg-model`" in report and "vs `ik`" in report
     for k in CONTROLLERS:
