@@ -106,6 +106,13 @@ class ArmGeometry:
         sweep's increasing q2 turns counter-clockwise about it, and turned back about the
         vertical by the base's commanded angle at the start (it turns with the base: at q1,
         turned by q1 about the vertical). None: not measured (planar arms, the nominal model).
+    elbow_seen : measured: ``(elbow_mm, q_deg)``, the elbow LED where the start-up saw it (a
+        median of its looks) and the commanded joints then: the shoulder sweep's look at the
+        start pose (three-link), the base sweep's look nearest the start's base angle (planar).
+        A look of the run that misses the elbow before the run has seen it is turned from this
+        (:class:`itg_vision.loop.Session`'s ``elbow_seen``): the eye's own last estimate is
+        from the sweep's last pose, 100-190 mm from the start's elbow. None: no elbow LED, or
+        not measured.
     """
 
     links_mm: tuple[float, ...]
@@ -115,6 +122,7 @@ class ArmGeometry:
     residual_mm: float = 0.0
     length_se_mm: float = 0.0
     pitch_axis: tuple[float, float, float] | None = None
+    elbow_seen: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     @property
     def base_axis_mm(self) -> tuple[float, float]:
@@ -474,7 +482,7 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
         world.set_q(start)
     leds = {n: [m[n] for m in looks["base"]] for n in arm.marker_names}
     if arm.planar:
-        return _planar_geometry(arm, leds, scatter, seen, [q1 for q1, _ in unseen])
+        return _planar_geometry(arm, leds, scatter, seen, [q1 for q1, _ in unseen], start)
     elbows = [m["elbow"] for m in looks["shoulder"]]
     grippers = [m["gripper"] for m in looks["shoulder"]]
 
@@ -499,16 +507,22 @@ def measure_geometry(world, feedback, arm) -> ArmGeometry:
                        f"{SHOULDER_SWEEP_DEG[0]:+g}..{SHOULDER_SWEEP_DEG[-1]:+g} deg; "
                        "|gripper - elbow|", max(rms, axis_rms),
                        _largest_se(lengths_of, sweep, scatter),
-                       tuple(float(v) for v in pitch))
+                       tuple(float(v) for v in pitch),
+                       _elbow_seen(elbows[SHOULDER_SWEEP_DEG.index(0.0)], start))
 
 
-def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen) -> ArmGeometry:
+def _elbow_seen(elbow_mm, q_deg) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``ArmGeometry.elbow_seen``: plain floats."""
+    return tuple(float(v) for v in elbow_mm), tuple(float(v) for v in q_deg)
+
+
+def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen, start) -> ArmGeometry:
     """A planar arm's lengths and base axis from its LEDs' positions in the base sweep
     (:func:`concentric_circles`): L1 the elbow LED's radius (one link: the gripper's), L2 the
     mean of |gripper_xy - elbow_xy| over the sweep (each pose's a median of its looks already,
     so the mean's standard error is one pose's over the square root of their number).
     ``seen`` and ``unseen`` are the sweep's base angles (deg) the LEDs were and were not seen
-    at (the source names the latter)."""
+    at (the source names the latter); ``start`` the joints the sweep started from."""
     names = [m for m in ("elbow", "gripper") if m in arm.marker_names]  # the inner circle first
     points = np.vstack([leds[m] for m in names])  # one LED's sweep after the other
 
@@ -522,6 +536,7 @@ def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen) -> ArmGeometr
     what = ("L1 the gripper LED's radius about it" if len(names) == 1 else
             "L1 the elbow LED's radius about it, L2 |gripper_xy - elbow_xy|")
     centre, _, rms = concentric_circles(np.split(points, len(names)))
+    i = int(np.argmin(np.abs((np.subtract(seen, start[0]) + 180.0) % 360.0 - 180.0)))
     arc = f"{seen[0]:+g}..{seen[-1]:+g} deg"
     if unseen:
         arc += (f" ({len(seen)} of {len(seen) + len(unseen)} poses; not seen at "
@@ -530,4 +545,6 @@ def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen) -> ArmGeometr
                        (float(centre[0]), float(centre[1]), 0.0),
                        source=f"measured: base axis from the LEDs' circles with the base at "
                               f"{arc}; {what}",
-                       residual_mm=rms, length_se_mm=_largest_se(lengths_of, points, scatter))
+                       residual_mm=rms, length_se_mm=_largest_se(lengths_of, points, scatter),
+                       elbow_seen=None if "elbow" not in leds else _elbow_seen(
+                           leds["elbow"][i], [seen[i], *start[1:]]))

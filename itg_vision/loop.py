@@ -350,18 +350,24 @@ class Session:
     pitch_axis_mm : ``(shoulder_mm, direction)``, the three-link arm's shoulder axis as measured
         (:attr:`itg_vision.identify.ArmGeometry.pitch_axis`): a point on it, the shoulder on
         the vertical base axis (mm), and its unit direction with the base at its commanded
-        0 deg (the right-hand rule of a positive q2 step). A look that misses the elbow then gives its
-        last measured position turned about the shoulder axis (as the base had turned it
-        then) by the shoulder's commanded turn since, and about the vertical base axis through
-        the shoulder by the base's: where a three-link arm's elbow is (it moves with q1 and q2
-        alone), flagged ``elbow_turned``. None (the default): the feedback's last estimate.
+        0 deg (the right-hand rule of a positive q2 step). A look that misses the elbow then
+        gives its last measured position turned about the shoulder axis (as the base had
+        turned it then) by the shoulder's commanded turn since, and about the vertical base
+        axis through the shoulder by the base's: where a three-link arm's elbow is (it moves
+        with q1 and q2 alone), flagged ``elbow_turned``. None (the default): the feedback's
+        last estimate.
+    elbow_seen : ``(elbow_mm, q_deg)``, an elbow measured before the session and the commanded
+        joints then (the start-up's: :attr:`itg_vision.identify.ArmGeometry.elbow_seen`), with
+        ``base_axis_mm`` or ``pitch_axis_mm``: a look that misses the elbow before the session
+        has seen it is turned from there. None: such a look gives the feedback's last estimate
+        (after the start-up, from the last pose of its sweep).
     progress : called with 1 when a set point is done.
     recorder : optional video recorder (``frame(feedback, desired_mm, label)`` per set point, labelled ``k N`` as trace.csv).
     """
 
     def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool | None = None,
                  max_step_deg: float | None = None, tracking_start: int | None = None,
-                 base_axis_mm=None, pitch_axis_mm=None,
+                 base_axis_mm=None, pitch_axis_mm=None, elbow_seen=None,
                  progress: Callable[[int], None] | None = None, recorder=None):
         self.world = world
         self.feedback = feedback
@@ -408,6 +414,13 @@ class Session:
             self._axes = ((point, _UP), (point, direction))
         self.base_axis_mm = base_axis_mm
         self._elbow_seen: tuple[np.ndarray, np.ndarray] | None = None  # and the joints then
+        if elbow_seen is not None:
+            elbow, q = (np.asarray(v, float) for v in elbow_seen)
+            if (elbow.shape != (3,) or q.shape != (world.arm.n_joints,)
+                    or not np.isfinite([*elbow, *q]).all()):
+                raise ValueError(f"elbow_seen: (elbow (x, y, z) in mm, the {world.arm.n_joints} "
+                                 f"joint angles in deg) expected, got {elbow_seen!r}")
+            self._elbow_seen = (elbow, q)
         self.iterations = int(iterations)
         self.max_step_deg = max_step_deg
         self.progress = progress
@@ -573,7 +586,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
              iterations: int = 1, planar: bool | None = None, max_step_deg: float | None = None,
              tracking_start: int | None = None, correction: float = 1.0,
              aims_mm: np.ndarray | None = None, base_axis_mm=None, pitch_axis_mm=None,
-             progress: Callable[[int], None] | None = None, recorder=None) -> Trace:
+             elbow_seen=None, progress: Callable[[int], None] | None = None,
+             recorder=None) -> Trace:
     """Track ``points_mm`` (shape (n, 3)) with ``controller`` and return the trace.
 
     See :class:`Session` for the parameters, :func:`aim_mm` for ``correction``. ``aims_mm``
@@ -590,8 +604,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
                          f"measured error corrected per decision), got {correction!r}")
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
-                      base_axis_mm=base_axis_mm, pitch_axis_mm=pitch_axis_mm, progress=progress,
-                      recorder=recorder)
+                      base_axis_mm=base_axis_mm, pitch_axis_mm=pitch_axis_mm,
+                      elbow_seen=elbow_seen, progress=progress, recorder=recorder)
     if aims_mm is not None:  # one short ran its set points, then failed as an IndexError
         aims_mm = np.asarray(aims_mm, float)
         if aims_mm.shape != session.points_mm.shape or not np.isfinite(aims_mm).all():

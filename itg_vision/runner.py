@@ -440,6 +440,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          base_axis_mm=geometry.base_axis_mm if prep.model.planar else None,
                          pitch_axis_mm=None if geometry.pitch_axis is None
                          else (geometry.shoulder_mm, geometry.pitch_axis),
+                         elbow_seen=geometry.elbow_seen,
                          progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {

@@ -537,6 +537,9 @@ def test_each_arm_is_given_the_axes_its_elbow_turns_about():
         with pytest.raises(ValueError, match="pitch_axis_mm turns a three-link arm's lost elbow"):
             simulate(world, Constant([0.0, 0.0]), TruthFeedback(), np.zeros((2, 3)),
                      pitch_axis_mm=((0.0, 0.0, 100.0), (1.0, 0.0, 0.0)))
+        with pytest.raises(ValueError, match=r"elbow_seen: \(elbow \(x, y, z\) in mm, the 2 "):
+            simulate(world, Constant([0.0, 0.0]), TruthFeedback(), np.zeros((2, 3)),
+                     base_axis_mm=(0.0, 0.0), elbow_seen=((100.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
 
 
 def _three_link_axes(arm):
@@ -955,5 +958,26 @@ def test_a_three_link_run_turns_a_lost_elbow_about_the_axes_its_start_up_measure
     assert summary["n_elbow_turned"] == summary["n_missed_by"]["elbow"] == len(turned) >= 5
     assert summary["geometry"]["pitch_axis"] is not None
     for r in turned:
+        assert np.allclose(r.estimate.elbow_mm, r.true_at_estimate_mm["elbow"], rtol=0,
+                           atol=8 * PYBULLET_RTOL * 200.0)
+
+
+@pytest.mark.parametrize("arm_name", ["two-link", "three-link"])
+def test_a_lost_elbow_before_the_run_has_seen_one_is_turned_from_the_start_up_s(arm_name):
+    """The run's first three looks miss the elbow. The eye's own last estimate is from the
+    start-up's last pose, far from the start (the base at +150 deg: 193 mm off; the shoulder at
+    +60: 100 mm); the loop turns the start-up's look nearest the start instead (the base's at
+    0 deg; the shoulder sweep's at the start), which puts it where the simulator has it."""
+    from itg_vision.identify import SAMPLES_PER_POSE, start_up_poses
+
+    arm = ArmSpec.from_args(arm_name)
+    n0 = len(start_up_poses(arm, arm.start_q_deg)) * SAMPLES_PER_POSE  # truth misses no look
+    prep = prepare(RunConfig(arm=arm_name, controller="jacobian", feedback="truth",
+                             max_step_deg=1.0))
+    prep.feedback_factory = lambda: _LosesLooks("elbow", lambda n: n0 < n <= n0 + 3)
+    trace, summary = execute(prep)
+    assert summary["n_elbow_turned"] == summary["n_missed_by"]["elbow"] == 3
+    for r in trace.records[:3]:
+        assert "elbow_turned" in r.flags
         assert np.allclose(r.estimate.elbow_mm, r.true_at_estimate_mm["elbow"], rtol=0,
                            atol=8 * PYBULLET_RTOL * 200.0)
