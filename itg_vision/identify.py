@@ -111,7 +111,7 @@ class ArmGeometry:
         start pose (three-link), the base sweep's look nearest the start's base angle (planar).
         A look of the run that misses the elbow before the run has seen it is turned from this
         (:class:`itg_vision.loop.Session`'s ``elbow_seen``): the eye's own last estimate is
-        from the sweep's last pose, 100-190 mm from the start's elbow. None: no elbow LED, or
+        from the sweep's last pose, 100-193 mm from the start's elbow. None: no elbow LED, or
         not measured.
     """
 

@@ -34,8 +34,9 @@ from .sweep import SCHEMA, RunSpec, input_files
 #: Per-run metrics from the run's summary (see itg_vision.loop.Trace.metrics).
 RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median_mm",
                "track_mean_mm", "track_p95_mm", "track_max_mm", "n_setpoints", "n_missed",
-               "n_missed_gripper", "n_missed_elbow", "n_elbow_turned", "n_out_of_reach", "n_flagged", "est_gripper_rms_mm", "est_elbow_rms_mm",
-               "start_error_mm", "first_error_mm", "wall_s"]
+               "n_missed_gripper", "n_missed_elbow", "n_elbow_turned", "n_out_of_reach",
+               "n_flagged", "est_gripper_rms_mm", "est_elbow_rms_mm", "start_error_mm",
+               "first_error_mm", "wall_s"]
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
             "inputs_sha", "link_error_pct", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
