@@ -76,7 +76,7 @@ import bisect
 import itertools
 import math
 import re
-from collections import Counter
+from collections import ChainMap, Counter
 from dataclasses import dataclass, field, replace
 import os
 from pathlib import Path
@@ -709,38 +709,55 @@ def _plan(rules: list[Rule], n_joints: int) -> list[_Test]:
     return tests
 
 
-def _definitions_placed(tests: list[_Test], reads) -> tuple[list[set], list[set]]:
-    """(before, inside): for each test, the definitions computed before it (with an ``if``, for
-    its whole chain: nothing can stand before an ``elif``) and those its body reads. A
-    definition is computed before the first test that reads it; one that only a rule's steps
-    read, before that rule's test too if a later rule reads it and the rule does not return,
-    else in its body."""
-    tested = [reads([t.rule.condition]) for t in tests]
-    inside = [reads([a.step for a in _moves(t.rule).values()]) for t in tests]
-    later = [set() for _ in tests]  # what the rules after each read
-    for i in reversed(range(len(tests) - 1)):
-        later[i] = later[i + 1] | tested[i + 1] | inside[i + 1]
-    # (a rule that returns when it fires leaves nothing for the rules after it: its steps'
-    # definitions go in its body alone)
-    before = [tested[i] | (set() if tests[i].returns else inside[i] & later[i])
-              for i in range(len(tests))]
-    for i in reversed(range(len(tests) - 1)):
-        if tests[i + 1].keyword == "elif":
-            before[i] |= before[i + 1]
-    return before, inside
+def _steps(rule: Rule) -> list[Node]:
+    """The steps of a rule's moves (``+=``, ``-=``)."""
+    return [a.step for a in _moves(rule).values()]
+
+
+def _last_readers(tests: list[_Test], lets: dict) -> dict[str, int]:
+    """Definition name -> the last test (its index) whose condition or steps read it, directly
+    or through other definitions (``lets``: name -> `Definition`, in file order)."""
+    last = {}
+    for i, t in enumerate(tests):
+        for node in [t.rule.condition, *_steps(t.rule)]:
+            last.update((name, i) for name, _ in _names_in(node) if name in lets)
+    for d in reversed(lets.values()):  # its readers first: a definition reads only those above it
+        if d.name in last:
+            for name, _ in _names_in(d.expr):
+                if name in lets:
+                    last[name] = max(last.get(name, -1), last[d.name])
+    return last
+
+
+def _definitions_before(tests: list[_Test], i: int, last: dict[str, int], reads) -> set[str]:
+    """The definitions computed before test i, an ``if``, for its whole chain (nothing can
+    stand before an ``elif``); ``reads(nodes)``: the definitions nodes read that are not
+    computed yet, ``last``: :func:`_last_readers`. A definition is computed before the first
+    test that reads it; one that only a rule's steps read, before that rule's test too if a
+    later rule reads it and the rule does not return, else in its body."""
+    before, j = set(), i
+    while j == i or (j < len(tests) and tests[j].keyword == "elif"):
+        before |= reads([tests[j].rule.condition])
+        # (a rule that returns when it fires leaves nothing for the rules after it: its
+        # steps' definitions go in its body alone)
+        if not tests[j].returns:
+            before |= {name for name in reads(_steps(tests[j].rule)) if last[name] > j}
+        j += 1
+    return before
 
 
 @dataclass
 class _Scope:
-    """What a point of the compiled function has computed: definitions, and subexpressions
-    (by :meth:`_Writer.key`) kept in locals."""
+    """What a point of the compiled function has computed: definitions (name -> True; with
+    every definition they read), and subexpressions (by :meth:`_Writer.key`) kept in locals."""
 
-    defined: set = field(default_factory=set)
-    known: dict = field(default_factory=dict)
+    defined: ChainMap = field(default_factory=ChainMap)
+    known: ChainMap = field(default_factory=ChainMap)
 
     def inner(self) -> "_Scope":
-        """The scope of a block inside (what it computes is not known after it)."""
-        return _Scope(set(self.defined), dict(self.known))
+        """The scope of a block inside (what it computes is not known after it; what the
+        block outside computes is, read through, not copied)."""
+        return _Scope(self.defined.new_child(), self.known.new_child())
 
 
 def _conjuncts(node: Node) -> list[Node]:
@@ -757,13 +774,14 @@ def _conjunction(nodes: list[Node]) -> Node:
     return node
 
 
-def _definitions_read(nodes, lets: dict) -> set[str]:
+def _definitions_read(nodes, lets: dict, computed=frozenset()) -> set[str]:
     """The names of the definitions (``lets``: name -> `Definition`) that ``nodes`` read,
-    directly or through other definitions."""
+    directly or through other definitions, but for those in ``computed`` and what they read
+    (a scope's :attr:`_Scope.defined`: a definition is computed after those it reads)."""
     found, names = set(), [name for node in nodes for name, _ in _names_in(node)]
     while names:
         name = names.pop()
-        if name in lets and name not in found:
+        if name in lets and name not in found and name not in computed:
             found.add(name)
             names += [n for n, _ in _names_in(lets[name].expr)]
     return found
@@ -778,6 +796,7 @@ class _Writer:
         self.lines: list[str] = []
         self.temps, self.shared = itertools.count(), itertools.count()
         self.lets = {d.name: d for d in definitions}  # in file order
+        self.order = {name: k for k, name in enumerate(self.lets)}  # name -> its place
         self._keys: dict[int, tuple] = {}  # id(node) -> (node, key): the node kept alive, so
         # that no node made later (the operands a split AND regroups) reuses its id
         self._shapes: dict = {}  # shape -> key
@@ -844,29 +863,27 @@ class _Writer:
         self.share(steps, counts.__getitem__, scope, depth)
 
     def deferred(self, condition: Node, scope: _Scope):
-        """``a AND b AND ...`` whose later operands read definitions the earlier ones do not:
-        (the earlier operands, the later ones, those definitions), split at the first such
-        operand, so that the definitions are computed only where the earlier operands hold
-        (ITG+'s near-base predictions, read only near the base); else None."""
+        """``a AND b AND ...`` whose later operands read definitions the first one does not
+        (nor ``scope``): (the first operand, the later ones, those definitions), so that the
+        definitions are computed only where the first operand holds (ITG+'s near-base
+        predictions, read only near the base); else None."""
         terms = _conjuncts(condition)
-        for k in range(1, len(terms)):
-            lazy = self.reads(terms[k:]) - self.reads(terms[:k]) - scope.defined
-            if lazy:
-                return _conjunction(terms[:k]), _conjunction(terms[k:]), lazy
-        return None
+        lazy = self.reads(terms[1:], scope) - self.reads(terms[:1], scope)
+        return (terms[0], _conjunction(terms[1:]), lazy) if lazy else None
 
-    def reads(self, nodes) -> set[str]:
-        """The definitions ``nodes`` read, directly or through other definitions."""
-        return _definitions_read(nodes, self.lets)
+    def reads(self, nodes, scope: _Scope) -> set[str]:
+        """The definitions ``nodes`` read, directly or through other definitions, that
+        ``scope`` lacks."""
+        return _definitions_read(nodes, self.lets, scope.defined)
 
     def define(self, names: set[str], scope: _Scope, depth: int) -> None:
         """Compute the definitions ``names`` that ``scope`` lacks, and those they read, in file
         order (a definition reads only those above it)."""
-        names = set(names) | self.reads([self.lets[name].expr for name in names])
-        for d in self.lets.values():
-            if d.name in names and d.name not in scope.defined:
-                self.line(depth, f"v_{d.name} = {self.py(d.expr, scope)}")
-                scope.defined.add(d.name)
+        names = {name for name in names if name not in scope.defined}
+        names |= self.reads([self.lets[name].expr for name in names], scope)
+        for name in sorted(names, key=self.order.__getitem__):
+            self.line(depth, f"v_{name} = {self.py(self.lets[name].expr, scope)}")
+            scope.defined[name] = True
 
 
 @dataclass
@@ -980,6 +997,7 @@ class RuleBase:
             raise UserError(f"{self.source}: no rules found")
         known = self.known_names
         defined: dict[str, int] = {}  # LET name -> its line
+        visible = set(known)  # the built-in names and the LETs checked so far
         for d in self.definitions:
             own = next((tok for name, tok in _names_in(d.expr) if name == d.name), None)
             if own is not None and d.name not in known and d.name not in defined:
@@ -987,22 +1005,27 @@ class RuleBase:
                                 f"{d.name!r} itself: a name has one value, from one expression, "
                                 "and rules keep nothing between iterations; give the new value "
                                 "a new name")
-            self._check_names([d.expr], known | set(defined))
+            self._check_names([d.expr], visible)
             if d.name in known or d.name in defined or re.fullmatch(r"q\d+|L\d+", d.name):
                 first = (f"LET on line {defined[d.name]}" if d.name in defined else
                          "a built-in name" if d.name in known else
                          f"reserved: {d.name[0]}N names {_RESERVED[d.name[0]]}")
                 raise UserError(f"{self.source}:{d.line}:{d.col}: {d.name!r} is already {first}")
             defined[d.name] = d.line
+            visible.add(d.name)
         seen: dict[int, int] = {}
-        for r in self.rules:
+        visible = set(known)  # the names known at the rule
+        lets, above = self.definitions, 0  # the LETs before the rule: lets[:above]
+        for r in self.rules:  # in file order, as the definitions
             if r.number in seen:
                 raise UserError(f"{self.source}:{r.line}:{r.col}: RULE {r.number} is defined twice "
                                 f"(first on line {seen[r.number]})")
             seen[r.number] = r.line
             # the LETs before the rule, on the lines above or before it on its own line
-            above = {d.name for d in self.definitions if (d.line, d.col) < (r.line, r.col)}
-            self._check_names([r.condition] + [a.step for a in r.actions], known | above)
+            while above < len(lets) and (lets[above].line, lets[above].col) < (r.line, r.col):
+                visible.add(lets[above].name)
+                above += 1
+            self._check_names([r.condition] + [a.step for a in r.actions], visible)
             for a in r.actions:
                 if a.kind != "out" and not 1 <= a.joint <= self.n_joints:
                     raise UserError(f"{self.source}:{a.where[0]}:{a.where[1]}: RULE {r.number} "
@@ -1050,20 +1073,20 @@ class RuleBase:
         """The Python function the rules compile to (kept as :attr:`python_source`: what runs,
         generated from the checked syntax tree, never from the file's text): out-of-reach rules
         first, then the others as :func:`_plan` tests them, definitions where
-        :func:`_definitions_placed` puts them, and subexpressions evaluated more than once
+        :func:`_definitions_before` puts them, and subexpressions evaluated more than once
         computed once (:meth:`_Writer.share`)."""
         n = self.n_joints
         out_of_reach = [r for r in self.rules if r.out_of_reach]
         tests = _plan([r for r in self.rules if not r.out_of_reach], n)
         out = _Writer(self.definitions, [[r.condition] for r in out_of_reach] + [
-            [t.rule.condition, *(a.step for a in _moves(t.rule).values())] for t in tests])
+            [t.rule.condition, *_steps(t.rule)] for t in tests])
         args = ", ".join(f"v_{m}" for m in MARKER_NAMES)
         qs = "".join(f"v_q{i}, " for i in range(1, n + 1))
         links = ", ".join(f"v_L{i}" for i in range(1, len(self.links_mm) + 1))
         out.line(0, f"def _itg_step({args}, {qs}v_f, v_S, v_w, v_L, {links}, v_sL, v_h):")
         top = _Scope()
         for i, r in enumerate(out_of_reach):
-            out.define(out.reads([r.condition]), top, 1)
+            out.define(out.reads([r.condition], top), top, 1)
             out.share_before_test(i, top, r.condition)
             out.line(1, f"if {out.py(r.condition, top)}:")
             out.line(2, f"return None, ({r.number},)")
@@ -1076,7 +1099,7 @@ class RuleBase:
             out.line(1, f"free{j} = True")
         if scanning:
             out.line(1, "fired = []")
-        before, inside = _definitions_placed(tests, out.reads)
+        last = _last_readers(tests, out.lets)
         for i, t in enumerate(tests):
             # an `if` that no `elif` follows may nest: `if a:` then the definitions only `b`
             # reads, then `if b:` (the same as `if a and b:` after computing them all)
@@ -1085,7 +1108,8 @@ class RuleBase:
             first, then, lazy = (alone and out.deferred(t.rule.condition, top)) or (None, None, set())
             scope, depth = top, 1
             if t.keyword == "if":
-                out.define(before[i] - lazy, top, 1)
+                before = _definitions_before(tests, i, last, lambda nodes: out.reads(nodes, top))
+                out.define(before - lazy, top, 1)
             if t.keyword == "if" and not t.guard:
                 out.share_before_test(len(out_of_reach) + i, top, first or t.rule.condition)
             guard = "".join(f"free{j} and " for j in t.guard)
@@ -1098,7 +1122,7 @@ class RuleBase:
                 condition = out.py(t.rule.condition, top, _AND if t.guard else _IF_ELSE)
             out.line(depth, f"{t.keyword} {guard}{condition}:")
             body, moves, depth = scope.inner(), _moves(t.rule), depth + 1
-            out.define(inside[i], body, depth)
+            out.define(out.reads(_steps(t.rule), body), body, depth)
             out.share_in_body([a.step for a in moves.values()], body, depth)
             dq = {j: "-" + out.py(a.step, body, _NEGATIVE) if a.kind == "dec" else
                   out.py(a.step, body) for j, a in moves.items()}
