@@ -1063,7 +1063,7 @@ class RuleBase:
                                     f"{name!r} here: the LET on line {later.line} defines it "
                                     "below, and a LET must come before the rules and LETs that "
                                     "use it")
-                alike = [k for k in known if k.lower() == name.lower()]
+                alike = sorted(k for k in known if k.lower() == name.lower())  # not by hash
                 hint = f"; did you mean {alike[0]!r}? names are case-sensitive" if alike else ""
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
                                 f"(known: {', '.join(sorted(known))}){hint}")

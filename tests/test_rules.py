@@ -916,3 +916,28 @@ def test_the_servo_limit_declaration_is_read_indented_and_spaced_but_not_misspel
         assert rb.servo_step, line
     assert not RuleBase.from_text("# S is the servo limit\nRULE 1: IF xd > xg THEN q1 += S", 2,
                                   TWO, S=2.0).servo_step
+
+
+def test_the_did_you_mean_hint_is_the_same_whatever_the_hash_seed():
+    """Two LETs that differ from a misspelt name only in case: the hint names the same one
+    (the first in sorted order) in every process, whatever Python's string hash seed (a set's
+    order). Eight processes with different seeds: with the set's order, two names came out
+    in either order."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("from itg_vision.errors import UserError\n"
+            "from itg_vision.rules import RuleBase\n"
+            "try:\n"
+            "    RuleBase.from_text('LET Ab = xd\\nLET AB = yd\\nRULE 1: IF ab > 0 THEN q1 += S',"
+            " 2, (100.0, 100.0), source='r')\n"
+            "except UserError as e:\n"
+            "    print(str(e).rsplit(';', 1)[-1])\n")
+    hints = set()
+    for seed in range(8):
+        env = {**os.environ, "PYTHONHASHSEED": str(seed)}
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, check=True).stdout.strip()
+        hints.add(out)
+    assert hints == {"did you mean 'AB'? names are case-sensitive"}, hints
