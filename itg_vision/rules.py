@@ -886,6 +886,10 @@ class _Writer:
             scope.defined[name] = True
 
 
+#: An unknown name's error lists the LETs known there up to this many; beyond, it counts them.
+MAX_LETS_LISTED = 40
+
+
 @dataclass
 class RuleBase:
     """A compiled rule base for one arm.
@@ -1066,7 +1070,17 @@ class RuleBase:
                 alike = sorted(k for k in known if k.lower() == name.lower())  # not by hash
                 hint = f"; did you mean {alike[0]!r}? names are case-sensitive" if alike else ""
                 raise UserError(f"{self.source}:{tok.line}:{tok.col}: unknown name {name!r} "
-                                f"(known: {', '.join(sorted(known))}){hint}")
+                                f"(known: {self._known_shown(known)}){hint}")
+
+    def _known_shown(self, known: set[str]) -> str:
+        """The names ``known`` at a point of the file, for an unknown name's error: all of
+        them, or the built-in ones and how many LETs above where a file has more than
+        :data:`MAX_LETS_LISTED` (a file of 30,000 LETs made an error line of 30,000 names)."""
+        lets = known - self.known_names
+        if len(lets) <= MAX_LETS_LISTED:
+            return ", ".join(sorted(known))
+        return (", ".join(sorted(known & self.known_names))
+                + f", and the {len(lets)} LETs above it")
 
     # -------------------------------------------------------------- compile
     def _source(self) -> str:

@@ -941,3 +941,21 @@ def test_the_did_you_mean_hint_is_the_same_whatever_the_hash_seed():
                              text=True, check=True).stdout.strip()
         hints.add(out)
     assert hints == {"did you mean 'AB'? names are case-sensitive"}, hints
+
+
+@pytest.mark.parametrize("n_lets", [40, 41])
+def test_an_unknown_name_s_error_counts_the_lets_of_a_long_file(n_lets):
+    """Up to MAX_LETS_LISTED (40) LETs the error lists every known name, LETs included; beyond,
+    the built-in names and how many LETs: one line, not one name per LET of the file."""
+    from itg_vision.rules import MAX_LETS_LISTED
+
+    text = "".join(f"LET a{k} = xd + {k}\n" for k in range(n_lets)) + "RULE 1: IF b > 0 THEN q1 += S"
+    with pytest.raises(UserError) as err:
+        RuleBase.from_text(text, 2, (100.0, 100.0), source="r")
+    message = str(err.value)
+    builtins = "L, L1, L2, S, f, h, q1, q2, rd2, re2, rg2, sL, w, xd, xe, xg, yd, ye, yg, zd, ze, zg"
+    assert f"r:{n_lets + 1}:12: unknown name 'b' (known: " in message
+    if n_lets <= MAX_LETS_LISTED:
+        assert "a39" in message and "a0, a1, a10" in message and "LETs above" not in message
+    else:
+        assert message.endswith(f"(known: {builtins}, and the {n_lets} LETs above it)")
