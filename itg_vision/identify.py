@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .controllers import wrap_deg
 from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
@@ -536,7 +537,7 @@ def _planar_geometry(arm, leds: dict, scatter: list, seen, unseen, start) -> Arm
     what = ("L1 the gripper LED's radius about it" if len(names) == 1 else
             "L1 the elbow LED's radius about it, L2 |gripper_xy - elbow_xy|")
     centre, _, rms = concentric_circles(np.split(points, len(names)))
-    i = int(np.argmin(np.abs((np.subtract(seen, start[0]) + 180.0) % 360.0 - 180.0)))
+    i = int(np.argmin(np.abs(wrap_deg(np.subtract(seen, start[0])))))
     arc = f"{seen[0]:+g}..{seen[-1]:+g} deg"
     if unseen:
         arc += (f" ({len(seen)} of {len(seen) + len(unseen)} poses; not seen at "

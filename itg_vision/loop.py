@@ -391,8 +391,10 @@ class Session:
             raise ValueError(f"planar={planar!r}, but arm {world.arm.name} is "
                              f"{'' if world.arm.planar else 'not '}planar (leave planar out)")
         self.planar = bool(planar)
-        # the axes a lost elbow turns about: (a point, its direction with the base at 0 deg)
-        self._axes: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+        # a lost elbow turns about the vertical base axis through _pivot (planar: the base axis
+        # at z = 0; three-link: the shoulder), and about the shoulder's axis, _pitch at q1 = 0
+        self._pivot: np.ndarray | None = None
+        self._pitch: np.ndarray | None = None
         if base_axis_mm is not None:
             if not self.planar:  # its elbow moves with q2 too, about an axis that turns with q1
                 raise ValueError(f"base_axis_mm turns a planar arm's lost elbow; arm "
@@ -400,7 +402,7 @@ class Session:
             base_axis_mm = np.asarray(base_axis_mm, float)
             if base_axis_mm.shape != (2,) or not np.isfinite(base_axis_mm).all():
                 raise ValueError(f"base_axis_mm: (x, y) in mm expected, got {base_axis_mm!r}")
-            self._axes = ((np.array([*base_axis_mm, 0.0]), _UP),)
+            self._pivot = np.array([*base_axis_mm, 0.0])
         if pitch_axis_mm is not None:
             if self.planar or world.arm.n_joints != 3:
                 raise ValueError(f"pitch_axis_mm turns a three-link arm's lost elbow; arm "
@@ -411,8 +413,7 @@ class Session:
                     or not abs(np.linalg.norm(direction) - 1.0) < 1e-6):
                 raise ValueError(f"pitch_axis_mm: (shoulder (x, y, z) in mm, unit direction) "
                                  f"expected, got {pitch_axis_mm!r}")
-            self._axes = ((point, _UP), (point, direction))
-        self.base_axis_mm = base_axis_mm
+            self._pivot, self._pitch = point, direction
         self._elbow_seen: tuple[np.ndarray, np.ndarray] | None = None  # and the joints then
         if elbow_seen is not None:
             elbow, q = (np.asarray(v, float) for v in elbow_seen)
@@ -469,7 +470,7 @@ class Session:
     def _elbow_on_lost(self, estimate: Markers) -> Markers:
         """``estimate`` with a missed elbow turned with the joints since it was last seen (see
         ``base_axis_mm``, ``pitch_axis_mm``); the angles are the ones the loop commanded."""
-        if not self._axes:  # nothing to turn: no copy per look
+        if self._pivot is None:  # nothing to turn: no copy per look
             return estimate
         q = np.array(self.world.q_deg, float)
         if "elbow" not in estimate.missed:
@@ -487,13 +488,11 @@ class Session:
         axis (as the base had turned it at ``q_then``) by q2's turn since, then about the
         vertical base axis by q1's. Both axes pass through the shoulder, so the order is
         immaterial as long as the shoulder's axis is the one of ``q_then``."""
-        (base_point, up), *pitch = self._axes
-        turn = turn_about(up, q[0] - q_then[0])  # q1 turns the arm counter-clockwise from above
-        if pitch:
-            (point, at_zero), = pitch
-            then = turn_about(up, q_then[0]) @ at_zero
-            turn = turn @ turn_about(then, q[1] - q_then[1])
-        return base_point + turn @ (elbow - base_point)
+        turn = turn_about(_UP, q[0] - q_then[0])  # q1 turns the arm counter-clockwise from above
+        if self._pitch is not None:
+            pitch_then = turn_about(_UP, q_then[0]) @ self._pitch
+            turn = turn @ turn_about(pitch_then, q[1] - q_then[1])
+        return self._pivot + turn @ (elbow - self._pivot)
 
     def flag(self, name: str) -> None:
         """Add ``name`` to the current set point's flags (once)."""

@@ -1136,8 +1136,9 @@ class RuleBase:
                 condition = out.py(t.rule.condition, top, _AND if t.guard else _IF_ELSE)
             out.line(depth, f"{t.keyword} {guard}{condition}:")
             body, moves, depth = scope.inner(), _moves(t.rule), depth + 1
-            out.define(out.reads(_steps(t.rule), body), body, depth)
-            out.share_in_body([a.step for a in moves.values()], body, depth)
+            steps = [a.step for a in moves.values()]
+            out.define(out.reads(steps, body), body, depth)
+            out.share_in_body(steps, body, depth)
             dq = {j: "-" + out.py(a.step, body, _NEGATIVE) if a.kind == "dec" else
                   out.py(a.step, body) for j, a in moves.items()}
             if t.returns:
