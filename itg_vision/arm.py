@@ -44,6 +44,11 @@ MAX_ITERATIONS = 10_000
 MAX_SWEEP_POSES = 1000
 
 
+def wrap_deg(a):
+    """Angles (deg; a number or an array) wrapped into [-180, 180): the shortest turn."""
+    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
+
+
 def arm_names() -> list[str]:
     """The shipped arms, by name."""
     return sorted(p.stem for p in ARMS_DIR.glob("*.yaml"))

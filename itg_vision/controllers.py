@@ -16,13 +16,9 @@ import math
 
 import numpy as np
 
-from .arm import REACH_TOL_MM, ArmSpec
+from .arm import REACH_TOL_MM, ArmSpec, wrap_deg
 from .errors import UserError
 from .contracts import Step
-
-
-def wrap_deg(a):
-    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
 
 
 def two_link_ik(x: float, y: float, l1: float, l2: float, tol_mm: float = 0.0

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .controllers import wrap_deg
+from .arm import wrap_deg
 from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.

@@ -329,7 +329,8 @@ def servo_bound_mm(points_mm, links_mm, max_step_deg: float, closed: bool) -> fl
     largest such distance over the path (closed paths: the wrap to the first point too), minus
     the grid's own error (a joint grid of BOUND_GRID_DEG moves the gripper at most
     (L1 + L2 + L2) * BOUND_GRID_DEG / 2 rad between nodes)."""
-    from ..controllers import wrap_deg, two_link_ik
+    from ..arm import wrap_deg
+    from ..controllers import two_link_ik
 
     l1, l2 = (float(v) for v in links_mm)
     pts = np.asarray(points_mm, float)[:, :2]
