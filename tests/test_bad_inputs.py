@@ -354,6 +354,9 @@ CASES = [
     ("speed-passes-0", "bench", ["speed", "--passes", "0"], "argument --passes: must be >= 1, got 0"),
     ("accuracy-rig-inside-out", "bench", ["accuracy", "--rig", "{held/rig.yaml}", "--out", "{tmp}/held", "--force", "--poses", "5"], "/held/rig.yaml lies inside --out "),
     ("accuracy-seed-negative", "bench", ["accuracy", "--seed", "-1", "--poses", "5"], "--seed: must be >= 0, got -1"),
+    # a rig that sees no LED: an IndexError traceback, exit 1, after rendering every pose
+    ("accuracy-rig-looking-away", "bench", ["accuracy", "--rig", "{rig-away}", "--poses", "5"], "rig-away.yaml: no LED was seen by both cameras at any of the 5 random poses of arm two-link (10 looks missed): check the rig's camera poses"),
+    ("accuracy-rig-dark", "bench", ["accuracy", "--rig", "{rig-dark}", "--poses", "5"], "rig-dark.yaml: cameras[0] (left): exposure 1e-09 makes an LED at most"),
     ("accuracy-poses-3", "bench", ["accuracy", "--poses", "3"], "--poses: must be in 5..100000, got 3"),
     ("accuracy-unknown-option", "bench", ["accuracy", "--bogus"], "unrecognized arguments: --bogus"),
     ("bench-unknown", "bench", ["sped"], "unknown benchmark 'sped'"),

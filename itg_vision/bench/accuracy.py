@@ -98,6 +98,11 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
                         by_marker[name].append(e)
                         for cam, d in zip(rig.cameras, fb.last_observation.detections[name]):
                             centroid_err.append(d.uv_raw_px - cam.project(truth[name]))
+    if not centroid_err:  # no LED seen at all: nothing to measure (a rig turned away, too close)
+        raise UserError(f"{rig.source or rig.name}: no LED was seen by both cameras at any of "
+                        f"the {n_poses} random poses of {arm.label} ({missed} looks missed): "
+                        "check the rig's camera poses (the poses are drawn from the arm file's "
+                        "pose_ranges_deg)")
     c = np.array(centroid_err)
     length = np.hypot(c[:, 0], c[:, 1])  # each centroid error's length (px)
     mean_square = np.mean(np.sum(c**2, axis=1))
@@ -159,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from ..camera import resolve_rig
         from ..imaging import opencv_threads
+        from ..visibility import check_cameras
 
         args = build_parser().parse_args(argv)
         if not MIN_POSES <= args.poses <= MAX_POSES:
@@ -174,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                             "prediction of a rig known exactly, so the calibration's own error "
                             "would not show; give the true rig, or measure the calibration with "
                             f"python -m itg_vision.run --rig {rig_path}")
+        check_cameras(rig)  # an exposure no LED stands out in, a camera below the floor
         if args.out is not None:  # refuse a bad --out before the renders, not after
             outputs.check_out_dir(args.out, COMMAND, force=args.force,
                                   inputs={"--arm": arm.source, "--rig": rig.source})
