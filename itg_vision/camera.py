@@ -424,8 +424,7 @@ def rig_from_dict(doc: Any, path: str = "<rig>") -> Rig:
     if not isinstance(doc, dict):
         F.fail("(top level)", "must be a mapping with 'name' and 'cameras'")
     name = F.get(doc, "name", "")  # a file without name or cameras: "name: missing", first
-    if not isinstance(name, str) or not name:
-        F.fail("name", "must be a non-empty string")
+    name = F.text(name, "name", what="a name on one line")  # messages quote it
     cams = F.get(doc, "cameras", "")
     F.mapping(doc, "(top level)", ("name", "cameras"),
               ("supersample", "calibration", "true_rig", "true_rig_sha256"))
@@ -491,9 +490,7 @@ def load_true_rig(rig: Rig, rig_path) -> Rig:
 def _camera_from_dict(F: Fields, d: Any, where: str) -> Camera:
     F.mapping(d, where, ("name", "image_width", "image_height", "camera_matrix",
                          "distortion_coefficients", "pose"), ("distortion_model", "sensor"))
-    name = d["name"]
-    if not isinstance(name, str) or not name:
-        F.fail(f"{where}.name", "must be a non-empty string")
+    name = F.text(d["name"], f"{where}.name", what="a name on one line")  # messages quote it
     W = F.integer(d["image_width"], f"{where}.image_width")
     H = F.integer(d["image_height"], f"{where}.image_height")
     if W <= 0:

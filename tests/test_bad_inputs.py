@@ -143,6 +143,13 @@ def make_inputs(tmp):
     f["rig-same-place"] = _rig(tmp, "same-place", _pose(1, position_mm=[-180.0, -60.0, 620.0]))
     f["rig-40000x30000"] = _rig(tmp, "40000x30000", _set(0, image_width=40000, image_height=30000))
     f["rig-away"] = _rig(tmp, "away", _pose(0, look_at_mm=[-180.0, -60.0, 1620.0]))
+
+    def two_line_name(doc):  # a block scalar (name: |) keeps its newline
+        doc["cameras"][0]["name"] = "left\n"
+        doc["cameras"][0]["pose"]["look_at_mm"] = [-180.0, -60.0, 1620.0]
+    f["rig-name-newline"] = _rig(tmp, "name-newline", two_line_name)
+    f["rig-rig-name-newline"] = _rig(tmp, "rig-name-newline",
+                                     lambda doc: doc.update(name="planar\nrig"))
     f["rig-below"] = _rig(tmp, "below", _below)
     f["rig-4x3"] = _rig(tmp, "4x3", _tiny)
     f["rig-fx-tiny"] = _rig(tmp, "fx-tiny", _fx(1e-12))
@@ -280,6 +287,9 @@ CASES = [
     ("rig-rows-text", "run", ["--quiet", "--rig", "{rig-rows-text}"], "rig-rows-text.yaml: cameras[0].camera_matrix.rows: must be a whole number in 1..1000, got 'three'"),
     ("rig-same-place", "run", ["--quiet", "--rig", "{rig-same-place}"], "cameras[1].pose: at the same place as cameras[0]"),
     ("rig-40000x30000", "run", ["--quiet", "--rig", "{rig-40000x30000}"], "cameras[0]: a 40000 x 30000 px image needs about 72 GB"),
+    # a camera's name is quoted in messages: on two lines, so was the message
+    ("rig-camera-name-newline", "run", ["--quiet", "--rig", "{rig-name-newline}"], "rig-name-newline.yaml: cameras[0].name: must be a name on one line, got 'left\\n'\n"),
+    ("rig-name-newline", "run", ["--quiet", "--rig", "{rig-rig-name-newline}", "--points", "3"], "rig-rig-name-newline.yaml: name: must be a name on one line, got 'planar\\nrig'\n"),
     ("rig-looking-away", "run", ["--quiet", "--rig", "{rig-away}"], "cameras[0] (left): cannot see the gripper LED"),
     ("rig-below-floor", "run", ["--quiet", "--rig", "{rig-below}"], "cameras[0] (left): is below the floor"),
     ("rig-4x3-px", "run", ["--quiet", "--rig", "{rig-4x3}"], "cameras[0] (left): cannot see the gripper LED"),
