@@ -166,6 +166,8 @@ def make_inputs(tmp):
     text("digits.csv", "x_mm,y_mm\n" + "1" * 5000 + ",20\n30,40\n")
     f["binary.csv"] = tmp / "binary.csv"
     f["binary.csv"].write_bytes(b"x_mm,y_mm\n1,2\n\xc3\x28,4\n")
+    text("path-3d.csv", "x_mm,y_mm,z_mm\n95,40,160\n94.9,42.2,160.4\n")
+    text("path-2d.csv", "x_mm,y_mm\n100,5\n120,50\n")  # in the three-link arm's reach too
     text("helix-in-m.csv", "x_mm,y_mm,z_mm\n0.095,0.04,0.16\n0.0949,0.0422,0.1604\n")
     text("arm-two-fields.yaml", "name: mine\nkind: planar\n")
     text("not-rig.yaml", "just: text\n")
@@ -346,6 +348,10 @@ CASES = [
     ("noise-out-user-folder", "noise", ["--quick", "--quiet", "--out", "{folder}"], "a-folder: is a folder this benchmark did not make"),
     ("noise-out-other-command", "noise", ["--quick", "--quiet", "--out", "{paper-out}"], "holds the output of `paper`"),
     ("noise-scheduler-garbage", "noise", ["--quick", "--quiet", "--scheduler", "garbage", "--out", "{tmp}/n"], "--scheduler garbage: expected tcp://HOST:PORT"),
+    # a trajectory file of the wrong dimension for --arm: every run of the sweep failed, after
+    # the sweep's folder was made
+    ("noise-3d-file-on-two-link", "noise", ["--quick", "--quiet", "--controllers", "itg-model", "--conditions", "clean", "--seeds", "1", "--trajectories", "{path-3d.csv}", "--out", "{tmp}/n"], "path-3d.csv: has z values, but the two-link arm is planar (x_mm,y_mm); --arm names the arm of trajectory files\n"),
+    ("noise-planar-file-on-three-link", "noise", ["--quick", "--quiet", "--controllers", "itg-model", "--conditions", "clean", "--seeds", "1", "--arm", "three-link", "--trajectories", "{path-2d.csv}", "--out", "{tmp}/n"], "path-2d.csv: is planar, but the three-link arm needs a 3-D trajectory (x_mm,y_mm,z_mm)"),
     ("noise-workers", "noise", ["--quick", "--quiet", "--workers", "0", "--out", "{tmp}/n"], "--workers: must be >= 1, got 0"),
     ("itg-plus-workers", "bench", ["itg-plus", "--quiet", "--workers", "-2", "--out", "{tmp}/n"], "--workers: must be >= 1, got -2"),
     ("noise-workers-type", "noise", ["--quick", "--workers", "two"], "--workers: expected a whole number, got 'two'"),

@@ -335,6 +335,11 @@ def user_trajectory(given: str, arm: str, taken) -> str:
     except UserError as exc:
         raise UserError(f"--trajectories {given}: {exc}") from None
     spec = ArmSpec.from_args(arm)
+    if traj.planar != spec.planar:  # as a run refuses it, but before the sweep starts
+        has = ("has z values, but the {} arm is planar (x_mm,y_mm)" if spec.planar else
+               "is planar, but the {} arm needs a 3-D trajectory (x_mm,y_mm,z_mm)")
+        raise UserError(f"--trajectories {given}: {has.format(spec.name)}; --arm names the "
+                        "arm of trajectory files")
     if not any(spec.reachable(p) for p in traj.points_mm):
         lo, hi = spec.reach_mm()
         raise UserError(f"--trajectories {given}: none of its {len(traj.points_mm)} set points "
