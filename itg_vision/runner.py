@@ -342,8 +342,15 @@ def rule_controller(cfg: RunConfig, model: ArmSpec, servo_hint: str = SERVO_HINT
     from). A given parameter the rules never use raises `ConfigError` naming it."""
     given = given_rule_params(cfg)
     params = {**RULE_DEFAULTS, **given}
-    controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
-                            **{PARAM_OF_FIELD[k]: v for k, v in params.items()})
+    try:
+        controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
+                                **{PARAM_OF_FIELD[k]: v for k, v in params.items()})
+    except ConfigError:
+        raise
+    except UserError as exc:  # a rule base the arm file chose is that file's field
+        if cfg.rules:
+            raise
+        raise ConfigError(f"{model.source or model.name}: defaults.rules", str(exc)) from None
     info = {}
     if controller.servo_step:  # the rules' S is the loop's servo limit (#! in the file)
         cfg, servo_note = servo_limit_for_rules(cfg, model, controller.source, servo_hint)

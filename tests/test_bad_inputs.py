@@ -77,6 +77,7 @@ ARM_EDITS = [
     ("rig-unknown", r"^defaults:.*$", "defaults: {rules: table2, rig: nosuch, trajectory: ellipse-t1}"),
     ("trajectory-unknown", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: circle}"),
     ("trajectory-3d", r"^defaults:.*$", "defaults: {rules: table2, rig: planar, trajectory: line-ab-reach}"),
+    ("rules-one-link", r"^defaults:.*$", "defaults: {rules: table1, itg_plus_rules: itg-plus-one-link, rig: planar, trajectory: ellipse-t1}"),
     ("rig-list", r"^defaults:.*$", "defaults: {rules: table2, rig: [a], trajectory: ellipse-t1}"),
     ("servo-abc", r"^benchmark:.*$", "benchmark: {max_step_deg: abc, iterations: 1}"),
     ("servo-quoted", r"^benchmark:.*$", "benchmark: {max_step_deg: '1e1', iterations: 1}"),
@@ -253,6 +254,10 @@ CASES = [
     ("arm-default-trajectory-3d", "run", RUN + ["--arm", "{arm-trajectory-3d.yaml}"], "arm-trajectory-3d.yaml: defaults.trajectory: line-ab-reach has z values, but arm two-link is planar"),
     ("arm-default-trajectory-unknown", "run", RUN + ["--arm", "{arm-trajectory-unknown.yaml}"], "arm-trajectory-unknown.yaml: defaults.trajectory: no shipped one is called 'circle' (shipped: ellipse-t1,"),
     ("calibrate-arm-default-rules-unknown", "calibrate", ["--quiet", "--arm", "{arm-rules-unknown.yaml}", "--out", "{tmp}/c.yaml"], "arm-rules-unknown.yaml: defaults.rules: no shipped one is called 'nosuch'"),
+    # a rule base the arm file chose for another arm: the file's field, not the rule file alone
+    ("arm-default-rules-for-another-arm", "run", RUN + ["--arm", "{arm-rules-one-link.yaml}"], "arm-rules-one-link.yaml: defaults.rules: " + str(RULES_DIR / "table1.rules") + ": no rule moves or holds q2 of this 2-joint arm"),
+    # ... and in a sweep, before any run (every itg-plus run failed, after the folder was made)
+    ("noise-arm-default-rules-for-another-arm", "noise", ["--quick", "--quiet", "--controllers", "itg-plus-model", "--conditions", "clean", "--seeds", "1", "--arm", "{arm-rules-one-link.yaml}", "--trajectories", "{path-2d.csv}", "--out", "{tmp}/n"], "arm-rules-one-link.yaml: defaults.itg_plus_rules: " + str(RULES_DIR / "itg-plus-one-link.rules") + ": no rule moves or holds q2"),
     ("arm-default-rig-list", "run", ["--quiet", "--arm", "{arm-rig-list.yaml}"], "arm-rig-list.yaml: defaults.rig: must be a name or a path on one line, got ['a']"),
     ("arm-servo-quoted", "run", RUN + ["--arm", "{arm-servo-quoted.yaml}", "--rules", "itg-plus-two-link"], "arm-servo-quoted.yaml: benchmark.max_step_deg: must be a finite number (deg per iteration), got '1e1'"),
     ("arm-duplicate-key", "run", RUN + ["--arm", "{arm-duplicate-key.yaml}"], "arm-duplicate-key.yaml:4:1: not valid YAML (duplicate key 'name' (first at line 3))"),

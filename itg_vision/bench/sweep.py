@@ -597,6 +597,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
         raise UserError(f"--points: must be >= 2, got {points}")
     rig_sha: dict[str, str] = {}
     rules_sha: dict[str, str] = {"": ""}
+    fitted: set[tuple[str, str]] = set()  # (arm, rule base) checked to fit
     specs = []
     for traj_name in trajs:
         arm = arm_of[traj_name]
@@ -628,6 +629,9 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         rule_base = spec_arm.defaults[rules_key] if rules_key else ""
                     if rule_base not in rules_sha:
                         rules_sha[rule_base] = _file_sha(resolve_rules_path(rule_base))
+                    if ctrl not in mine and rule_base and (arm, rule_base) not in fitted:
+                        _check_fits(spec_arm, rules_key, arm)  # before any run, not in each
+                        fitted.add((arm, rule_base))
                     specs.append(RunSpec(
                         controller=ctrl, condition=cname, trajectory=traj_name, arm=arm,
                         points=n, seed=seed, rc_controller=rc, feedback=fb,
@@ -640,6 +644,15 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
                         correction=CORRECTIONS.get(ctrl, 1.0), preview=ctrl in WITH_PREVIEW,
                         **params))
     return specs
+
+
+def _check_fits(spec_arm: ArmSpec, key: str, arm: str) -> None:
+    """Refuse, naming the arm file's field, a rule base its ``defaults[key]`` names that does
+    not load for it (a rule base for another arm, a syntax error in a file of yours): every run
+    of its controllers would fail."""
+    why = _load_for(resolve_rules_path(spec_arm.defaults[key]), arm)
+    if isinstance(why, str):
+        raise UserError(f"{spec_arm.source or spec_arm.name}: defaults.{key}: {why}")
 
 
 def _calibrated_rig_sha(arm: str) -> str:
