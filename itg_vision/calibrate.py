@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,7 +54,8 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
     with a name the file system takes (:func:`itg_vision.outputs.check_path`), and not the true
     rig. An existing file there is replaced only if it is a calibration of this rig (its
     ``true_rig`` names ``rig_path``), or with ``force``; the same holds for the corner picture
-    beside it. A folder where either file goes is refused, even with ``force`` (it is never
+    beside it. A symbolic link there (dangling or not) is replaced only with ``force``, and
+    kept aside, never its target. A folder where either file goes is refused, even with ``force`` (it is never
     replaced: the write would fail after all the work). Returns the files ``force`` lets it
     replace that are not this rig's calibration and its picture, for
     :func:`itg_vision.outputs.keep_aside`.
@@ -73,6 +75,15 @@ def check_out(out: Path, rig_path: Path, force: bool = False) -> list[Path]:
                         "another --out")
     if out.resolve() == Path(rig_path).resolve():
         raise UserError(f"--out: {out} would overwrite the true rig")
+    links = [p for p in (out, pic) if p.is_symlink()]  # the user's: replacing one deletes it
+    if links and not force:
+        which = "" if links[0] == out else f"{links[0]} "
+        raise UserError(f"--out {out}: {which}is a symbolic link (to {os.readlink(links[0])}); "
+                        "give the file itself or another --out, or add --force to write there "
+                        "anyway (the link is kept)")
+    if links:  # with force: kept aside, as run keeps a link given as --out
+        probe_folder(out.parent)
+        return [p for p in (out, pic) if p.exists() or p.is_symlink()]
     ours = False
     if out.exists():
         try:
@@ -299,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
             bar.close()
         try:
             for p in foreign:
-                keep_aside(p, f"--out: {p} was not this rig's calibration")
+                keep_aside(p, f"--out: {p} was " + ("a symbolic link" if p.is_symlink() else
+                                                    "not this rig's calibration"))
             picture = write_result(result, job.out, job.rig_path, job.rig_sha256)
         except OSError as exc:  # changed since check_out, a full disk: one line, the old files kept
             raise UserError(f"--out {job.out}: cannot write {exc.filename or job.out} "

@@ -1350,3 +1350,24 @@ def test_a_camera_that_cannot_see_an_led_at_all_is_refused_before_rendering(monk
     with pytest.raises(UserError) as exc:
         cal.calibrate(Rig.from_yaml(rig_file), ArmSpec.from_args("two-link"))
     assert str(exc.value) == f"{rig_file}: {expect}"
+
+
+@pytest.mark.parametrize("target", ["nowhere/x.yaml", "keep/x.calib.yaml"])
+def test_a_symbolic_link_as_out_is_refused_and_with_force_kept_aside(tmp_path, target):
+    """A link given as --out (dangling, or to this rig's calibration) was replaced by the new
+    file without a word, the link deleted; as run's --out: refused in one line, and with
+    --force kept aside as <name>.replaced-N, never its target."""
+    from itg_vision.calibrate import check_out
+
+    (tmp_path / "keep").mkdir()
+    real = _this_rigs_calibration(tmp_path / "keep" / "x.calib.yaml")
+    before = real.read_bytes()
+    out = tmp_path / "x.calib.yaml"
+    out.symlink_to(target)
+    with pytest.raises(UserError) as exc:
+        check_out(out, PLANAR)
+    assert str(exc.value) == (f"--out {out}: is a symbolic link (to {target}); give the file "
+                              "itself or another --out, or add --force to write there anyway "
+                              "(the link is kept)")
+    assert check_out(out, PLANAR, force=True) == [out]  # kept aside before the write
+    assert out.is_symlink() and real.read_bytes() == before
