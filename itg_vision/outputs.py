@@ -264,8 +264,10 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
     writes).
 
     Empty, ``.``, ``..`` or ending in ``/..`` or ``/.``, the root, the current folder or one
-    of its ancestors, below an existing file, or a name too long for the file system once our
-    temporary suffix (staging folder, temporary file) is added.
+    of its ancestors, a folder :func:`_what_it_holds` names (a top-level folder, the home
+    folder, Python's installation, this package, or one holding them), below an existing file,
+    or a name too long for the file system once our temporary suffix (staging folder,
+    temporary file) is added.
     """
     text = str(out)
     if not text.strip():
@@ -287,12 +289,32 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
     if resolved == cwd or resolved in cwd.parents:
         raise UserError(f"{option} {text}: is the current folder or one of its parents; name a "
                         "new folder for the results")
+    held = _what_it_holds(resolved) if what == "folder" else ""
+    if held:
+        raise UserError(f"{option} {text}: {held}, which results never replace (even with "
+                        "--force); name a new folder for the results")
     for parent in path.parents:
         if parent.exists() or parent.is_symlink():
             if not parent.is_dir():
                 raise UserError(f"{option} {text}: {parent} is a file, not a folder")
             break
     return path
+
+
+def _what_it_holds(resolved: Path) -> str:
+    """Why a folder may never be replaced by results ("" if it may): a folder at the top of the
+    file system (``/usr``, ``/tmp``), or the home folder, Python's installation or this package,
+    or a folder holding one of them. Results replace ``--out`` whole, and ``--force`` puts any
+    folder aside: these it must not move even for a moment."""
+    if resolved.parent == resolved or resolved.parent == Path(resolved.anchor):
+        return "is a folder at the top of the file system"
+    for label, place in (("the home folder", Path.home()), ("Python's installation", sys.prefix),
+                         ("Python's installation", sys.base_prefix),
+                         ("the itg_vision package", Path(__file__).parent)):
+        place = Path(place).resolve()
+        if resolved == place or resolved in place.parents:
+            return f"is {label} ({place})" if resolved == place else f"holds {label} ({place})"
+    return ""
 
 
 def check_out_dir(out: str | Path, command: str, *, force: bool = False,

@@ -1014,3 +1014,23 @@ def test_a_file_the_user_puts_in_while_the_command_works_is_kept_whatever_its_na
             (tmp / "video.mp4").write_bytes(b"the new video")
             (out / "video.mp4").write_bytes(b"the user's video")  # meanwhile
     assert (out / "video.mp4").read_bytes() == b"the user's video"
+
+
+def test_the_home_python_the_package_and_top_level_folders_are_refused(tmp_path, monkeypatch):
+    """--out $HOME --force once renamed the home folder (and the Python in it) aside: such a
+    folder, one holding it, and a folder at the top of the file system are refused even with
+    force; a new folder inside the home is not."""
+    home = tmp_path / "users" / "ana"
+    home.mkdir(parents=True)
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir("/")  # not a parent of /tmp or /usr (those are refused as such)
+    refused = {str(home): "is the home folder", str(tmp_path / "users"): "holds the home folder",
+               sys.prefix: "is Python's installation",
+               str(Path(outputs.__file__).parent): "is the itg_vision package",
+               str(Path(outputs.__file__).parent.parent): "holds the itg_vision package",
+               "/tmp": "top of the file system", "/usr": "top of the file system"}
+    for out, why in refused.items():
+        with pytest.raises(UserError, match=f"--out {re.escape(out)}: .*{why}"):
+            outputs.check_out_dir(out, "run", force=True)
+    assert outputs.check_out_dir(home / "results", "run", force=True) == home / "results"
+    assert sorted(p.name for p in home.iterdir()) == []
