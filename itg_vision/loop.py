@@ -145,7 +145,7 @@ class Trace:
     n_elbow_turned: int = 0
     timing_ms: dict = field(default_factory=dict)
     #: the largest joint increment applied in one iteration (deg, after the servo limit), its
-    #: joint and set point (1-based): a run can say that a step turned a joint a full turn
+    #: joint and set point (k, as trace.csv numbers them): a run can say that a step turned a joint a full turn
     largest_step: tuple[float, int, int] = (0.0, 0, 0)
 
     @property
@@ -518,7 +518,7 @@ class Session:
             dq = np.clip(dq, -self.max_step_deg, self.max_step_deg)
         j = int(np.argmax(np.abs(dq)))
         if abs(dq[j]) > self.trace.largest_step[0]:  # NaN: the check below stops the run
-            self.trace.largest_step = (float(abs(dq[j])), j + 1, self.k + 1)
+            self.trace.largest_step = (float(abs(dq[j])), j + 1, self.k)
         # in Python floats: an overflow is inf without a warning (finite steps whose sum is not:
         # rules like q1 += q1), and the check costs what set_q's own does
         q = [a + b for a, b in zip(self.world.q_deg.tolist(), dq.tolist())]
@@ -528,7 +528,7 @@ class Session:
             fix = ("the controller's step is not a number (NaN): the step itself is wrong"
                    if math.isnan(dq[j]) else "bound each step with the servo limit "
                    "(max_step_deg; run's --max-step)")
-            raise UserError(f"set point {self.k + 1}: joint q{j + 1} would turn to {q[j]} deg (from "
+            raise UserError(f"set point k = {self.k}: joint q{j + 1} would turn to {q[j]} deg (from "
                             f"{self.world.q_deg[j]:.6g} by {dq[j]:.6g}{fired}): no joint angle is "
                             f"that; {fix}")
         self.world.set_q(q)

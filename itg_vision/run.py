@@ -317,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
                     bar.close()
             big, joint, k = trace.largest_step
             if big >= 360:
-                print(f"note: q{joint} turned {big:.6g} deg in one iteration (set point {k}): a "
+                print(f"note: q{joint} turned {big:.6g} deg in one iteration (set point k = {k}, as trace.csv numbers them): a "
                       "full turn or more, which no servo does (--max-step bounds the steps)",
                       file=sys.stderr)
             unseen = summary["n_at_last_aim"] + summary["n_held"]

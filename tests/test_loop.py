@@ -732,7 +732,7 @@ def test_finite_steps_that_overflow_a_joint_angle_are_one_line():
     arm = ArmSpec.from_args("two-link")
     rb = RuleBase.from_text("RULE 7: IF 1 > 0 THEN q1 += 1e308, q2 HOLD", 2, arm.links_mm)
     with World(arm) as world:
-        with pytest.raises(UserError, match=r"^set point 2: joint q1 would turn to inf deg "
+        with pytest.raises(UserError, match=r"^set point k = 1: joint q1 would turn to inf deg "
                                             r"\(from 1e\+308 by 1e\+308; rules fired: 7\): no "
                                             r"joint angle is that; bound each step with "
                                             r"the servo limit \(max_step_deg; run's "
@@ -752,7 +752,7 @@ def test_a_step_that_is_not_a_number_is_said_to_be_the_controllers_not_a_missing
             return Step(np.array([np.nan, 0.0]))
 
     with World(ArmSpec.from_args("two-link")) as world:
-        with pytest.raises(UserError, match=r"^set point 1: joint q1 would turn to nan deg .*: "
+        with pytest.raises(UserError, match=r"^set point k = 0: joint q1 would turn to nan deg .*: "
                                             r"no joint angle is that; the controller's step is "
                                             r"not a number \(NaN\): the step itself is wrong$"):
             simulate(world, NaNStep(), TruthFeedback(), np.array([[100.0, 0.0, 0.0]] * 2),

@@ -764,7 +764,7 @@ def test_a_step_of_a_full_turn_or_more_is_said_once_naming_joint_and_set_point(t
     assert main(base + ["--out", str(tmp_path / "a")]) == 0
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "full turn" in ln]
     assert len(notes) == 1 and re.match(r"note: q1 turned \d+(\.\d+)? deg in one iteration "
-                                        r"\(set point 1\): a full turn or more", notes[0]), notes
+                                        r"\(set point k = 0, as trace.csv numbers them\): a full turn or more", notes[0]), notes
     trace = np.genfromtxt(tmp_path / "a" / "trace.csv", delimiter=",", names=True)
     assert float(notes[0].split()[3]) >= 360 and abs(trace["q1_deg"][0]) >= 360
     assert main(base + ["--max-step", "20", "--out", str(tmp_path / "b")]) == 0
