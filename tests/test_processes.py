@@ -20,6 +20,14 @@ from itg_vision.errors import UserError
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _default_signals() -> None:
+    """In a child before it runs: Ctrl-C's, SIGTERM's and SIGHUP's default dispositions, as a
+    terminal gives them. A shell's background job ignores SIGINT, and ``nohup`` SIGHUP; a child
+    inherits that, and a command leaves an ignored signal ignored (tested below)."""
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        signal.signal(getattr(signal, name), signal.SIG_DFL)
+
+
 def _children(pid: int) -> list[int]:
     """Direct children of ``pid`` (Linux /proc)."""
     out = []
@@ -207,8 +215,7 @@ def test_ctrl_c_of_bench_noise_says_how_far_it_got_and_how_to_resume(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "itg_vision.bench", "noise", "--quick",
                              "--workers", "2", "--quiet", "--out", str(out)],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            text=True, preexec_fn=_default_signals)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not (
@@ -225,33 +232,57 @@ def test_ctrl_c_of_bench_noise_says_how_far_it_got_and_how_to_resume(tmp_path):
     assert "Traceback" not in err and "Exception ignored" not in err
 
 
+def _signal_a_run(out: Path, sig: int, points: int, preexec=_default_signals) -> tuple[int, str]:
+    """Start ``run`` into ``out / "run"`` (truth feedback, ``points`` set points), send it
+    ``sig`` once its staging folder exists and while it still runs; its status and stderr."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.run", "--points", str(points),
+                             "--feedback", "truth", "--out", str(out / "run")],
+                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=preexec)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not list(out.glob(".run.staging-*")):
+            time.sleep(0.05)
+        assert list(out.glob(".run.staging-*")), "no staging folder within 60 s"
+        assert proc.poll() is None, "the run ended before the signal: give it more points"
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, err
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP"])
 def test_a_terminated_run_cleans_up_as_ctrl_c_does(tmp_path, sig):
     """SIGTERM (timeout, a batch scheduler, docker stop) and SIGHUP end a run as Ctrl-C does:
     one line, status 128 + the signal, its staging folder gone;
     by default they killed the process and left the staging folder behind."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = tmp_path / "r"
     out.mkdir()
-    proc = subprocess.Popen([sys.executable, "-m", "itg_vision.run", "--points", "100000",
-                             "--feedback", "truth", "--out", str(out / "run")],
-                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not list(out.glob(".run.staging-*")):
-            time.sleep(0.05)
-        assert list(out.glob(".run.staging-*")), "no staging folder within 60 s"
-        proc.send_signal(getattr(signal, sig))
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 128 + getattr(signal, sig), err
+    status, err = _signal_a_run(out, getattr(signal, sig), 100000)
+    assert status == 128 + getattr(signal, sig), err
     assert err.splitlines()[-1] == f"terminated ({sig})", err
     assert "Traceback" not in err
     assert list(out.iterdir()) == []  # no staging folder, no half result
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
+def test_a_run_under_nohup_ignores_a_hangup_and_runs_to_its_end(tmp_path):
+    """A command leaves an ignored SIGHUP ignored (``nohup``: go on when the terminal closes)
+    and ends a run on it only where SIGHUP has its default (the test above)."""
+    out = tmp_path / "r"
+    out.mkdir()
+
+    def nohup():
+        _default_signals()
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+    status, err = _signal_a_run(out, signal.SIGHUP, 20000, preexec=nohup)
+    assert status == 0, err
+    assert (out / "run" / "summary.json").is_file() and "terminated" not in err
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
@@ -282,7 +313,7 @@ def test_a_signal_inside_an_import_that_swallows_it_still_ends_the_command(tmp_p
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     t0 = time.monotonic()
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                         timeout=60, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                         timeout=60, preexec_fn=_default_signals)
     status = 130 if sig == "SIGINT" else 128 + getattr(signal, sig)
     last = "interrupted" if sig == "SIGINT" else f"terminated ({sig})"
     assert (res.returncode, res.stdout, res.stderr.strip()) == (status, "imported True\n", last)
