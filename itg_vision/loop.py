@@ -145,7 +145,8 @@ class Trace:
     n_elbow_turned: int = 0
     timing_ms: dict = field(default_factory=dict)
     #: the largest joint increment applied in one iteration (deg, after the servo limit), its
-    #: joint and set point (k, as trace.csv numbers them): a run can say that a step turned a joint a full turn
+    #: joint and set point (k, as trace.csv numbers them): a run can say that a step turned a
+    #: joint a full turn
     largest_step: tuple[float, int, int] = (0.0, 0, 0)
 
     @property

@@ -286,7 +286,7 @@ def check_path(out: str | Path, option: str = "--out", what: str = "folder") -> 
                         f"({len(os.fsencode(path.name))} bytes; at most {room} here)")
     resolved = path.resolve()
     cwd = Path.cwd().resolve()
-    if resolved == cwd or resolved in cwd.parents:
+    if cwd.is_relative_to(resolved):
         raise UserError(f"{option} {text}: is the current folder or one of its parents; name a "
                         "new folder for the results")
     held = _what_it_holds(resolved) if what == "folder" else ""
@@ -306,14 +306,14 @@ def _what_it_holds(resolved: Path) -> str:
     file system (``/usr``, ``/tmp``), or the home folder, Python's installation or this package,
     or a folder holding one of them. Results replace ``--out`` whole, and ``--force`` puts any
     folder aside: these it must not move even for a moment."""
-    if resolved.parent == resolved or resolved.parent == Path(resolved.anchor):
+    if len(resolved.parts) <= 2:  # the root, or a folder in it
         return "is a folder at the top of the file system"
     for label, place in (("the home folder", Path.home()), ("Python's installation", sys.prefix),
                          ("Python's installation", sys.base_prefix),
                          ("the itg_vision package", Path(__file__).parent)):
         place = Path(place).resolve()
-        if resolved == place or resolved in place.parents:
-            return f"is {label} ({place})" if resolved == place else f"holds {label} ({place})"
+        if place.is_relative_to(resolved):
+            return f"{'is' if resolved == place else 'holds'} {label} ({place})"
     return ""
 
 

@@ -345,10 +345,8 @@ def rule_controller(cfg: RunConfig, model: ArmSpec, servo_hint: str = SERVO_HINT
     try:
         controller = load_rules(cfg.rules_name, model.n_joints, model.links_mm,
                                 **{PARAM_OF_FIELD[k]: v for k, v in params.items()})
-    except ConfigError:
-        raise
     except UserError as exc:  # a rule base the arm file chose is that file's field
-        if cfg.rules:
+        if cfg.rules or isinstance(exc, ConfigError):
             raise
         raise ConfigError(f"{model.source or model.name}: defaults.rules", str(exc)) from None
     info = {}
