@@ -256,6 +256,8 @@ CASES = [
     ("calibrate-arm-default-rules-unknown", "calibrate", ["--quiet", "--arm", "{arm-rules-unknown.yaml}", "--out", "{tmp}/c.yaml"], "arm-rules-unknown.yaml: defaults.rules: no shipped one is called 'nosuch'"),
     # a rule base the arm file chose for another arm: the file's field, not the rule file alone
     ("arm-default-rules-for-another-arm", "run", RUN + ["--arm", "{arm-rules-one-link.yaml}"], "arm-rules-one-link.yaml: defaults.rules: " + str(RULES_DIR / "table1.rules") + ": no rule moves or holds q2 of this 2-joint arm"),
+    # ... but one the user gave with --rules is the rule file's error, not the arm file's field
+    ("arm-given-rules-for-another-arm", "run", RUN + ["--arm", "{arm-rules-one-link.yaml}", "--rules", "table1"], "error: " + str(RULES_DIR / "table1.rules") + ": no rule moves or holds q2 of this 2-joint arm"),
     # ... and in a sweep, before any run (every itg-plus run failed, after the folder was made)
     ("noise-arm-default-rules-for-another-arm", "noise", ["--quick", "--quiet", "--controllers", "itg-plus-model", "--conditions", "clean", "--seeds", "1", "--arm", "{arm-rules-one-link.yaml}", "--trajectories", "{path-2d.csv}", "--out", "{tmp}/n"], "arm-rules-one-link.yaml: defaults.itg_plus_rules: " + str(RULES_DIR / "itg-plus-one-link.rules") + ": no rule moves or holds q2"),
     ("arm-default-rig-list", "run", ["--quiet", "--arm", "{arm-rig-list.yaml}"], "arm-rig-list.yaml: defaults.rig: must be a name or a path on one line, got ['a']"),
