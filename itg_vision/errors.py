@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import re
 import signal
 import sys
 import threading
@@ -38,7 +39,16 @@ class NothingInReach(ConfigError):
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are one line: a bad option raises `UserError` (naming the option),
     which :func:`run_main` prints as ``error: ...`` with status 2, instead of printing the usage
-    and exiting. Parse inside the ``body`` given to :func:`run_main`."""
+    and exiting. Parse inside the ``body`` given to :func:`run_main`.
+
+    A value that starts with a minus and a digit is a value, not an option, lists included:
+    argparse takes only a lone number (``-1``, ``-1.5``) for one, so ``--joint-offset -1,2``
+    was "expected one argument". No option of ours is spelled like a negative number, which is
+    argparse's own condition for reading such tokens as values."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
 
     def error(self, message: str):
         raise UserError(f"{message} (see {self.prog} --help)")

@@ -316,6 +316,9 @@ CASES = [
     ("arm-file-last-shorter-than-an-led", "run", ["--quiet", "--arm", "{arm-last-link-5.yaml}"], "arm-last-link-5.yaml): its last link, 5 mm (links_mm or --links), is shorter than an LED's diameter"),
     ("links-last-shorter-than-an-led", "run", ["--quiet", "--links", "100,10"], "arm two-link: its last link, 10 mm (links_mm or --links), is shorter than an LED's diameter (12 mm): the elbow and gripper LEDs overlap in every image"),
     ("joint-offset-text", "run", ["--quiet", "--joint-offset", "1,x"], "--joint-offset: expected joint offsets in deg separated by commas, got '1,x'"),
+    # a list whose first value is negative is the option's value, not an option: its own error
+    ("links-first-negative", "run", ["--quiet", "--links", "-100,100"], "--links: link 1 must be a length in mm in (0, 5000], got -100.0"),
+    ("links-without-value", "run", ["--quiet", "--links", "--quiet"], "argument --links: expected one argument"),
     ("links-text", "run", ["--quiet", "--links", "100,x"], "--links: expected link lengths in mm separated by commas, got '100,x'"),
     ("links-1000-planar-rig", "run", ["--quiet", "--links", "1000,1000"], "planar.yaml: cameras[0] (left): cannot see"),
     # trajectories
@@ -546,6 +549,17 @@ def test_allow_unseen_runs_a_rig_that_cannot_see(inputs, tmp_path, capsys):
     import json
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["n_missed"] > 0  # the failure, measured
+
+
+@pytest.mark.parametrize("argv, field, expect", [
+    (["--joint-offset", "-1,2"], "joint_offset", (-1.0, 2.0)),
+    (["--joint-offset", "-1.5,-.5"], "joint_offset", (-1.5, -0.5)),
+    (["--joint-offset", "-1"], "joint_offset", (-1.0,)),
+])
+def test_a_list_that_starts_negative_is_an_options_value(argv, field, expect):
+    """argparse reads ``-1,2`` as an unknown option ("expected one argument"); a joint offset
+    of -1 deg is a value a user gives."""
+    assert getattr(run.build_parser().parse_args(argv), field) == expect
 
 
 @pytest.mark.parametrize("command", [["run"], ["paper"], ["calibrate"], ["bench"],
