@@ -257,6 +257,7 @@ class Definition:
 class _Parser:
     def __init__(self, tokens: list[Token], source: str):
         self.t, self.i, self.source = tokens, 0, source
+        self._index = {id(t): k for k, t in enumerate(tokens)}  # a token's place, for _slip
         self.nesting = 0  # recursion: parentheses, |...|, NOT, signs, powers
         self._height: dict[int, int] = {}  # id(node) -> height of its subtree
         self.definitions: list[Definition] = []
@@ -299,7 +300,7 @@ class _Parser:
         operands side by side (a product written without its *), two actions without the
         ',' between them, '=>', '=<' or a single '=' where a comparison belongs, or C's '||'
         and Python's '**'."""
-        k = next((i for i, t in enumerate(self.t) if t is tok), -1)
+        k = self._index.get(id(tok), -1)  # an error made while backtracking costs O(1) here
         before = self.t[k - 1] if k > 0 else None
         after = self.t[k + 1] if 0 <= k < len(self.t) - 1 else None
         if tok.text == "=" and after is not None and after.text in ("<", ">") \
@@ -310,8 +311,8 @@ class _Parser:
             return ": '=' is not a comparison, '==' is"
         if JOINT_NAME.fullmatch(tok.text) and after is not None \
                 and after.text in ("+=", "-=", "=", "HOLD") and (before is None or before.text != ","):
-            opened = next((t.text for t in reversed(self.t[:k]) if t.kind == "kw"
-                           and t.text in ("THEN", "RULE")), None)  # in the actions, or before?
+            opened = next((self.t[j].text for j in range(k - 1, -1, -1) if self.t[j].kind == "kw"
+                           and self.t[j].text in ("THEN", "RULE")), None)  # in the actions?
             return (": the next action needs a ',' before it" if opened == "THEN" else
                     ": is 'THEN' missing before the actions?")
         for a, b in ((before, tok), (tok, after)):  # '||' or '**' written as in C or Python
