@@ -35,6 +35,8 @@ class Markers:
     missed : markers not measured at this iteration (value held from the last good estimate).
     residual_px : reprojection residual of each triangulated marker (vision only).
     timing_ms : per-stage wall time of this observation (vision only).
+    missed_why : marker -> why it was missed, for the markers in ``missed`` (vision: the
+        :class:`Observation`'s cause, a fixed phrase); a feedback may leave it empty.
     """
 
     gripper_mm: np.ndarray
@@ -42,6 +44,7 @@ class Markers:
     missed: tuple[str, ...] = ()
     residual_px: dict[str, float] = field(default_factory=dict)
     timing_ms: dict[str, float] = field(default_factory=dict)
+    missed_why: dict[str, str] = field(default_factory=dict)
 
     def get(self, name: str) -> np.ndarray:
         """The estimate of marker ``name`` (one of :data:`MARKERS`), shape (3,) mm."""

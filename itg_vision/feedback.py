@@ -330,7 +330,7 @@ class VisionFeedback:
         timing = {"render": 1e3 * (t1 - t0), "detect": 1e3 * (t2 - t1),
                   "triangulate": 1e3 * (t3 - t2)}
         markers = Markers(self._last["gripper"].copy(), self._last["elbow"].copy(), missed,
-                          residual, timing)
+                          residual, timing, {n: causes[n] for n in missed})
         self.last_observation = Observation(markers, patches, detections, residual, reasons,
                                             timing, causes)
         return markers

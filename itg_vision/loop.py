@@ -41,6 +41,9 @@ from .outputs import unsigned_zero
 #: saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm`` and ``pitch_axis_mm``.
 AIM_ON_LOST = "gripper"
 
+#: Why a look missed a marker when its feedback did not say (``Markers.missed_why`` empty).
+NOT_SAID = "not said by the feedback"
+
 #: A run "diverged" when the median E_i of its tracking phase exceeds this (mm): 10 % of the
 #: two- and three-link arms' 200 mm reach (a line, not a gap in the data: README, "Diverged runs").
 DIVERGED_MM = 20.0
@@ -138,6 +141,8 @@ class Trace:
     est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
     #: looks that missed each marker (:attr:`n_missed` is their sum)
     missed_by: dict = field(default_factory=lambda: {m: 0 for m in MARKERS})
+    #: the same by cause: marker -> {why (the feedback's ``missed_why``): looks}
+    missed_why: dict = field(default_factory=lambda: {m: {} for m in MARKERS})
     n_at_last_aim: int = 0
     n_held: int = 0
     #: looks whose missed elbow was turned with the joints (:class:`Session`'s ``base_axis_mm``,
@@ -163,6 +168,9 @@ class Trace:
             self.time(stage, ms)
         for name in estimate.missed:
             self.missed_by[name] = self.missed_by.get(name, 0) + 1
+            why = self.missed_why.setdefault(name, {})
+            cause = estimate.missed_why.get(name) or NOT_SAID
+            why[cause] = why.get(cause, 0) + 1
         for name, out in self.est_err_mm.items():
             if name in estimate.missed:
                 continue
@@ -227,7 +235,8 @@ class Trace:
         ``diverged``: that median is above :data:`DIVERGED_MM` (None without a tracking phase).
         ``n_out_of_reach``: set points the simulated arm cannot reach (left out of them all);
         ``n_flagged``: set points the controller flagged out of reach; ``n_missed_by``: looks that
-        missed each marker (their sum is ``n_missed``); ``n_aim_out_of_reach``:
+        missed each marker (their sum is ``n_missed``), ``n_missed_why`` the same by cause,
+        the most frequent first; ``n_aim_out_of_reach``:
         set points whose aim (moved by a correction or a preview) the controller flagged, and
         was asked again with the set point."""
         e = self.error_mm()
@@ -260,6 +269,8 @@ class Trace:
             "n_aim_out_of_reach": sum("aim_out_of_reach" in r.flags for r in self.records),
             "n_missed": int(self.n_missed),
             "n_missed_by": {m: int(v) for m, v in self.missed_by.items()},
+            "n_missed_why": {m: dict(sorted(why.items(), key=lambda kv: (-kv[1], kv[0])))
+                             for m, why in self.missed_why.items()},
             "n_at_last_aim": int(self.n_at_last_aim),
             "n_held": int(self.n_held),
             "n_elbow_turned": int(self.n_elbow_turned),
@@ -306,20 +317,23 @@ def _checked(step):
 
 
 def _shown(value) -> str:
-    """A wrong value's type, and the offending positions or ``missed`` if that is what is
-    wrong."""
+    """A wrong value's type, and the offending positions or ``missed`` and ``missed_why`` if
+    that is what is wrong."""
     if isinstance(value, Markers):
         shapes = [f"{m}_mm of shape {np.shape(value.get(m))}" for m in MARKERS
                   if np.shape(value.get(m)) != (3,)]
-        return "Markers with " + (", ".join(shapes) if shapes else f"missed={value.missed!r}")
+        return "Markers with " + (", ".join(shapes) if shapes else
+                                  f"missed={value.missed!r}, missed_why={value.missed_why!r}")
     return type(value).__name__
 
 
 def _is_markers(value) -> bool:
     """Whether a feedback source's ``observe`` kept the contract: positions of shape (3,), and
-    ``missed`` a tuple of marker names."""
+    ``missed`` a tuple of marker names, ``missed_why`` a dict of phrases."""
     return (isinstance(value, Markers) and isinstance(value.missed, tuple)
             and all(m in MARKERS for m in value.missed)
+            and isinstance(value.missed_why, dict)
+            and all(isinstance(w, str) for w in value.missed_why.values())
             and all(np.shape(value.get(m)) == (3,) for m in MARKERS))
 
 
@@ -460,7 +474,8 @@ class Session:
         self._estimate = self.feedback.observe(self.world)
         if not _is_markers(self._estimate):  # (2,) x, y broke deep in the trace's arithmetic
             raise TypeError("feedback.observe must return itg_vision.contracts.Markers (positions "
-                            "of shape (3,), mm; missed: a tuple of marker names), got "
+                            "of shape (3,), mm; missed: a tuple of marker names; "
+                            "missed_why: a dict, marker -> phrase), got "
                             f"{_shown(self._estimate)}")
         self.trace.observed(self._estimate, self._seen)
         for m in self._estimate.missed:

@@ -50,6 +50,14 @@ _NAMED = (("rules", "rules"), ("rig", "rig"), ("links", "links"), ("points", "n"
           ("allow_unseen", "unseen"), ("seed", "seed"))
 
 
+def _why_missed(summary: dict, marker: str) -> str:
+    """The causes of a marker's missed looks, the most frequent first, as the run's note names
+    them: ``reprojection residual above the gate 160, not round 2; summary.json's
+    n_missed_why, trace.csv's flags say where``."""
+    why = ", ".join(f"{cause} {n}" for cause, n in summary["n_missed_why"][marker].items())
+    return f"{why}; summary.json's n_missed_why, trace.csv's flags say where"
+
+
 def _numbers(what: str):
     """An option's parser of numbers separated by commas; its error names ``what`` they are."""
     def parse(text: str) -> tuple[float, ...]:
@@ -325,17 +333,16 @@ def main(argv: list[str] | None = None) -> int:
             p = cfg.dropout  # beyond what the dropout asked for gives, and its 3 sigma
             beyond = (p + MISSED_NOTE) * looks + 3 * math.sqrt(looks * p * (1 - p))
             if unseen > beyond:
-                print(f"note: the gripper LED went unseen in {unseen} of the {looks} looks (hidden "
-                      "by the arm, or off the image; trace.csv's flags say where): those "
-                      "decisions were made on the last aim, not on a measurement", file=sys.stderr)
+                print(f"note: the gripper LED went unseen in {unseen} of the {looks} looks "
+                      f"({_why_missed(summary, 'gripper')}): those decisions were made on the "
+                      "last aim, not on a measurement", file=sys.stderr)
             if trace.missed_by.get("elbow", 0) > beyond:
                 held = ("however old" if not trace.n_elbow_turned
                         else "turned with the base's commanded turn since" if prep.model.planar
                         else "turned with the base's and the shoulder's commanded turns since")
                 print(f"note: the elbow LED went unseen in {trace.missed_by['elbow']} of the "
-                      f"{looks} looks (hidden by the arm, or off the image; trace.csv's flags say "
-                      f"where): those decisions were made on its last measured position, {held}",
-                      file=sys.stderr)
+                      f"{looks} looks ({_why_missed(summary, 'elbow')}): those decisions were "
+                      f"made on its last measured position, {held}", file=sys.stderr)
             if args.video:
                 summary["video"] = recorder.path.name
                 summary["video_codec"] = recorder.codec_note

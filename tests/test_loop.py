@@ -10,7 +10,7 @@ from conftest import PYBULLET_RTOL, roundoff
 
 from itg_vision.arm import REACH_TOL_MM, ArmSpec, forward_kinematics
 from itg_vision.feedback import TruthFeedback
-from itg_vision.loop import Session, Trace, simulate
+from itg_vision.loop import NOT_SAID, Session, Trace, simulate
 from itg_vision.contracts import Controller, Markers, Step
 from itg_vision.errors import UserError
 from itg_vision.runner import RunConfig, execute, prepare
@@ -389,11 +389,14 @@ def test_a_controller_that_breaks_the_contract_is_told_in_one_line(returned, err
     (lambda t: Markers(t["gripper"][:2], t["elbow"][:2]),
      r"gripper_mm of shape \(2,\), elbow_mm of shape \(2,\)"),
     (lambda t: Markers(t["gripper"], t["elbow"], missed=("grip",)), r"missed=\('grip',\)"),
+    (lambda t: Markers(t["gripper"], t["elbow"], missed=("elbow",), missed_why="hidden"),
+     "missed_why='hidden'"),
 ])
 def test_a_feedback_that_breaks_the_contract_is_told_in_one_line(seen, said):
     """A dict used to fail as a missing 'timing_ms'; missed='gripper' (a string) counted five
     misses per look, one per letter; x, y alone (shape (2,)) failed deep in the trace as
-    'operands could not be broadcast'; a missed 'grip' left the gripper taken as measured."""
+    'operands could not be broadcast'; a missed 'grip' left the gripper taken as measured; a
+    missed_why that is not a dict would fail as the trace counts it."""
     with World(ArmSpec.from_args("two-link")) as world:
         with pytest.raises(TypeError, match=f"feedback.observe must return itg_vision.contracts"
                                             f".Markers .*{said}"):
@@ -500,6 +503,8 @@ def test_a_lost_elbow_is_its_last_measured_position_turned_with_the_base(offset_
         assert ("elbow_turned" in trace.records[k].flags) == lost(k + 1)
     assert trace.metrics()["n_elbow_turned"] == 6
     assert trace.metrics()["n_missed_by"] == {"gripper": 0, "elbow": 6}  # which LED was missed
+    # a feedback that does not say why (Markers.missed_why empty): counted as such
+    assert trace.metrics()["n_missed_why"] == {"gripper": {}, "elbow": {NOT_SAID: 6}}
     held, trace = run(None)
     off = np.linalg.norm(held[7] - truth[7])
     assert off == pytest.approx(2 * 100.0 * np.sin(np.radians(4.5)), abs=tol)

@@ -10,7 +10,7 @@ import pytest
 
 from itg_vision.arm import ArmSpec
 from itg_vision.camera import Rig
-from itg_vision.feedback import Markers, VisionFeedback
+from itg_vision.feedback import DROPPED, Markers, VisionFeedback
 from itg_vision.world import World
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,9 +110,10 @@ def test_dropout_misses_and_holds_the_last_estimate(planar):
         fb.reset(2)
         m = fb.observe(world)  # never a good estimate: NaN
         assert set(m.missed) == {"gripper", "elbow"} and np.all(np.isnan(m.gripper_mm))
+        assert m.missed_why == {"gripper": DROPPED, "elbow": DROPPED}  # why, for the loop's count
         fb.dropout = 0.0
         good = fb.observe(world)
-        assert good.missed == ()
+        assert good.missed == () and good.missed_why == {}
         fb.dropout = 1.0
         world.set_q([10.0, 20.0])  # the arm moves but is not seen: the estimate is held
         held = fb.observe(world)
