@@ -750,6 +750,36 @@ def test_a_missing_calibrated_rig_is_refused_with_the_calibrate_command_that_mak
                             f"{arm.resolve()} --out {tmp_path / 'myrig.calib.yaml'}`")
 
 
+def test_the_report_names_the_rig_files_an_arm_file_gave_its_runs(tmp_path):
+    """An arm file whose defaults.rig is a rig of the user's: the report said only
+    `cameras/<rig>.calib.yaml` and never which rig rendered and estimated. It names the true
+    rig and, where rig-calibrated ran, the calibration beside it; a model-fed sweep no rig."""
+    import hashlib
+
+    from itg_vision import camera
+    from itg_vision.bench.report import _rigs_line
+
+    rig = tmp_path / "myrig.yaml"
+    rig.write_text(camera.default_rig_path("two-link").read_text())
+    arm = _arm_file(tmp_path / "myarm.yaml", rig=("rig: planar", f"rig: {rig.name}"))
+    path = tmp_path / "p.csv"
+    path.write_text("x_mm,y_mm\n100,0\n0,100\n-100,0\n")
+    true = camera.Rig.from_yaml(rig)  # its calibration: the true rig itself, as a calibration
+    (tmp_path / "myrig.calib.yaml").write_text(
+        camera.Rig(true.name, true.cameras, "", {}, rig.name).yaml_text()
+        + f"true_rig_sha256: {hashlib.sha256(rig.read_bytes()).hexdigest()}\n")
+
+    def line(conditions, controllers):
+        return _rigs_line(build_sweep(trajectories=(str(path),), arm=str(arm), seeds=1,
+                                      conditions=conditions, controllers=controllers))
+
+    both = line(("clean", "rig-calibrated"), ("itg-plus-vision",))
+    assert f"`{rig.resolve()}`, calibrated `{tmp_path.resolve() / 'myrig.calib.yaml'}`" in both
+    assert "cameras/planar" not in both
+    assert "calibrated" not in line(("clean",), ("itg-plus-vision",)).split("`")[-1]
+    assert line(("clean",), ("itg-model", "ik")) == ""
+
+
 def test_cli_entry_point_exit_status(cli, tmp_path):
     res = cli("itg_vision.bench", "noise", "--quick", "--controllers", "nope", "--out", tmp_path / "o")
     assert res.returncode == 2

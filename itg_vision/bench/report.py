@@ -314,6 +314,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
     L += ["", "Trajectories: " + ", ".join(
         f"`{t}` ({spec_limits(specs, t)['arm']}, {'/'.join(map(str, pts[t])) or '?'} set points "
         f"per lap{_file_note(specs, t)})" for t in trajs) + ".", ""]
+    rigs = _rigs_line(specs)
+    L += [rigs, ""] if rigs else []
     L += [f"- `{t}`: {_limits_line(specs, t)}" for t in trajs]
     notes = span_notes(specs)  # a file likely written in metres
     if notes:
@@ -328,7 +330,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
           "to the same limit.", "",
           "Conditions: `noise-Spx` adds Gaussian noise of S px std to each centroid coordinate; "
           "`dropout-P` drops each LED detection with probability P; `rig-calibrated` estimates "
-          "with the calibrated rig (`cameras/<rig>.calib.yaml`); `rig-perturbed` with the true "
+          "with the calibrated rig (the rig file's calibration beside it, `<rig>.calib.yaml`: "
+          "Rigs, above); `rig-perturbed` with the true "
           "rig moved as one body by 1 degree and 5 mm (a wrong world frame, consistent stereo); "
           "`rig-perturbed-cams` with each camera turned by 1 degree and moved by 5 mm on its own "
           "(inconsistent stereo); random directions drawn from the seed; `links+X%` makes every "
@@ -377,6 +380,23 @@ def _file_note(specs: list[RunSpec], traj: str) -> str:
     """``, your file PATH`` for a user's trajectory file (``--trajectories FILE``), else ``""``."""
     path = next(s.trajectory for s in specs if trajectory_label(s.trajectory) == traj)
     return f", your file {path}" if is_trajectory_file(path) else ""
+
+
+def _rigs_line(specs: list[RunSpec]) -> str:
+    """Which rig files the vision runs used, per arm (its arm file's ``defaults.rig``): the true
+    rig, which renders every image and estimates but under ``rig-calibrated``, and the
+    calibration where that condition ran; ``""`` without a vision run."""
+    from ..camera import default_rig_path
+    from ..runner import shown_path
+
+    parts = []
+    for arm in dict.fromkeys(s.arm for s in specs if s.feedback == "vision"):
+        part = f"the {arm} arm's `{shown_path(str(default_rig_path(arm)))}`"
+        if any(s.arm == arm and s.rig == "calibrated" for s in specs):
+            part += f", calibrated `{shown_path(str(default_rig_path(arm, calibrated=True)))}`"
+        parts.append(part)
+    return ("Rigs (the arm file's `defaults.rig`; images are always rendered with the true rig): "
+            + "; ".join(parts) + ".") if parts else ""
 
 
 def _arms_note(specs: list[RunSpec], spec: RunSpec) -> str:
