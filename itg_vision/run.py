@@ -152,7 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
                          f"else {DEFAULT_SUPERSAMPLE})")
     ap.add_argument("--full-frame", action="store_true",
                     help="vision: render whole frames instead of windows around the LEDs "
-                         "(~50-70x slower: 195 ms a look against 2.8 on 640x480; --video implies it)")
+                         "(~50-70x slower: 195 ms a look against 2.8 on 640x480; --video "
+                         "implies it)")
     ap.add_argument("--seed", type=int, default=0, help="seed of every random thing, a whole number >= 0 (default %(default)s)")
     ap.add_argument("--allow-unseen", action="store_true",
                     help="run even if the cameras cannot see the arm along the trajectory (refused "

@@ -485,7 +485,8 @@ def test_parsing_reads_each_token_a_bounded_number_of_times_however_long_the_fil
     """A parenthesised condition is first tried as a condition, and the error that attempt makes
     is dropped; each such error used to look its token up in the whole file, so a 1 MiB rule
     file of 4054 such rules took 56 s of CPU to reach its error (15 s to parse now, on the same
-    busy host). Counted, not timed: token reads per rule stay flat from 50 to 200 rules (quadratic would grow 4x)."""
+    busy host). Counted, not timed: token reads per rule stay flat from 50 to 200 rules
+    (quadratic would grow 4x)."""
     import itg_vision.rules as rules_module
 
     class Counting(list):
