@@ -209,6 +209,7 @@ def test_an_inline_executor_hands_each_row_over_as_it_is_made_in_order(monkeypat
     assert calls == [(kind, s.run_id) for s in specs for kind in ("run", "yield")]
 
 
+@pytest.mark.slow
 def test_results_csv_keeps_the_sweeps_order_whatever_order_the_runs_finish_in(tmp_path,
                                                                             monkeypatch):
     """Parallel runs finish in any order; the same sweep must give the same file (and the
@@ -1028,6 +1029,7 @@ def _closed_form_tol(value_mm, start_mm):
     return 5e-6 * abs(value_mm) + PYBULLET_RTOL * np.linalg.norm(start_mm) + roundoff(scale)
 
 
+@pytest.mark.slow
 def test_a_users_rule_base_is_what_its_controllers_run(tmp_path):
     """A copy of Table 2 tracks exactly as the shipped ITG does (same seeds, same numbers); a
     rule base that holds every joint leaves the gripper at its start, so its E_av is the mean
@@ -1154,6 +1156,7 @@ def test_list_names_your_files_and_refuses_bad_ones_before_printing(tmp_path, mo
     _one_line_error(capsys, "--rules ./mine.rules: given twice")
 
 
+@pytest.mark.slow
 def test_rule_parameters_reach_your_rule_base_as_run_gives_them(tmp_path, capsys):
     """--gain 0.3 with a copy of Table 2: its runs give the numbers `run --rules COPY --gain
     0.3` gives under the benchmark's limits for that cell, record f = 0.3 in controller_params
@@ -1290,6 +1293,7 @@ def test_a_trajectory_file_in_metres_gets_runs_note_on_stderr_and_in_the_report(
             assert note is None and "not metres" not in err + report
 
 
+@pytest.mark.slow
 def test_a_users_trajectory_file_is_what_the_runs_track(tmp_path, monkeypatch):
     """A copy of a shipped path gives that path's numbers; a rule base that holds every joint
     on a file of one's own gives the closed-form E_av and E_max of that file's points (the

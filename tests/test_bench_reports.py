@@ -17,6 +17,7 @@ def _run(main, argv, capsys):
     return rc, out.out, out.err
 
 
+@pytest.mark.slow
 def test_accuracy_out_saves_what_it_printed(tmp_path, capsys):
     out = tmp_path / "acc"
     rc, printed, err = _run(accuracy.main, ["--poses", "5", "--out", str(out)], capsys)

@@ -1095,6 +1095,7 @@ def test_zhangs_closed_form_recovers_a_pinhole_camera():
     np.testing.assert_allclose(K, cam.K, rtol=0, atol=0.01)
 
 
+@pytest.mark.slow
 def test_a_principal_point_far_from_the_image_centre_is_found():
     """The pp-far rig, 30 sampled views, corners with the detector's noise. From OpenCV's own
     start (principal point at the image centre) alone each camera stops in a local minimum
@@ -1172,6 +1173,7 @@ def _refused_from_the_centre_alone(monkeypatch, main_in_process, tmp_path) -> st
     return lines[0]
 
 
+@pytest.mark.slow
 def test_a_pair_that_its_cameras_do_not_explain_is_refused_in_one_line(tmp_path, monkeypatch,
                                                                       main_in_process):
     """Made bad on purpose: each camera of the pp-far rig calibrated from the image centre

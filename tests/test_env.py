@@ -108,6 +108,7 @@ def test_an_episode_of_laps_tracks_from_the_second_lap():
     assert (info["metrics"]["n_setpoints"], info["metrics"]["tracking_from"]) == (60, 20)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
 @pytest.mark.filterwarnings("ignore:.*value is (-)?infinity")  # positions unbounded by design
 def test_images_on_request_are_the_frames_the_estimate_came_from():

@@ -244,6 +244,7 @@ def test_a_run_that_loses_the_elbow_along_its_path_says_so_and_tracks(main_in_pr
     assert held["n_elbow_turned"] == 0 and held["track_max_mm"] > 20.0
 
 
+@pytest.mark.slow
 def test_on_part_of_the_sweep_the_lengths_standard_error_is_still_their_scatter():
     """Isotropic looks of 1 mm per coordinate, the sweep seen at 30..150 deg only (5 poses,
     120 deg of arc: the least the start-up takes). The circle's radius is now the uncertain
@@ -610,6 +611,7 @@ def _noisy_start_ups(name, seeds):
     return np.array(links) - arm.links_mm, np.array(se)
 
 
+@pytest.mark.slow
 def test_the_lengths_standard_error_is_the_scatter_of_the_measured_lengths():
     """Looks with isotropic noise of 1 mm per coordinate (the simulator's truth plus seeded
     noise); each pose's position is a median of its looks, standard error s =

@@ -32,6 +32,7 @@ def _assert_same(fn, rb, args):
     assert _assert_compiled_is_reference(rb, args, fn) == _exactly(rb.compiled(*args))
 
 
+@pytest.mark.slow
 def test_shipped_rule_bases_in_c_equal_the_reference():
     """Every shipped rule base, at four parameter sets, on the situations of test_rules (poses,
     set points out of reach, on the gripper, markers missing, degenerate poses)."""
@@ -47,6 +48,7 @@ def test_shipped_rule_bases_in_c_equal_the_reference():
             _assert_same(fn, rb, rb.arguments(d, m, q))
 
 
+@pytest.mark.slow
 def test_random_rule_bases_in_c_equal_the_reference():
     """300 random rule bases (test_rules.random_rule_base: definitions, OUT_OF_REACH, HOLD,
     several joints per rule, divisions by zero, powers) in one module, on inputs drawn from

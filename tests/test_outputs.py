@@ -639,6 +639,7 @@ def test_default_run_folders_tell_rigs_and_files_apart_by_their_whole_names():
     assert folder("--tolerance", "1", "--gain", "0.3") == "two-link-ellipse-t1-itg-vision-f0.3-w1"
 
 
+@pytest.mark.slow
 def test_default_run_folders_tell_runs_apart(tmp_path, monkeypatch, capsys):
     from itg_vision import run
     from itg_vision.arm import ARMS_DIR

@@ -124,6 +124,7 @@ def test_a_run_with_two_rows_keeps_the_first_and_the_repair_drops_the_second(tmp
     assert path.read_text() == ",".join(COLUMNS) + "\n" + a + b
 
 
+@pytest.mark.slow
 def test_a_second_sweep_into_the_same_out_at_once_is_refused_in_one_line(tmp_path, capsys):
     """Two sweeps into one --out at once each appended every run and rewrote results.csv at
     their end, one over the other. A sweep holds the folder's lock while it writes: another
@@ -153,6 +154,7 @@ def test_a_second_sweep_into_the_same_out_at_once_is_refused_in_one_line(tmp_pat
     assert len(Results(out / "results.csv").rows) == len(build_sweep(quick=True, controllers=("ik",), seeds=1))
 
 
+@pytest.mark.slow
 def test_a_damaged_middle_row_is_redone_and_named_on_stderr(tmp_path, capsys):
     args = ["--quick", "--controllers", "ik", "--seeds", "1", "--out", str(tmp_path / "n"),
             "--quiet", "--workers", "1"]
@@ -170,6 +172,7 @@ def test_a_damaged_middle_row_is_redone_and_named_on_stderr(tmp_path, capsys):
     assert all(len(r.split(",")) == len(COLUMNS) for r in rows)
 
 
+@pytest.mark.slow
 def test_a_run_killed_mid_way_keeps_the_old_result_and_the_next_run_cleans_its_staging(cli, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = tmp_path / "r"
@@ -269,6 +272,7 @@ def test_a_terminated_run_cleans_up_as_ctrl_c_does(tmp_path, sig):
     assert list(out.iterdir()) == []  # no staging folder, no half result
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
 def test_a_run_under_nohup_ignores_a_hangup_and_runs_to_its_end(tmp_path):
     """A command leaves an ignored SIGHUP ignored (``nohup``: go on when the terminal closes)

@@ -780,6 +780,7 @@ def random_rule_base(pick) -> RuleBase:
     return RuleBase.from_text("\n".join(lines), n, (100.0,) * n)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.data())
 def test_compiled_random_rule_bases_equal_the_tree_walking_reference(data):
@@ -825,6 +826,7 @@ def random_layered_rule_base(pick, rng) -> RuleBase:
     return RuleBase.from_text("\n".join(lines), n, (100.0,) * n)
 
 
+@pytest.mark.slow
 def test_compiled_layered_rule_bases_equal_the_tree_walking_reference():
     """2000 random rule bases of that shape (random_layered_rule_base) on inputs mixing the
     special values with ordinary numbers: the compiled function raises nothing and returns

@@ -437,6 +437,7 @@ except UserError as exc:
 """
 
 
+@pytest.mark.slow
 def test_a_video_cut_short_is_an_error_not_a_result(tmp_path):
     """OpenCV's writer says nothing of writes the system refuses (a full disk, ulimit -f): a
     run kept a video of which 24 of 30 frames decoded and exited 0. The recorder now reads the
