@@ -20,8 +20,8 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
-from .shipped import (ARMS_DIR, TRAJECTORY_NAMES, or_a_path, rig_names, rule_names,
-                      trajectory_file_names)
+from .shipped import (ARMS_DIR, TRAJECTORY_NAMES, not_found, or_a_path, rig_names,
+                      rule_names, trajectory_file_names)
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -203,7 +203,10 @@ def names_a_file(name_or_path: str) -> bool:
 def arm_path(name_or_path: str) -> Path:
     """The arm file of a shipped arm's name, or the path given (an unknown name: a UserError)."""
     if names_a_file(name_or_path):
-        return Path(name_or_path)
+        p = Path(name_or_path)
+        if not p.exists() and p.stem in arm_names():  # else read_text says why it cannot read it
+            raise UserError(not_found(p, "arm", arm_names()))
+        return p
     candidate = ARMS_DIR / f"{name_or_path}.yaml"
     if not candidate.exists():
         raise UserError(f"unknown arm {name_or_path!r} (choose from {', '.join(arm_names())}; "

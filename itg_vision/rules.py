@@ -86,7 +86,7 @@ import numpy as np
 from .contracts import Step
 from .errors import UserError
 from .inputs import clip, is_real, is_whole, read_text
-from .shipped import RULES_DIR, or_a_path, rule_names
+from .shipped import RULES_DIR, not_found, or_a_path, rule_names
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
@@ -1251,7 +1251,7 @@ def resolve_rules_path(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.suffix == ".rules" or "/" in name_or_path or os.sep in name_or_path:
         if not p.exists():
-            raise UserError(f"{p}: rule file not found")
+            raise UserError(not_found(p, "rule", rule_names()))
         return p
     candidate = RULES_DIR / f"{name_or_path}.rules"
     if not candidate.exists():

@@ -54,3 +54,15 @@ def or_a_path(name: str, kind: str, suffix: str) -> str:
         if Path(candidate).is_file():
             return f"./{candidate} is in this folder: give it as a path, ./{candidate}"
     return f"or give the path of {kind} (a name ending in {suffix} or holding a '/')"
+
+
+def not_found(path: Path, what: str, names: list[str]) -> str:
+    """'<path>: <what> file not found', and where the file's name is a shipped one's
+    (``--trajectory rounded-square.csv`` from the project folder, as the README names it) how a
+    shipped one is named: by its name alone (a path is never looked for among the shipped)."""
+    message = f"{path}: {what} file not found"
+    if path.stem in names:
+        drop = f" and {path.suffix}" if path.suffix else ""
+        what = "rule base" if what == "rule" else what
+        message += f" (the shipped {what} is named without its folder{drop}: {path.stem})"
+    return message

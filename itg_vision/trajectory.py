@@ -15,7 +15,8 @@ import numpy as np
 
 from .errors import MAX_POINTS, ConfigError, UserError
 from .inputs import clip, count, read_text
-from .shipped import TRAJECTORIES_DIR, TRAJECTORY_NAMES, or_a_path, trajectory_file_names
+from .shipped import (TRAJECTORIES_DIR, TRAJECTORY_NAMES, not_found, or_a_path,
+                      trajectory_file_names)
 
 
 @dataclass(frozen=True)
@@ -343,7 +344,7 @@ def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory
         p = TRAJECTORIES_DIR / f"{name_or_path}.csv"
     if p.suffix.lower() == ".csv" or p.exists():
         if not p.exists():
-            raise UserError(f"{p}: trajectory file not found")
+            raise UserError(not_found(p, "trajectory", trajectory_file_names()))
         if n_points is not None:
             raise ConfigError("points", "applies to named trajectories only, not to a CSV file")
         return read_csv(p)

@@ -753,6 +753,34 @@ def test_a_name_that_is_not_shipped_points_to_the_file_of_that_name_here(
     assert not out.exists()
 
 
+@pytest.mark.parametrize("option, given, kind, name", [
+    ("--trajectory", "rounded-square.csv", "trajectory", "rounded-square"),
+    ("--rules", "table2.rules", "rule base", "table2"),
+    ("--rig", "planar.yaml", "rig", "planar"),
+    ("--arm", "two-link.yaml", "arm", "two-link"),
+    ("--arm", "data/arms/one-link.yaml", "arm", "one-link"),
+])
+def test_a_missing_path_that_names_a_shipped_file_says_how_to_name_it(
+        tmp_path, monkeypatch, capsys, option, given, kind, name):
+    """The README names the shipped rounded-square.csv: `--trajectory rounded-square.csv` given
+    from a folder without it was 'file not found' with no word of the shipped one (a rule
+    base, a rig, an arm likewise). A path is still never looked for among the shipped: the
+    error names the shipped one's name; a file of no shipped name keeps its plain error."""
+    from itg_vision.run import main
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    assert main([option, given, "--points", "10", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    what = kind.split()[0]
+    suffix = "." + given.rsplit(".", 1)[1]
+    assert err == (f"error: {given}: {what} file not found (the shipped {kind} is named without "
+                   f"its folder and {suffix}: {name})")
+    assert main([option, f"gone{suffix}", "--points", "10", "--out", str(out)]) == 2
+    assert "shipped" not in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_a_step_of_a_full_turn_or_more_is_said_once_naming_joint_and_set_point(tmp_path, capsys):
     """`run` has no servo limit unless given: a rule's step of 100 / xg at the start (xg a few
     mm) turned q1 by thousands of degrees in one iteration, silently. It is said once, with
