@@ -103,6 +103,8 @@ PARAM_NAMES = ("f", "S", "w")
 #: The declaration that a rule base's S is the loop's servo limit (a line of its own).
 SERVO_STEP = re.compile(r"[ \t]*#![ \t]*S is the servo limit[ \t\r]*")  # indented too
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
+#: The comparison operators (which do not chain: 'a < b < c' is refused).
+COMPARISONS = ("<", "<=", ">", ">=", "==", "!=")
 #: A joint's name, q1..q9: what an action sets.
 JOINT_NAME = re.compile(r"q[1-9]")
 #: Deepest condition or expression accepted (levels of nesting and of operators).
@@ -298,8 +300,8 @@ class _Parser:
     def _slip(self, tok: Token) -> str:
         """The likely slip behind an error at ``tok``, as a hint ('' if none is clear): two
         operands side by side (a product written without its *), two actions without the
-        ',' between them, '=>', '=<' or a single '=' where a comparison belongs, or C's '||'
-        and Python's '**'."""
+        ',' between them, '=>', '=<' or a single '=' where a comparison belongs, C's '||'
+        and Python's '**', or a chained comparison ('a < b < c')."""
         k = self._index.get(id(tok), -1)  # an error made while backtracking costs O(1) here
         before = self.t[k - 1] if k > 0 else None
         after = self.t[k + 1] if 0 <= k < len(self.t) - 1 else None
@@ -319,12 +321,27 @@ class _Parser:
             if a is not None and b is not None and a.text == b.text and a.text in ("|", "*") \
                     and (b.line, b.col) == (a.line, a.col + 1):
                 return f": '{a.text * 2}' is not an operator here, {'OR' if a.text == '|' else '^'} is"
+        if tok.text in COMPARISONS and self._after_comparison(k):
+            return ": comparisons do not chain; write 'a < b AND b < c'"
         named = k > 1 and self.t[k - 2].kind == "kw" and self.t[k - 2].text in ("LET", "RULE")
         operand_end = before is not None and not named and (before.kind in ("num", "name")
                                                              or before.text == ")")
         if operand_end and (tok.kind in ("num", "name") or tok.text in ("(", "|")):
             return f": two operands side by side; a product needs its * ('{before.text} * ...')"
         return ""
+
+    def _after_comparison(self, k: int) -> bool:
+        """Whether token ``k`` follows a comparison's operands, ``a < b`` of ``a < b < c``:
+        a comparison operator before it in its parentheses, with no keyword or ',' between (a
+        rule's 'IF' at the farthest: the look back is as long as the rule at most)."""
+        depth = 0
+        for t in (self.t[j] for j in range(k - 1, -1, -1)):
+            depth += (t.text == ")") - (t.text == "(")
+            if depth < 0 or t.kind == "kw" or (t.text == "," and depth == 0):
+                return False
+            if depth == 0 and t.kind == "op" and t.text in COMPARISONS:
+                return True
+        return False
 
     def accept(self, kind: str, text: str | None = None) -> Token | None:
         tok = self.tok
@@ -462,13 +479,12 @@ class _Parser:
             raise
 
     def _at_expression_operator(self) -> bool:
-        return self.tok.kind == "op" and self.tok.text in {"+", "-", "*", "/", "^", "<", "<=", ">",
-                                                            ">=", "==", "!="}
+        return self.tok.kind == "op" and self.tok.text in {"+", "-", "*", "/", "^", *COMPARISONS}
 
     def comparison(self):
         left = self.expr()
         tok = self.tok
-        if tok.kind == "op" and tok.text in ("<", "<=", ">", ">=", "==", "!="):
+        if tok.kind == "op" and tok.text in COMPARISONS:
             self.i += 1
             return self.node(tok, Binary(tok.text, left, self.expr()))
         raise self.error("expected a comparison (<, <=, >, >=, ==, !=)")

@@ -73,6 +73,16 @@ def table2(f=0.5):
     ("RULE 1: IF xd = xg THEN q1 += S", ":1:15:", "(found '='): '=' is not a comparison, '==' is"),
     ("RULE 1: IF xd > xg THEN q1 += S q2 HOLD", ":1:33:", "(found 'q2'): the next action needs a "
      "',' before it"),
+    # a chained comparison (the README: 'a < b < c' is an error), bare or in parentheses; a
+    # comparison after the THEN's step, in its own parentheses or after an AND is no chain
+    ("RULE 1: IF xd < xg < 5 THEN q1 += S", ":1:20:", "(found '<'): comparisons do not chain; "
+     "write 'a < b AND b < c'\n"),
+    ("RULE 1: IF yd > 0 AND (|xd| + 1 == xg <= 5) THEN q1 += S", ":1:39:", "expected ')' "
+     "(opened at line 1, column 23) (found '<='): comparisons do not chain; write 'a < b AND "
+     "b < c'\n"),
+    ("RULE 1: IF xd < xg THEN q1 += S < 5", ":1:33:", "(found '<')\n"),
+    ("RULE 1: IF xd < (xg < 5) THEN q1 += S", ":1:21:", "(found '<')\n"),
+    ("RULE 1: IF xd < xg AND < 5 THEN q1 += S", ":1:24:", "(found '<')\n"),
     # a second action for one joint, after its ',': the comma is there, so no comma hint
     ("RULE 1: IF xd > xg THEN q1 -= f * |xd - xg|, q1 HOLD", ":1:46:", "q1 has two actions in one "
      "rule (found 'q1')\n"),
