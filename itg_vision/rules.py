@@ -146,6 +146,16 @@ class RuleLimitError(RuleSyntaxError):
     """A stated limit crossed: never retried by the parser's backtracking."""
 
 
+class ForAnotherArm(UserError):
+    """A rule base that names a joint, a link or the elbow the arm lacks; ``joints``: the
+    fewest joints an arm needs for every name of it (:func:`load_rules` says when that is more
+    than the arm's: a rule base for another arm)."""
+
+    def __init__(self, message: str, joints: int):
+        super().__init__(message)
+        self.joints = joints
+
+
 def tokenize(text: str, source: str = "<rules>") -> list[Token]:
     tokens, line, line_start = [], 1, 0
     for m in _TOKEN.finditer(text):
@@ -965,9 +975,7 @@ class RuleBase:
                  servo_step=servo_step,
                  definitions=tuple(parser.definitions), **params)
         rb._check()
-        nodes = [d.expr for d in rb.definitions]
-        nodes += [n for r in rb.rules for n in [r.condition] + [a.step for a in r.actions]]
-        rb.names_read = frozenset(n for node in nodes for n, _ in _names_in(node))
+        rb.names_read = frozenset(n for node in rb._nodes() for n, _ in _names_in(node))
         rb.python_source = rb._source()
         rb._fn = rb._compile(rb.python_source)
         return rb
@@ -1049,9 +1057,10 @@ class RuleBase:
             self._check_names([r.condition] + [a.step for a in r.actions], visible)
             for a in r.actions:
                 if a.kind != "out" and not 1 <= a.joint <= self.n_joints:
-                    raise UserError(f"{self.source}:{a.where[0]}:{a.where[1]}: RULE {r.number} "
-                                    f"{'holds' if a.kind == 'hold' else 'moves'} q{a.joint}, but "
-                                    f"the arm has {self.n_joints} joint(s)")
+                    raise self._for_another_arm(a.where, f"RULE {r.number} "
+                                                f"{'holds' if a.kind == 'hold' else 'moves'} "
+                                                f"q{a.joint}, but the arm has {self.n_joints} "
+                                                "joint(s)")
             if r.out_of_reach and len(r.actions) > 1:
                 out = next(a for a in r.actions if a.kind == "out")
                 raise UserError(f"{self.source}:{out.where[0]}:{out.where[1]}: OUT_OF_REACH must be "
@@ -1065,18 +1074,33 @@ class RuleBase:
         moved = {a.joint for r in self.rules for a in r.actions if a.kind in ("inc", "dec", "hold")}
         return [f"q{j}" for j in range(1, self.n_joints + 1) if j not in moved]
 
+    def _nodes(self) -> list:
+        """The expressions of the definitions and rules (conditions, steps; None for a hold)."""
+        nodes = [d.expr for d in self.definitions]
+        return nodes + [n for r in self.rules for n in [r.condition] + [a.step for a in r.actions]]
+
+    def _for_another_arm(self, where: tuple[int, int], what: str) -> ForAnotherArm:
+        """The error ``what`` at ``where`` (line, column) of a name the arm lacks, with the
+        fewest joints an arm needs for every joint, link and LED the rule base names."""
+        names = [n for node in self._nodes() for n, _ in _names_in(node)]
+        joints = [int(n[1:]) for n in names if re.fullmatch(r"[qL]\d+", n)]
+        joints += [a.joint for r in self.rules for a in r.actions if a.kind != "out"]
+        joints += [2] if set(names) & set(ELBOW_NAMES) else []
+        return ForAnotherArm(f"{self.source}:{where[0]}:{where[1]}: {what}", max(joints))
+
     def _check_names(self, nodes, known: set[str]) -> None:
         for name, tok in (n for node in nodes for n in _names_in(node)):
+            where = (tok.line, tok.col)
             if name in ELBOW_NAMES and name not in known:  # NaN: its comparisons never hold
-                raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} reads the elbow "
-                                "LED, but a one-link arm has no elbow")
+                raise self._for_another_arm(where, f"{name!r} reads the elbow LED, but a "
+                                                   "one-link arm has no elbow")
             if name not in known and re.fullmatch(r"L\d+", name):
-                raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is link "
-                                f"{name[1:]}'s length, but only {len(self.links_mm)} link "
-                                f"length(s) were given (links_mm)")
+                raise self._for_another_arm(where, f"{name!r} is link {name[1:]}'s length, but "
+                                                   f"only {len(self.links_mm)} link length(s) "
+                                                   "were given (links_mm)")
             if name not in known and re.fullmatch(r"q\d+", name):
-                raise UserError(f"{self.source}:{tok.line}:{tok.col}: {name!r} is joint "
-                                f"{name[1:]}'s angle, but the arm has {self.n_joints} joint(s)")
+                raise self._for_another_arm(where, f"{name!r} is joint {name[1:]}'s angle, but "
+                                                   f"the arm has {self.n_joints} joint(s)")
             if name not in known:
                 later = next((d for d in self.definitions if d.name == name), None)
                 if later is not None:  # defined, but below its use
@@ -1304,16 +1328,29 @@ def load_rules(name_or_path: str, n_joints: int, links_mm, **params) -> RuleBase
     take :data:`PARAM_DEFAULTS` (f 0.5, S 2, w 0.5), as ``run`` does. A rule base whose S is
     the servo limit (``#! S is the servo limit``, the ITG+ files) needs ``S`` given, here as in
     :meth:`RuleBase.from_text`: the servo's largest step per iteration."""
-    rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
+    try:
+        rb = RuleBase.from_file(resolve_rules_path(name_or_path), n_joints, links_mm, **params)
+    except ForAnotherArm as exc:
+        if exc.joints <= n_joints:  # q0, or fewer links given than the arm's joints: not so
+            raise
+        raise UserError(f"{exc}: a rule base for another arm? (its rules are for an arm of "
+                        f"{exc.joints} joints or more, this one has {n_joints}; shipped: "
+                        f"{_shipped_by_arm()})") from None
     unmoved = rb.unmoved_joints()
     if unmoved:
-        from .arm import ArmSpec, arm_names
-
-        shipped = ", ".join(f"{ArmSpec.from_args(a).defaults[k]} ({a})" for a in arm_names()
-                            for k in ("rules", "itg_plus_rules"))
         raise UserError(f"{rb.source}: no rule moves or holds {', '.join(unmoved)} of this "
-                        f"{n_joints}-joint arm: a rule base for another arm? (shipped: {shipped}; "
-                        f"to keep a joint still on purpose, say so: {unmoved[0]} HOLD)")
+                        f"{n_joints}-joint arm: a rule base for another arm? (shipped: "
+                        f"{_shipped_by_arm()}; to keep a joint still on purpose, say so: "
+                        f"{unmoved[0]} HOLD)")
     return rb
+
+
+def _shipped_by_arm() -> str:
+    """The shipped rule bases and their arms, for the error of a rule base for another arm:
+    'table1 (one-link), itg-plus-one-link (one-link), ...'."""
+    from .arm import ArmSpec, arm_names
+
+    return ", ".join(f"{ArmSpec.from_args(a).defaults[k]} ({a})" for a in arm_names()
+                     for k in ("rules", "itg_plus_rules"))
 
 

@@ -163,6 +163,7 @@ def make_inputs(tmp):
     f["bom-bad.csv"] = tmp / "bom-bad.csv"
     f["bom-bad.csv"].write_text("x_mm,y_mm\n10,twenty\n", encoding="utf-8-sig")
     text("elbow.rules", "RULE 1: IF xg > xd THEN q1 -= S\nRULE 2: IF re2 > xd THEN q1 += S\n")
+    text("q2.rules", "RULE 1: IF xg > xd THEN q1 -= S, q2 HOLD\n")
     text("unreachable.csv", "x_mm,y_mm\n500,500\n510,500\n")
     text("digits.csv", "x_mm,y_mm\n" + "1" * 5000 + ",20\n30,40\n")
     f["binary.csv"] = tmp / "binary.csv"
@@ -225,7 +226,12 @@ CASES = [
     ("step-unused", "run", RUN + ["--step", "3"], "table2.rules never uses S"),
     ("step-is-the-servo-limit", "run", RUN + ["--rules", "itg-plus-two-link", "--max-step", "10", "--step", "3"], "itg-plus-two-link.rules: S is the servo limit (10 deg per iteration): set the servo limit instead (max_step_deg; run's --max-step)"),
     ("rig-true-rig-missing", "run", ["--quiet", "--rig", "{lost-true-rig.yaml}"], "lost-true-rig.yaml: true_rig: nosuch.yaml: no such file, read from this file's folder ("),
-    ("rules-elbow-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{elbow.rules}"], "elbow.rules:2:12: 're2' reads the elbow LED, but a one-link arm has no elbow"),
+    # a rule base naming a link, a joint or the elbow the arm lacks: one for another arm, as
+    # one that leaves a joint unmoved (the next case) is said to be
+    ("rules-elbow-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{elbow.rules}"], "elbow.rules:2:12: 're2' reads the elbow LED, but a one-link arm has no elbow: a rule base for another arm? (its rules are for an arm of 2 joints or more, this one has 1; shipped: table1 (one-link), "),
+    ("rules-table2-one-link", "run", RUN + ["--arm", "one-link", "--rules", "table2"], "table2.rules:18:24: 'L2' is link 2's length, but only 1 link length(s) were given (links_mm): a rule base for another arm? (its rules are for an arm of 2 joints or more, this one has 1; shipped: "),
+    ("rules-three-link-two-link", "run", RUN + ["--rules", "three-link"], "three-link.rules:22:38: 'L3' is link 3's length, but only 2 link length(s) were given (links_mm): a rule base for another arm? (its rules are for an arm of 3 joints or more, this one has 2; shipped: "),
+    ("rules-q2-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{q2.rules}"], "q2.rules:1:34: RULE 1 holds q2, but the arm has 1 joint(s): a rule base for another arm? (its rules are for an arm of 2 joints or more"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves or holds q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),

@@ -531,6 +531,28 @@ def test_a_rule_base_for_another_arm_is_refused_by_load_rules():
         load_rules("table2", 3, (100.0, 100.0, 100.0))
 
 
+def test_a_name_the_arm_lacks_is_called_a_rule_base_for_another_arm_only_when_it_is_one(
+        tmp_path):
+    """Table 2 on the one-link arm was only told that L2 is link 2's length and 1 length was
+    given, where Table 1 on the two-link arm was called a rule base for another arm: the L2,
+    q2 or elbow the arm lacks says so too, with the joints the rules are for (the most any of
+    its names asks). q0, or too few lengths given from code, is no other arm."""
+    path = tmp_path / "x.rules"
+    for text, at in (("RULE 1: IF q2 > 0 THEN q1 += S", "1:12: 'q2' is joint 2's angle"),
+                     ("RULE 1: IF ye > 0 THEN q1 += S, q3 HOLD", "1:12: 'ye' reads the elbow")):
+        path.write_text(text)
+        with pytest.raises(UserError) as exc:
+            load_rules(str(path), 1, (100.0,))
+        assert str(exc.value).startswith(f"{path}:{at}"), exc.value
+        assert ": a rule base for another arm? (its rules are for an arm of " in str(exc.value)
+    assert "of 3 joints or more, this one has 1; shipped: table1 (one-link), " in str(exc.value)
+    path.write_text("RULE 1: IF q0 > 0 THEN q1 += S")
+    with pytest.raises(UserError, match=r"'q0' is joint 0's angle, but the arm has 1 joint\(s\)$"):
+        load_rules(str(path), 1, (100.0,))
+    with pytest.raises(UserError, match=r"only 1 link length\(s\) were given \(links_mm\)$"):
+        load_rules("table2", 2, (100.0,))
+
+
 def test_a_joint_held_on_purpose_counts_as_named(tmp_path):
     """`q2 HOLD` says the rule base means to keep q2 still: it is loaded and q2 never moves (it
     used to be refused as 'a rule base for another arm', and `q2 += 0` was the workaround)."""
