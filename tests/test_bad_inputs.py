@@ -232,6 +232,9 @@ CASES = [
     ("rules-table2-one-link", "run", RUN + ["--arm", "one-link", "--rules", "table2"], "table2.rules:18:24: 'L2' is link 2's length, but only 1 link length(s) were given (links_mm): a rule base for another arm? (its rules are for an arm of 2 joints or more, this one has 1; shipped: "),
     ("rules-three-link-two-link", "run", RUN + ["--rules", "three-link"], "three-link.rules:22:38: 'L3' is link 3's length, but only 2 link length(s) were given (links_mm): a rule base for another arm? (its rules are for an arm of 3 joints or more, this one has 2; shipped: "),
     ("rules-q2-one-link", "run", RUN + ["--arm", "one-link", "--rules", "{q2.rules}"], "q2.rules:1:34: RULE 1 holds q2, but the arm has 1 joint(s): a rule base for another arm? (its rules are for an arm of 2 joints or more"),
+    # every vision-only option is named as given: --strobe was 'strobe: applies to ...'
+    ("strobe-model", "run", RUN + ["--strobe"], "error: --strobe: applies to vision feedback only\n"),
+    ("full-frame-model", "run", RUN + ["--full-frame"], "error: --full-frame: applies to vision feedback only\n"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves or holds q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
@@ -441,6 +444,18 @@ def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, 
     assert expect in lines[0] + "\n", lines[0]
     assert _tree(tmp) == before  # nothing written, nothing left behind (staging, parents)
     assert _cameras_tree() == cameras  # the shipped rigs and calibrations too
+
+
+def test_every_run_config_field_is_named_by_an_option_of_run():
+    """run names a RunConfig field's error by its option (OPTIONS): a field left out was named
+    bare, 'strobe: applies to vision feedback only' where every other said '--dropout: ...'."""
+    import dataclasses
+
+    from itg_vision.options import OPTIONS
+    from itg_vision.runner import RunConfig
+
+    assert set(OPTIONS) == {f.name for f in dataclasses.fields(RunConfig)}
+    assert set(OPTIONS.values()) <= set(run.build_parser()._option_string_actions)
 
 
 @pytest.mark.parametrize("option, value, expect", [
