@@ -485,7 +485,7 @@ def load_true_rig(rig: Rig, rig_path) -> Rig:
         shown = os.path.normpath(path)
         raise UserError(f"{rig_path}: its true rig {shown} has changed since it was calibrated "
                         f"(true_rig_sha256 no longer matches); re-run python -m "
-                        f"itg_vision.calibrate --rig {shown} --out {rig_path}")
+                        f"itg_vision.calibrate --rig {shown} --out {os.path.normpath(rig_path)}")
     return truth
 
 

@@ -126,3 +126,7 @@ def test_a_calibrated_rig_is_refused_not_rendered_as_if_it_were_true(main_in_pro
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
     assert r.stderr.startswith(f"error: {calib}: a calibrated rig (of planar.yaml): ")
     assert f"python -m itg_vision.run --rig {calib}" in r.stderr
+    # given with '..' (as an arm file's ../cameras/x.calib.yaml is read): the command without
+    r = main_in_process("itg_vision.bench.accuracy", "--rig",
+                        ROOT / "data" / ".." / "cameras" / calib.name, "--poses", 5)
+    assert r.returncode == 2 and r.stderr.endswith(f"python -m itg_vision.run --rig {calib}\n")

@@ -730,25 +730,31 @@ def test_a_stale_calibrated_rig_is_refused_before_any_run(tmp_path, monkeypatch,
     _one_line_error(capsys, f"{calib}: its true rig {true} has changed since it was calibrated")
 
 
+@pytest.mark.parametrize("rigs, arms, given", [(".", ".", "myrig.yaml"),
+                                               ("rigs", "arms", "../rigs/myrig.yaml")])
 def test_a_missing_calibrated_rig_is_refused_with_the_calibrate_command_that_makes_it(
-        tmp_path, capsys):
+        tmp_path, capsys, rigs, arms, given):
     """An arm file whose rig has no calibration yet: rig-calibrated is refused before any run,
     and the line gives the command that makes it, with this arm (--arm): without it, calibrate
-    would take the shipped arm the rig names."""
+    would take the shipped arm the rig names. An arm file's '../rigs/myrig.yaml' is shown as
+    the folder it names (the command said .../arms/../rigs/myrig.calib.yaml)."""
     from itg_vision import camera
 
-    rig = tmp_path / "myrig.yaml"
+    (tmp_path / rigs).mkdir(exist_ok=True)
+    (tmp_path / arms).mkdir(exist_ok=True)
+    rig = tmp_path / rigs / "myrig.yaml"
     rig.write_text(camera.default_rig_path("two-link").read_text())
-    arm = _arm_file(tmp_path / "myarm.yaml", rig=("rig: planar", f"rig: {rig.name}"))
+    arm = _arm_file(tmp_path / arms / "myarm.yaml", rig=("rig: planar", f"rig: {given}"))
     path = tmp_path / "p.csv"
     path.write_text("x_mm,y_mm\n100,0\n0,100\n-100,0\n")
     out = tmp_path / "o"
     assert main(["--trajectories", str(path), "--arm", str(arm), "--conditions",
                  "rig-calibrated", "--seeds", "1", "--workers", "1", "--out", str(out)]) == 2
     assert not out.exists()
-    _one_line_error(capsys, f"condition rig-calibrated needs {tmp_path / 'myrig.calib.yaml'}: make "
-                            f"it with `python -m itg_vision.calibrate --rig {rig} --arm "
-                            f"{arm.resolve()} --out {tmp_path / 'myrig.calib.yaml'}`")
+    calib = tmp_path / rigs / "myrig.calib.yaml"
+    _one_line_error(capsys, f"condition rig-calibrated needs {calib}: make it with `python -m "
+                            f"itg_vision.calibrate --rig {rig} --arm {arm.resolve()} --out "
+                            f"{calib}`")
 
 
 def test_the_report_names_the_rig_files_an_arm_file_gave_its_runs(tmp_path):

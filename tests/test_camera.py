@@ -217,6 +217,10 @@ def test_true_rig_hash_round_trips_and_checks_the_true_rig(rig, tmp_path):
     assert str(exc.value) == (
         f"{out}: its true rig {true} has changed since it was calibrated (true_rig_sha256 no "
         f"longer matches); re-run python -m itg_vision.calibrate --rig {true} --out {out}")
+    # read by a path with '..' (an arm file's ../rigs/x.calib.yaml): the command's paths without
+    with pytest.raises(UserError) as exc:
+        load_true_rig(back, tmp_path / "cal" / ".." / "cal" / out.name)
+    assert str(exc.value).endswith(f"--rig {true} --out {out}")
     # a calibration without the hash (older files, the shipped ones) is not checked
     old = Rig(rig.name, rig.cameras, "", {}, "../true.yaml")
     # the position comes back through R and t: float64 round-off at ~650 mm

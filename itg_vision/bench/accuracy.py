@@ -15,6 +15,7 @@ measured values.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 import numpy as np
@@ -179,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                             "renders and estimates with one rig and compares with the first-order "
                             "prediction of a rig known exactly, so the calibration's own error "
                             "would not show; give the true rig, or measure the calibration with "
-                            f"python -m itg_vision.run --rig {rig_path}")
+                            f"python -m itg_vision.run --rig {os.path.normpath(rig_path)}")
         check_cameras(rig)  # an exposure no LED stands out in, a camera below the floor
         if args.out is not None:  # refuse a bad --out before the renders, not after
             outputs.check_out_dir(args.out, COMMAND, force=args.force,

@@ -657,10 +657,10 @@ def _check_fits(spec_arm: ArmSpec, key: str, arm: str) -> None:
 
 def _calibrated_rig_sha(arm: str) -> str:
     path = calibrated_rig_path(arm)
-    if not path.exists():
-        raise UserError(f"condition rig-calibrated needs {path}: make it with `python -m "
-                        f"itg_vision.calibrate --rig {ArmSpec.from_args(arm).defaults['rig']} "
-                        f"--arm {arm} --out {path}`, or leave "
+    if not path.exists():  # shown without the '..' of an arm file's ../rigs/x.yaml
+        shown, rig = (os.path.normpath(p) for p in (path, ArmSpec.from_args(arm).defaults["rig"]))
+        raise UserError(f"condition rig-calibrated needs {shown}: make it with `python -m "
+                        f"itg_vision.calibrate --rig {rig} --arm {arm} --out {shown}`, or leave "
                         "the rig-calibrated conditions out with --conditions")
     from ..camera import Rig, load_true_rig
 
