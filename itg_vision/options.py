@@ -18,7 +18,8 @@ OPTIONS = {"arm": "--arm", "links_mm": "--links", "trajectory": "--trajectory", 
            "step_deg": "--step", "tolerance_mm": "--tolerance", "damping_mm": "--damping", "iterations": "--iterations",
            "max_step_deg": "--max-step", "laps": "--laps", "feedback": "--feedback", "rig": "--rig",
            "noise_px": "--noise-px", "noise_mm": "--noise-mm", "dropout": "--dropout",
-           "strobe": "--strobe", "allow_unseen": "--allow-unseen", "seed": "--seed", "supersample": "--supersample", "full_frame": "--full-frame",
+           "strobe": "--strobe", "allow_unseen": "--allow-unseen", "seed": "--seed",
+           "supersample": "--supersample", "full_frame": "--full-frame",
            "true_links_mm": "--true-links", "joint_offset_deg": "--joint-offset",
            "correction": "--correction", "preview": "--preview"}
 
