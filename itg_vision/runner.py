@@ -173,6 +173,8 @@ class RunConfig:
              f"must be a whole number in 1..{MAX_SUPERSAMPLE}, got {self.supersample}"),
             ("full_frame", not self.full_frame or self.feedback == "vision",
              "applies to vision feedback only"),
+            ("allow_unseen", not self.allow_unseen or self.feedback == "vision",
+             "applies to vision feedback only"),
             ("dropout", 0 <= self.dropout <= 1,
              f"must be a probability in [0, 1], got {self.dropout}"),
             ("seed", is_whole(self.seed) and self.seed >= 0,

@@ -235,6 +235,7 @@ CASES = [
     # every vision-only option is named as given: --strobe was 'strobe: applies to ...'
     ("strobe-model", "run", RUN + ["--strobe"], "error: --strobe: applies to vision feedback only\n"),
     ("full-frame-model", "run", RUN + ["--full-frame"], "error: --full-frame: applies to vision feedback only\n"),
+    ("allow-unseen-model", "run", RUN + ["--allow-unseen"], "error: --allow-unseen: applies to vision feedback only\n"),
     ("rules-table1-two-link", "run", RUN + ["--rules", "table1"], "table1.rules: no rule moves or holds q2 of this 2-joint arm"),
     ("rules-dev-zero", "run", RUN + ["--rules", "/dev/zero"], "/dev/zero: rule file larger than 1024 KiB"),
     ("rules-folder", "run", RUN + ["--rules", "{folder}"], "a-folder: is a folder, not a rule file"),
