@@ -483,9 +483,11 @@ def load_true_rig(rig: Rig, rig_path) -> Rig:
         raise UserError(f"{rig_path}: true_rig: {exc}") from None
     if rig.true_rig_sha256 is not None and file_sha256(path) != rig.true_rig_sha256:
         shown = os.path.normpath(path)
+        arm = ((rig.calibration or {}).get("base_frame") or {}).get("arm")  # tied by its LEDs
         raise UserError(f"{rig_path}: its true rig {shown} has changed since it was calibrated "
                         f"(true_rig_sha256 no longer matches); re-run python -m "
-                        f"itg_vision.calibrate --rig {shown} --out {os.path.normpath(rig_path)}")
+                        f"itg_vision.calibrate --rig {shown}" + (f" --arm {arm}" if arm else "")
+                        + f" --out {os.path.normpath(rig_path)}")
     return truth
 
 

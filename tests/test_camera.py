@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -221,6 +222,11 @@ def test_true_rig_hash_round_trips_and_checks_the_true_rig(rig, tmp_path):
     with pytest.raises(UserError) as exc:
         load_true_rig(back, tmp_path / "cal" / ".." / "cal" / out.name)
     assert str(exc.value).endswith(f"--rig {true} --out {out}")
+    # tied to the base by an arm's LEDs (calibrate --arm): the command names that arm again
+    tied = dataclasses.replace(back, calibration={"base_frame": {"arm": "three-link"}})
+    with pytest.raises(UserError) as exc:
+        load_true_rig(tied, out)
+    assert str(exc.value).endswith(f"--rig {true} --arm three-link --out {out}")
     # a calibration without the hash (older files, the shipped ones) is not checked
     old = Rig(rig.name, rig.cameras, "", {}, "../true.yaml")
     # the position comes back through R and t: float64 round-off at ~650 mm
