@@ -282,7 +282,10 @@ def _default(F: Fields, value, where: str, path: str) -> str:
         return text
     p = resolve_relative(text, Path(path))
     if not p.is_file():
-        F.fail(where, f"no such file: {Path(path).parent / text}")
+        stem = Path(text).stem
+        hint = (f" (the shipped one is named without its folder and {Path(text).suffix}: {stem})"
+                if stem in _shipped(where.rsplit(".", 1)[-1]) and Path(text).suffix else "")
+        F.fail(where, f"no such file: {Path(path).parent / text}{hint}")
     return str(p)
 
 

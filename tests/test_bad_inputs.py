@@ -6,6 +6,7 @@ import json
 import os
 import random
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -501,6 +502,16 @@ def test_an_arm_files_own_files_are_found_beside_it(tmp_path, monkeypatch):
     with pytest.raises(UserError, match=rf"arm.yaml: defaults.trajectory: no such file: "
                                         rf"{re.escape(str(mine / 'path.csv'))}$"):
         ArmSpec.from_args(str(arm))
+    # a file name that is a shipped one's, given as a file that is not there: the name to give
+    for key, name, shipped in (("rig", "planar.yaml", "planar"), ("rules", "table2.rules", "table2"),
+                               ("trajectory", "peanut.csv", "peanut")):
+        arm.write_text(re.sub(rf"([{{ ]){key}: [^,}}]+", rf"\g<1>{key}: {name}",
+                              (ARMS_DIR / "two-link.yaml").read_text(), count=1))
+        with pytest.raises(UserError) as exc:
+            ArmSpec.from_args(str(arm))
+        assert str(exc.value).endswith(
+            f"defaults.{key}: no such file: {mine / name} (the shipped one is named without its "
+            f"folder and {Path(name).suffix}: {shipped})"), exc.value
 
 
 def test_an_arm_may_have_any_one_line_name_markup_included(tmp_path):
