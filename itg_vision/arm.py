@@ -21,7 +21,7 @@ import numpy as np
 from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
 from .shipped import (ARMS_DIR, TRAJECTORY_NAMES, not_found, or_a_path, rig_names,
-                      rule_names, trajectory_file_names)
+                      rule_names, shipped_name_hint, trajectory_file_names)
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -282,9 +282,8 @@ def _default(F: Fields, value, where: str, path: str) -> str:
         return text
     p = resolve_relative(text, Path(path))
     if not p.is_file():
-        stem = Path(text).stem
-        hint = (f" (the shipped one is named without its folder and {Path(text).suffix}: {stem})"
-                if stem in _shipped(where.rsplit(".", 1)[-1]) and Path(text).suffix else "")
+        hint = (shipped_name_hint(Path(text), _shipped(where.rsplit(".", 1)[-1]))
+                if Path(text).suffix else "")
         F.fail(where, f"no such file: {Path(path).parent / text}{hint}")
     return str(p)
 

@@ -139,9 +139,8 @@ class Trace:
     tracking_start: int = 0
     records: list[SetPointRecord] = field(default_factory=list)
     est_err_mm: dict = field(default_factory=lambda: {m: [] for m in MARKERS})
-    #: looks that missed each marker (:attr:`n_missed` is their sum)
-    missed_by: dict = field(default_factory=lambda: {m: 0 for m in MARKERS})
-    #: the same by cause: marker -> {why (the feedback's ``missed_why``): looks}
+    #: looks that missed each marker, by cause: marker -> {why (the feedback's
+    #: ``missed_why``): looks} (:attr:`missed_by` and :attr:`n_missed` are its sums)
     missed_why: dict = field(default_factory=lambda: {m: {} for m in MARKERS})
     n_at_last_aim: int = 0
     n_held: int = 0
@@ -153,6 +152,11 @@ class Trace:
     #: joint and set point (k, as trace.csv numbers them): a run can say that a step turned a
     #: joint a full turn
     largest_step: tuple[float, int, int] = (0.0, 0, 0)
+
+    @property
+    def missed_by(self) -> dict[str, int]:
+        """Looks that missed each marker, whatever the cause."""
+        return {m: sum(why.values()) for m, why in self.missed_why.items()}
 
     @property
     def n_missed(self) -> int:
@@ -167,7 +171,6 @@ class Trace:
         for stage, ms in estimate.timing_ms.items():
             self.time(stage, ms)
         for name in estimate.missed:
-            self.missed_by[name] = self.missed_by.get(name, 0) + 1
             why = self.missed_why.setdefault(name, {})
             cause = estimate.missed_why.get(name) or NOT_SAID
             why[cause] = why.get(cause, 0) + 1

@@ -105,6 +105,8 @@ SERVO_STEP = re.compile(r"[ \t]*#![ \t]*S is the servo limit[ \t\r]*")  # indent
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: The comparison operators (which do not chain: 'a < b < c' is refused).
 COMPARISONS = ("<", "<=", ">", ">=", "==", "!=")
+#: The operators that may follow an operand in an expression or a comparison.
+_OPERAND_FOLLOWERS = frozenset({"+", "-", "*", "/", "^", *COMPARISONS})
 #: A joint's name, q1..q9: what an action sets.
 JOINT_NAME = re.compile(r"q[1-9]")
 #: Deepest condition or expression accepted (levels of nesting and of operators).
@@ -489,7 +491,7 @@ class _Parser:
             raise
 
     def _at_expression_operator(self) -> bool:
-        return self.tok.kind == "op" and self.tok.text in {"+", "-", "*", "/", "^", *COMPARISONS}
+        return self.tok.kind == "op" and self.tok.text in _OPERAND_FOLLOWERS
 
     def comparison(self):
         left = self.expr()

@@ -60,9 +60,14 @@ def not_found(path: Path, what: str, names: list[str]) -> str:
     """'<path>: <what> file not found', and where the file's name is a shipped one's
     (``--trajectory rounded-square.csv`` from the project folder, as the README names it) how a
     shipped one is named: by its name alone (a path is never looked for among the shipped)."""
-    message = f"{path}: {what} file not found"
-    if path.stem in names:
-        drop = f" and {path.suffix}" if path.suffix else ""
-        what = "rule base" if what == "rule" else what
-        message += f" (the shipped {what} is named without its folder{drop}: {path.stem})"
-    return message
+    return f"{path}: {what} file not found" + shipped_name_hint(
+        path, names, "rule base" if what == "rule" else what)
+
+
+def shipped_name_hint(path: Path, names: list[str], what: str = "one") -> str:
+    """`` (the shipped <what> is named without its folder and .csv: <stem>)`` for a missing
+    ``path`` whose stem is one of the shipped ``names``, else ``""``."""
+    if path.stem not in names:
+        return ""
+    drop = f" and {path.suffix}" if path.suffix else ""
+    return f" (the shipped {what} is named without its folder{drop}: {path.stem})"
