@@ -79,3 +79,40 @@ def test_every_relative_link_lands_on_a_file_and_heading(path):
         ):
             broken.append(f"{path.name}:{line}: {target} (no such heading)")
     assert broken == []
+
+
+# Written only by some runs: a trajectory file with times, --video, a third joint.
+_SOMETIMES = {"t_s", "video", "video_codec", "q3_deg"}
+
+
+def _documented(section: str) -> set[str]:
+    """The backquoted names in the first cells of the field and column tables (not the flags')
+    under '## `section`' of outputs.md."""
+    text = (ROOT / "docs" / "outputs.md").read_text(encoding="utf-8")
+    body = text.split(f"## `{section}`\n", 1)[1].split("\n## ", 1)[0]
+    names, kind = set(), None
+    for line in body.splitlines():
+        if not line.startswith("|"):
+            kind = None
+        elif kind is None:
+            kind = line.split("|")[1].strip()  # the header's first cell
+        elif kind in ("field", "column"):
+            names |= set(re.findall(r"`([^`]+)`", line.split("|")[1]))
+    return names
+
+
+def test_outputs_md_lists_exactly_what_a_run_writes(tmp_path):
+    """docs/outputs.md documents summary.json's fields and trace.csv's columns one by one: a run
+    writes each one it lists (but those only some runs write) and nothing it does not list."""
+    import csv
+    import json
+
+    from itg_vision.run import main
+
+    out = tmp_path / "run"
+    assert main(["--points", "12", "--out", str(out), "--quiet"]) == 0
+    summary = set(json.loads((out / "summary.json").read_text()))
+    with open(out / "trace.csv", newline="") as f:
+        columns = set(next(csv.reader(f)))
+    assert _documented("summary.json") - _SOMETIMES == summary
+    assert _documented("trace.csv") - _SOMETIMES == columns
