@@ -22,7 +22,7 @@ ARM_RGB = (0.35, 0.36, 0.40)
 LINK_WIDTH_MM = 8.0
 #: The radius of the post that holds each LED (grey, the arm's colour). On the three-link arm
 #: the posts lie across the cameras' view and hide part of their own LED's image: the eye's
-#: centroid error there is the post's (README, "The eye's accuracy").
+#: centroid error there is the post's (docs/benchmarks.md, "What bench accuracy measures").
 LED_POST_RADIUS_MM = 1.5
 
 _MM = 1e-3

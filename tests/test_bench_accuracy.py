@@ -69,10 +69,10 @@ def test_noise_streams_are_independent_of_the_poses_stream():
 
 
 def test_the_three_link_eyes_centroid_error_is_its_led_posts(monkeypatch):
-    """README ("The eye's accuracy"): the three-link rig misses the centroid target because
-    each LED's post, 1.5 mm in radius, lies across the cameras' view of its 6 mm sphere (it
-    runs sideways to the link, along the pitch axis; a planar arm's posts stand below their
-    LEDs, hidden by them). Side-on it hides a strip 2 x 1.5 mm wide from the centre to the rim,
+    """docs/benchmarks.md ("What bench accuracy measures"): the three-link rig misses the
+    centroid target because each LED's post, 1.5 mm in radius, lies across the cameras' view of
+    its 6 mm sphere (it runs sideways to the link, along the pitch axis; a planar arm's posts
+    stand below their LEDs, hidden by them). Side-on it hides a strip 2 x 1.5 mm wide from the centre to the rim,
     2 (1.5 / 6) / pi = 16 % of the disc (blob areas 0.83-0.88 of the sphere's were measured at
     the largest errors), and shifts the centroid by up to ~0.4 px at the ~4.5 px radius the
     LEDs image at. Changed alone, the cause goes: posts 0.01 mm thin bring the centroid's 95th
