@@ -472,13 +472,15 @@ class _Parser:
             try:
                 node = self.condition()
                 self.close(opener)
-                if not self._at_expression_operator():
-                    self.nesting = nesting
-                    return node
             except RuleLimitError:
                 raise
             except RuleSyntaxError as exc:
                 failed = (self.i, exc)
+            else:
+                if self._at_expression_operator():  # no expression holds a condition
+                    raise self._condition_as_number(opener)
+                self.nesting = nesting
+                return node
             self.i, self.nesting = save, nesting
         try:
             return self.comparison()
@@ -492,6 +494,15 @@ class _Parser:
 
     def _at_expression_operator(self) -> bool:
         return self.tok.kind == "op" and self.tok.text in _OPERAND_FOLLOWERS
+
+    def _condition_as_number(self, opener: Token) -> RuleSyntaxError:
+        """The error of a condition in parentheses used as a number: '(a < b) < c'."""
+        chained = ": comparisons do not chain; write 'a < b AND b < c'" \
+            if self.tok.text in COMPARISONS else ""
+        error = self.error(f"a condition in parentheses (opened at line {opener.line}, column "
+                           f"{opener.col}) is true or false, not a number to compare or compute "
+                           "with")
+        return RuleSyntaxError(f"{error}{chained}")
 
     def comparison(self):
         left = self.expr()

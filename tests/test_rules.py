@@ -80,6 +80,14 @@ def table2(f=0.5):
     ("RULE 1: IF yd > 0 AND (|xd| + 1 == xg <= 5) THEN q1 += S", ":1:39:", "expected ')' "
      "(opened at line 1, column 23) (found '<='): comparisons do not chain; write 'a < b AND "
      "b < c'\n"),
+    # a condition in parentheses compared again or computed with, '(a < b) < c': said at the
+    # operator after its ')' (it was "expected ')'" at the '<' inside, where a ')' is not missing)
+    ("RULE 1: IF (xd < xg) < 5 THEN q1 += S", ":1:22:", "a condition in parentheses (opened at "
+     "line 1, column 12) is true or false, not a number to compare or compute with (found '<'): "
+     "comparisons do not chain; write 'a < b AND b < c'\n"),
+    ("RULE 1: IF yd > 0 AND NOT ((xd < xg)) * 2 > 5 THEN q1 += S", ":1:39:", "a condition in "
+     "parentheses (opened at line 1, column 27) is true or false, not a number to compare or "
+     "compute with (found '*')\n"),
     ("RULE 1: IF xd < xg THEN q1 += S < 5", ":1:33:", "(found '<')\n"),
     ("RULE 1: IF xd < (xg < 5) THEN q1 += S", ":1:21:", "(found '<')\n"),
     ("RULE 1: IF xd < xg AND < 5 THEN q1 += S", ":1:24:", "(found '<')\n"),
