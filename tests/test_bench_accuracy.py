@@ -130,3 +130,28 @@ def test_a_calibrated_rig_is_refused_not_rendered_as_if_it_were_true(main_in_pro
     r = main_in_process("itg_vision.bench.accuracy", "--rig",
                         ROOT / "data" / ".." / "cameras" / calib.name, "--poses", 5)
     assert r.returncode == 2 and r.stderr.endswith(f"python -m itg_vision.run --rig {calib}\n")
+
+
+def test_a_rig_that_sees_no_led_is_refused_after_the_noise_free_looks(tmp_path, monkeypatch):
+    """A rig whose left camera is turned away sees no LED: the error came only after every
+    pose had been looked at with every added noise too (4 looks a pose, 2.3-2.8 s at the
+    default 250 poses); the noise-free looks decide it, so it comes after them (one a pose,
+    1.0 s). Counted, not timed."""
+    import yaml
+
+    from itg_vision.errors import UserError
+    from itg_vision.feedback import VisionFeedback
+
+    rig = yaml.safe_load((CAMERAS_DIR / "planar.yaml").read_text())
+    rig["cameras"][0]["pose"]["look_at_mm"] = [-180.0, -60.0, 1620.0]  # straight up
+    path = tmp_path / "away.yaml"
+    path.write_text(yaml.safe_dump(rig))
+    looks = []
+    observe = VisionFeedback.observe
+    monkeypatch.setattr(VisionFeedback, "observe",
+                        lambda fb, world: looks.append(fb.noise_px) or observe(fb, world))
+    with pytest.raises(UserError, match=r"away\.yaml: no LED was seen by both cameras at any of "
+                                        r"the 5 random poses of arm two-link \(10 looks missed\)"):
+        measure(ArmSpec.from_args("two-link"), Rig.from_yaml(path), (0.0, 0.1, 0.3, 1.0),
+                n_poses=5, seed=0)
+    assert looks == [0.0] * 5

@@ -79,10 +79,14 @@ def measure(arm: ArmSpec, rig: Rig, sigmas, n_poses: int, seed: int, *,
     by_marker: dict[str, list] = {n: [] for n in arm.marker_names}
     missed = 0
     with World(arm) as world:
-        for k, q in enumerate(poses):
-            world.set_q(q)
-            truth = world.true_markers()
-            for s in sigmas:
+        # every pose at zero added noise first, to stop there if no LED was seen (a rig turned
+        # away, too close) without the noisy looks; each look has its own feedback and seed
+        for s in sorted(sigmas):
+            if s > 0 and not centroid_err:
+                break
+            for k, q in enumerate(poses):
+                world.set_q(q)
+                truth = world.true_markers()
                 fb = VisionFeedback(rig, rig, arm, noise_px=s, supersample=supersample,
                                     full_frame=full_frame)
                 fb.reset(noise_seeds[k])
