@@ -313,7 +313,8 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
         if estimate_rig.true_rig:  # checked against the hash it was calibrated with
             render_rig = load_true_rig(estimate_rig, cfg.rig_path)
         if not cfg.allow_unseen:
-            notes.append(check_visible(render_rig, true_arm, trajectory.points_mm))
+            notes.append(check_visible(render_rig, true_arm, trajectory.points_mm,
+                                       true_links=cfg.true_links_mm is not None))
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
         rig_arm = ((estimate_rig.calibration or {}).get("base_frame") or {}).get("arm")

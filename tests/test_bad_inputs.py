@@ -326,6 +326,10 @@ CASES = [
     ("start-up-names-allow-unseen", "run", ["--quiet", "--dropout", "1"], "the arm's lengths cannot be measured (--allow-unseen runs on the nominal model's lengths instead)"),
     ("arm-file-last-shorter-than-an-led", "run", ["--quiet", "--arm", "{arm-last-link-5.yaml}"], "arm-last-link-5.yaml): its last link, 5 mm (links_mm or --links), is shorter than an LED's diameter"),
     ("links-last-shorter-than-an-led", "run", ["--quiet", "--links", "100,10"], "arm two-link: its last link, 10 mm (links_mm or --links), is shorter than an LED's diameter (12 mm): the elbow and gripper LEDs overlap in every image"),
+    # the simulated arm's lengths are named as given (it said '(links_mm or --links)')
+    ("true-links-last-shorter-than-an-led", "run", ["--quiet", "--true-links", "100,5"],
+     "arm two-link: its last link, 5 mm (true_links_mm or --true-links), is shorter than an "
+     "LED's diameter (12 mm)"),
     ("joint-offset-text", "run", ["--quiet", "--joint-offset", "1,x"], "--joint-offset: expected joint offsets in deg separated by commas, got '1,x'"),
     # a list whose first value is negative is the option's value, not an option: its own error
     ("links-first-negative", "run", ["--quiet", "--links", "-100,100"], "--links: link 1 must be a length in mm in (0, 5000], got -100.0"),
