@@ -383,6 +383,7 @@ def led_windows(camera: Camera, centres_mm, radius_mm: float, margin_px: int = 2
                                                + _RIM_SIN[None, :, None] * e2[:, None]))
     uv, _ = cv2.projectPoints(rim.reshape(-1, 3), _ZERO3, _ZERO3, camera.K, camera.dist_coeffs)
     uv = np.floor(uv.reshape(-1, 16, 2) + 0.5)  # the pixels holding the rim points
+    uv[~ok] = 0.0  # a sphere behind the camera has no image: its rim projects to NaN
     lo = (uv.min(axis=1).astype(int) - margin_px).tolist()
     hi = (uv.max(axis=1).astype(int) + margin_px + 1).tolist()
     W, H = camera.size

@@ -230,3 +230,19 @@ def test_the_windows_row_arithmetic_is_numpys_bit_for_bit():
         a, b = rng.normal(0, 300, (n, 3)), rng.normal(0, 1, (n, 3))
         assert np.array_equal(_cross(a, b), np.cross(a, b))
         assert np.array_equal(_norms(a), np.linalg.norm(a, axis=1))
+
+
+def test_a_sphere_behind_the_camera_has_no_window_and_no_warning():
+    """A rig turned away from the arm (bench accuracy's random poses put LEDs behind a camera):
+    the rims of spheres behind the camera project through the lens to NaN, whose cast to pixels
+    printed "RuntimeWarning: invalid value encountered in cast" with its source lines beside the
+    benchmark's one-line error. Behind the camera there is no window, and nothing to warn of."""
+    import warnings
+
+    cam = Rig.from_yaml(default_rig_path("two-link")).cameras[0]
+    uv = np.array([[u, v] for u in (0.0, 320.0, 639.0) for v in (0.0, 240.0, 479.0)])
+    behind = cam.back_project(uv, -600.0, distorted=False)
+    assert (cam.to_camera(behind)[:, 2] < 0).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert led_windows(cam, behind, LED_RADIUS_MM) == [None] * len(uv)
