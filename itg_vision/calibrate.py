@@ -30,6 +30,7 @@ from .errors import ConfigError, UserError, exit_status, run_main
 from .inputs import file_sha256
 from .outputs import FORCE_REPLACES, check_path, keep_aside
 from .progress import progress
+from .visibility import check_leds_apart
 
 # ---------------------------------------------------------------------------- command line
 #: Where calibrations go by default (relative to the current folder, like ``runs/`` of run).
@@ -278,6 +279,7 @@ class Job:
                 true_arm = ArmSpec.from_args(arm_arg, links)
             except ConfigError as exc:
                 raise exc.as_option({"links_mm": "--true-links"}) from None
+        check_leds_apart(true_arm, args.true_links is not None)
         # '' is the empty-path error (check_path), not the default
         out = check_path(args.out, what="file") if args.out is not None else default_out(rig_path)
         return cls(rig_path, true_rig, rig_sha256, arm, true_arm, out, args.views, args.seed,

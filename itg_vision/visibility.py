@@ -305,23 +305,29 @@ def _partly_seen_note(rig, e_k, views) -> str | None:
             "its last measured position, turned with the joints' commanded turns since")
 
 
-def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True,
-                  true_links: bool = False) -> str | None:
-    """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
-    arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring.
-    ``start_up=False`` leaves out the start-up measurement's poses (the start pose and the set
-    points alone). ``true_links``: the arm's lengths are the simulated arm's own
-    (``true_links_mm``, ``--true-links``), not the model's, as a message names them. Returns
-    :func:`elbow_partly_seen`'s note (None if every branch is seen), from the same look at the
-    elbow's positions."""
+def check_leds_apart(arm: ArmSpec, true_links: bool = False, hint: str = "") -> None:
+    """Raise `UserError` if the arm's last link is shorter than an LED's diameter: its elbow
+    and gripper LEDs then overlap in every image. ``true_links``: the lengths are the simulated
+    arm's own (``true_links_mm``, ``--true-links``), not the model's, as the message names them."""
     from .urdf import LED_RADIUS_MM
 
-    hint = "; --allow-unseen runs anyway"
     if arm.n_joints > 1 and arm.links_mm[-1] < 2 * LED_RADIUS_MM:
         given = "true_links_mm or --true-links" if true_links else "links_mm or --links"
         raise UserError(f"{arm.label}: its last link, {arm.links_mm[-1]:g} mm ({given}), is "
                         f"shorter than an LED's diameter ({2 * LED_RADIUS_MM:g} mm): the elbow "
                         f"and gripper LEDs overlap in every image{hint}")
+
+
+def check_visible(rig, arm: ArmSpec, points_mm: np.ndarray, start_up: bool = True,
+                  true_links: bool = False) -> str | None:
+    """Raise `UserError` unless every camera of ``rig`` (the rig that renders) can show the
+    arm's LEDs along ``points_mm`` (shape (n, 3), mm): see the module docstring.
+    ``start_up=False`` leaves out the start-up measurement's poses (the start pose and the set
+    points alone). ``true_links``: as :func:`check_leds_apart`'s. Returns
+    :func:`elbow_partly_seen`'s note (None if every branch is seen), from the same look at the
+    elbow's positions."""
+    hint = "; --allow-unseen runs anyway"
+    check_leds_apart(arm, true_links, hint)
     near_mm, far_mm = _render_range_mm()
     poses, too_few = _start_up_seen(rig, arm) if start_up else ([], "")
     gripper, elbows, g_k, e_k = _led_points(arm, points_mm, poses)

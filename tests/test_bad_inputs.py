@@ -330,6 +330,15 @@ CASES = [
     ("true-links-last-shorter-than-an-led", "run", ["--quiet", "--true-links", "100,5"],
      "arm two-link: its last link, 5 mm (true_links_mm or --true-links), is shorter than an "
      "LED's diameter (12 mm)"),
+    # calibrate said "seen by both cameras in only 3 of 23 poses ... check the rig's camera poses"
+    ("calibrate-true-links-last-shorter-than-an-led", "calibrate",
+     ["--quiet", "--true-links", "100,5", "--out", "{tmp}/c.yaml"],
+     "arm two-link: its last link, 5 mm (true_links_mm or --true-links), is shorter than an "
+     "LED's diameter (12 mm): the elbow and gripper LEDs overlap in every image\n"),
+    ("calibrate-arm-file-last-shorter-than-an-led", "calibrate",
+     ["--quiet", "--arm", "{arm-last-link-5.yaml}", "--out", "{tmp}/c.yaml"],
+     "arm-last-link-5.yaml): its last link, 5 mm (links_mm or --links), is shorter than an LED's "
+     "diameter (12 mm): the elbow and gripper LEDs overlap in every image\n"),
     ("joint-offset-text", "run", ["--quiet", "--joint-offset", "1,x"], "--joint-offset: expected joint offsets in deg separated by commas, got '1,x'"),
     # a list whose first value is negative is the option's value, not an option: its own error
     ("links-first-negative", "run", ["--quiet", "--links", "-100,100"], "--links: link 1 must be a length in mm in (0, 5000], got -100.0"),
