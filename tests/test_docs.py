@@ -116,3 +116,13 @@ def test_outputs_md_lists_exactly_what_a_run_writes(tmp_path):
         columns = set(next(csv.reader(f)))
     assert _documented("summary.json") - _SOMETIMES == summary
     assert _documented("trace.csv") - _SOMETIMES == columns
+
+
+@pytest.mark.parametrize("path", DOCS, ids=lambda p: p.name)
+def test_every_python_block_compiles(path):
+    """A script pasted into the docs is one a reader runs: a block moved with the prose around
+    it was once reflowed into one line of invalid Python."""
+    text = path.read_text(encoding="utf-8")
+    for match in re.finditer(r"```python\n(.*?)```", text, re.S):
+        line = text.count("\n", 0, match.start()) + 2
+        compile(match.group(1), f"{path.name}:{line}", "exec")
