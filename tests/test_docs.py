@@ -101,19 +101,24 @@ def _documented(section: str) -> set[str]:
     return names
 
 
-def test_outputs_md_lists_exactly_what_a_run_writes(tmp_path):
-    """docs/outputs.md documents summary.json's fields and trace.csv's columns one by one: a run
-    writes each one it lists (but those only some runs write) and nothing it does not list."""
+def test_outputs_md_lists_exactly_what_runs_write(tmp_path):
+    """docs/outputs.md documents summary.json's fields and trace.csv's columns one by one. A rule
+    base on the eye, ITG+ (its servo limit) and the Jacobian tracker on the model (no rules, no
+    rig) write between them each one it lists (but those of a file with times, --video and a
+    third joint) and nothing it does not list."""
     import csv
     import json
 
     from itg_vision.run import main
 
-    out = tmp_path / "run"
-    assert main(["--points", "12", "--out", str(out), "--quiet"]) == 0
-    summary = set(json.loads((out / "summary.json").read_text()))
-    with open(out / "trace.csv", newline="") as f:
-        columns = set(next(csv.reader(f)))
+    summary, columns = set(), set()
+    for k, extra in enumerate(([], ["--rules", "itg-plus-two-link"],
+                               ["--controller", "jacobian", "--feedback", "model"])):
+        out = tmp_path / f"run{k}"
+        assert main(["--points", "12", "--out", str(out), "--quiet", *extra]) == 0
+        summary |= set(json.loads((out / "summary.json").read_text()))
+        with open(out / "trace.csv", newline="") as f:
+            columns |= set(next(csv.reader(f)))
     assert _documented("summary.json") - _SOMETIMES == summary
     assert _documented("trace.csv") - _SOMETIMES == columns
 
