@@ -467,7 +467,7 @@ def test_near_the_base_a_set_point_25_to_100_mm_away_is_never_left_farther():
     """Gripper within 25 mm of the base and the set point 25-100 mm from the base in any
     direction, a jump rather than a path passing by (RULES 3-7 as above, or RULE 2's damped step
     alone): no step of 5000 ends farther from the set point than it started. (100-200 mm away
-    some do: the README's limit.)"""
+    some do: docs/itg-plus.md, "Passing by the base".)"""
     arm = ArmSpec.from_args("two-link")
     rb = itg_plus(arm)
     rng = np.random.default_rng(11)
