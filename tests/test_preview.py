@@ -234,8 +234,8 @@ def test_preview_in_the_loop_on_a_line_past_the_base(tmp_path, iterations, corre
     bound + w, and below the max without preview. (The fifth near-base form chased the line
     round the base without preview: max 3.84 mm, and 5.07 with memory; the sixth form's RULE 3
     passes it at 2.08 and 1.98, and with two iterations or memory preview no longer lowers
-    that: docs/itg-plus.md, "Preview".) With two iterations (the line turns 40 deg per set point) and with
-    memory (correction 0.5) the trace records the aims asked. E_i is measured from the set
+    that: docs/itg-plus.md, "Preview".) With two iterations (the line turns 40 deg per set
+    point) and with memory (correction 0.5) the trace records the aims asked. E_i is measured from the set
     point, never from the aim."""
     path = tmp_path / "line.csv"
     pts = np.r_[np.repeat(line_past_base(2.0, 2.0)[:1], 60, axis=0), line_past_base(2.0, 2.0)]
