@@ -354,6 +354,12 @@ class Rig:
     supersample: int | None = None
     true_rig_sha256: str | None = None
 
+    @property
+    def tied_arm(self) -> str | None:
+        """The arm whose LEDs tied a calibrated rig to the base (its calibration's
+        ``base_frame.arm``), None for a rig not calibrated so."""
+        return ((self.calibration or {}).get("base_frame") or {}).get("arm")
+
     def scaled(self, factor: float) -> "Rig":
         """The same rig with every image ``factor`` times larger (same field of view).
 
@@ -483,10 +489,10 @@ def load_true_rig(rig: Rig, rig_path) -> Rig:
         raise UserError(f"{rig_path}: true_rig: {exc}") from None
     if rig.true_rig_sha256 is not None and file_sha256(path) != rig.true_rig_sha256:
         shown = os.path.normpath(path)
-        arm = ((rig.calibration or {}).get("base_frame") or {}).get("arm")  # tied by its LEDs
         raise UserError(f"{rig_path}: its true rig {shown} has changed since it was calibrated "
                         f"(true_rig_sha256 no longer matches); re-run python -m "
-                        f"itg_vision.calibrate --rig {shown}" + (f" --arm {arm}" if arm else "")
+                        f"itg_vision.calibrate --rig {shown}"
+                        + (f" --arm {rig.tied_arm}" if rig.tied_arm else "")
                         + f" --out {os.path.normpath(rig_path)}")
     return truth
 

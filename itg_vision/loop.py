@@ -38,7 +38,8 @@ from .outputs import unsigned_zero
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
 #: docs/robustness.md, "Lost looks"). Before the first decision there is no aim: the joints
 #: hold. After a step flagged out of reach (it holds the arm) the gripper is taken to be where
-#: that decision saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm`` and ``pitch_axis_mm``.
+#: that decision saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm`` and
+#: ``pitch_axis_mm``.
 AIM_ON_LOST = "gripper"
 
 #: Why a look missed a marker when its feedback did not say (``Markers.missed_why`` empty).

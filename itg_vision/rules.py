@@ -105,6 +105,8 @@ SERVO_STEP = re.compile(r"[ \t]*#![ \t]*S is the servo limit[ \t\r]*")  # indent
 KEYWORDS = {"RULE", "IF", "THEN", "AND", "OR", "NOT", "HOLD", "OUT_OF_REACH", "LET"}
 #: The comparison operators (which do not chain: 'a < b < c' is refused).
 COMPARISONS = ("<", "<=", ">", ">=", "==", "!=")
+#: The hint of a chained comparison, 'a < b < c' or '(a < b) < c'.
+_NO_CHAIN = ": comparisons do not chain; write 'a < b AND b < c'"
 #: The operators that may follow an operand in an expression or a comparison.
 _OPERAND_FOLLOWERS = frozenset({"+", "-", "*", "/", "^", *COMPARISONS})
 #: A joint's name, q1..q9: what an action sets.
@@ -334,7 +336,7 @@ class _Parser:
                     and (b.line, b.col) == (a.line, a.col + 1):
                 return f": '{a.text * 2}' is not an operator here, {'OR' if a.text == '|' else '^'} is"
         if tok.text in COMPARISONS and self._after_comparison(k):
-            return ": comparisons do not chain; write 'a < b AND b < c'"
+            return _NO_CHAIN
         named = k > 1 and self.t[k - 2].kind == "kw" and self.t[k - 2].text in ("LET", "RULE")
         operand_end = before is not None and not named and (before.kind in ("num", "name")
                                                              or before.text == ")")
@@ -497,8 +499,7 @@ class _Parser:
 
     def _condition_as_number(self, opener: Token) -> RuleSyntaxError:
         """The error of a condition in parentheses used as a number: '(a < b) < c'."""
-        chained = ": comparisons do not chain; write 'a < b AND b < c'" \
-            if self.tok.text in COMPARISONS else ""
+        chained = _NO_CHAIN if self.tok.text in COMPARISONS else ""
         error = self.error(f"a condition in parentheses (opened at line {opener.line}, column "
                            f"{opener.col}) is true or false, not a number to compare or compute "
                            "with")

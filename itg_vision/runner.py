@@ -317,7 +317,7 @@ def prepare(cfg: RunConfig, estimate_rig=None, *, with_controller: bool = True) 
                                        true_links=cfg.true_links_mm is not None))
         info["estimate_rig"] = estimate_rig.source or estimate_rig.name
         info["render_rig"] = str(render_rig.source)
-        rig_arm = ((estimate_rig.calibration or {}).get("base_frame") or {}).get("arm")
+        rig_arm = estimate_rig.tied_arm
 
         supersample = supersample_of(cfg, estimate_rig)
         if cfg.full_frame:  # refused with the other inputs, not when the feedback is built
