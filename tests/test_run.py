@@ -753,6 +753,26 @@ def test_a_name_that_is_not_shipped_points_to_the_file_of_that_name_here(
     assert not out.exists()
 
 
+@pytest.mark.parametrize("option, message", [
+    ("--rules", "rule file not found"),
+    ("--arm", "cannot read arm file (No such file or directory)"),
+    ("--rig", "cannot read rig file (No such file or directory)"),
+    ("--trajectory", "trajectory file not found"),
+])
+def test_a_missing_path_without_its_suffix_is_not_found_not_an_unknown_name(tmp_path, capsys,
+                                                                             option, message):
+    """A name holding a '/' is a path, as the 'unknown' errors say, whatever its suffix: missing,
+    every kind says the file was not found (`--trajectory sub/gone` used to be an unknown
+    trajectory's name, listing the shipped ones), and nothing is written."""
+    from itg_vision.run import main
+
+    out = tmp_path / "out"
+    given = str(tmp_path / "sub" / "gone")
+    assert main([option, given, "--points", "10", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {given}: {message}"
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("option, given, kind, name", [
     ("--trajectory", "rounded-square.csv", "trajectory", "rounded-square"),
     ("--rules", "table2.rules", "rule base", "table2"),
