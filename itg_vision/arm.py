@@ -13,6 +13,7 @@ what the tests compare the simulator against. The vision loop never calls it.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -197,7 +198,8 @@ def arm_markers(n_joints: int) -> tuple[str, ...]:
 def names_a_file(name_or_path: str) -> bool:
     """Whether ``--arm`` names an arm file (a .yaml or a path with a folder), not a shipped arm
     (whatever files the current folder holds)."""
-    return Path(name_or_path).suffix in (".yaml", ".yml") or "/" in name_or_path
+    return (Path(name_or_path).suffix in (".yaml", ".yml") or "/" in name_or_path
+            or os.sep in name_or_path)
 
 
 def arm_path(name_or_path: str) -> Path:

@@ -699,8 +699,8 @@ def test_through_the_clean_eye_the_start_band_is_the_servo_steps(links_pct, offs
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [8, 13, 18])
 def test_under_4px_the_start_bends_the_straight_way_and_tracks(seed):
-    """The three runs of the robustness sweep's 20 seeds (line-ab-reach, the rendered eye under
-    4 px, its servo limit and iterations) that diverged with the start's band of one servo step:
+    """The three runs of the 20-seed `bench noise` run on line-ab-reach (the rendered eye under
+    4 px, its servo limit and iterations) that diverged with the elbow's band of one servo step:
     the first looks' noise put the gripper past that band, the elbow bent positive (q3 +40 to +51
     deg by set point 15) into the branch whose forearm tracks near vertical, where the pitch axis
     read from it is far off, and the tracking medians were 45.1, 22.1 and 25.4 mm. With the band
