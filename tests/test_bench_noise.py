@@ -19,7 +19,7 @@ from itg_vision import outputs
 from itg_vision.bench import execute, noise
 from itg_vision.bench.execute import run_one
 from itg_vision.bench.noise import main
-from itg_vision.bench.store import RUN_METRICS, definition_hash
+from itg_vision.bench.store import RUN_METRICS, definition_hash, make_row
 from itg_vision.arm import ArmSpec, forward_kinematics
 from itg_vision.bench.sweep import (CONTROLLERS, RIG_ANGLE_DEG, RIG_SHIFT_MM, TRAJECTORIES, RunSpec,
                                     build_sweep, load_trajectory, run_config)
@@ -867,6 +867,22 @@ def test_jacobian_tracker_converges_from_measured_positions_alone():
     e = trace.error_mm()
     assert e[0] > 50  # it starts far away (the start pose is at (0, 201))
     assert e[-1] < 0.1 and np.all(e[-50:] < 0.1)  # measured: ~1e-10 mm after 300 iterations
+
+
+def test_a_row_records_the_start_ups_length_standard_error():
+    """results.csv's measured_length_se_mm is the run's summary.json geometry.length_se_mm, the
+    sL its rules read (RULE 0's margin; the three-link elbow's band reaches 2 sL): above 0 under
+    the eye's 1 px noise, 0 for the nominal model's lengths."""
+    from itg_vision.runner import execute as execute_run
+    from itg_vision.runner import prepare
+
+    for ctrl, measured in (("itg-plus-vision", True), ("itg-plus-model", False)):
+        spec = build_sweep(conditions=("noise-1px",), controllers=(ctrl,),
+                           trajectories=("ellipse-t1",), seeds=1, points=4)[0]
+        _, s = execute_run(prepare(run_config(spec)))
+        se = s["geometry"]["length_se_mm"]
+        assert (se > 0) == measured, se
+        assert float(make_row(spec, s)["measured_length_se_mm"]) == pytest.approx(se, rel=1e-5)
 
 
 @pytest.mark.slow

@@ -322,7 +322,8 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
         L += [""] + ["N" + n[1:] for n in notes]
     L += ["", "Under vision (or truth) feedback the rules' link lengths and the Jacobian "
           "tracker's shoulder and LED stand-off are measured from the LEDs at start-up "
-          "(`measured_links_mm` in results.csv); only the `-model` controllers and `ik` use the "
+          "(`measured_links_mm` in results.csv, their largest standard error, the ITG+ rules' sL, "
+          "`measured_length_se_mm`); only the `-model` controllers and `ik` use the "
           "nominal model. The ITG+ rules' S is the servo limit (`controller_params` in "
           "results.csv). "
           "The Jacobian tracker scales a step whose largest joint increment exceeds the servo "

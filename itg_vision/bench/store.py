@@ -39,9 +39,9 @@ RUN_METRICS = ["e_av_mm", "e_max_mm", "e_rms_mm", "tracking_from", "track_median
                "first_error_mm", "wall_s"]
 COLUMNS = (["run_id", "controller", "condition", "trajectory", "arm", "points", "laps", "seed",
             "rc_controller", "feedback", "noise_mm", "noise_px", "dropout", "rig", "rig_sha",
-            "inputs_sha", "link_error_pct", "offset_deg", "links_mm", "true_links_mm", "joint_offset_deg",
-            "measured_links_mm", "iterations", "max_step_deg", "correction", "preview", "rules",
-            "rules_sha", "controller_params"]
+            "inputs_sha", "link_error_pct", "offset_deg", "links_mm", "true_links_mm",
+            "joint_offset_deg", "measured_links_mm", "measured_length_se_mm", "iterations",
+            "max_step_deg", "correction", "preview", "rules", "rules_sha", "controller_params"]
            + RUN_METRICS
            + ["diverged", "no_start", "code"])
 
@@ -80,6 +80,7 @@ def make_row(spec: RunSpec, s: dict | None, no_start: str = "") -> dict:
     row.update({f"n_missed_{m}": n for m, n in s["n_missed_by"].items()})
     row["controller_params"] = params_cell(s["controller_params"])
     row["measured_links_mm"] = s["geometry"]["links_mm"]
+    row["measured_length_se_mm"] = s["geometry"]["length_se_mm"]  # the rules' sL
     row["diverged"] = "" if s["diverged"] is None else int(s["diverged"])  # loop.Trace.metrics
     return {c: _cell(row.get(c)) for c in COLUMNS}
 

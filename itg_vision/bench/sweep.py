@@ -136,12 +136,13 @@ QUICK = {"trajectories": ("ellipse-t1",), "points": 60, "seeds": 2,
          "conditions": ("clean", "noise-1px", "dropout-0.2", "rig-perturbed", "links+5%",
                         "noise-1px+links+5%")}
 #: Bump when the meaning of a column or of a run's parameters changes.
-SCHEMA = 10  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
+SCHEMA = 11  # 3: the gain column (always empty) became controller_params; 4: rules_sha;
 #            5: inputs_sha, and the no_start column; 6: correction; 7: n_out_of_reach counts the
 #            set points the simulated arm cannot reach (was: those the controller flagged, now
 #            n_flagged), and the metrics leave out those, the same for every controller;
 #            8: preview; 9: link_error (a fraction) became link_error_pct (in %);
-#            10: n_missed_gripper, n_missed_elbow (n_missed by LED), n_elbow_turned
+#            10: n_missed_gripper, n_missed_elbow (n_missed by LED), n_elbow_turned;
+#            11: measured_length_se_mm (the start-up's sL)
 
 
 def seed_count(text: str) -> int:
