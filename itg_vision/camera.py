@@ -49,7 +49,7 @@ import yaml
 
 from .errors import UserError
 from .inputs import Fields, file_sha256, read_yaml, resolve_relative
-from .shipped import CAMERAS_DIR, not_found, or_a_path, rig_names
+from .shipped import CAMERAS_DIR, holds_a_folder, not_found, or_a_path, rig_names
 
 _MM = 1e-3
 #: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
@@ -79,7 +79,7 @@ UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10
 def resolve_rig(name_or_path: str) -> Path:
     """``--rig``: a shipped rig by name (``cameras/<name>.yaml``) or a path to a rig file."""
     p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or "/" in name_or_path or os.sep in name_or_path:
+    if p.suffix in (".yaml", ".yml") or holds_a_folder(name_or_path):
         if not p.exists() and p.stem in rig_names():  # else read_text says why it cannot read it
             raise UserError(not_found(p, "rig", rig_names()))
         return p
@@ -488,11 +488,10 @@ def load_true_rig(rig: Rig, rig_path) -> Rig:
     except UserError as exc:  # name the calibrated rig and its field, then the problem
         raise UserError(f"{rig_path}: true_rig: {exc}") from None
     if rig.true_rig_sha256 is not None and file_sha256(path) != rig.true_rig_sha256:
-        shown = os.path.normpath(path)
+        shown, arm = os.path.normpath(path), rig.tied_arm
         raise UserError(f"{rig_path}: its true rig {shown} has changed since it was calibrated "
                         f"(true_rig_sha256 no longer matches); re-run python -m "
-                        f"itg_vision.calibrate --rig {shown}"
-                        + (f" --arm {rig.tied_arm}" if rig.tied_arm else "")
+                        f"itg_vision.calibrate --rig {shown}" + (f" --arm {arm}" if arm else "")
                         + f" --out {os.path.normpath(rig_path)}")
     return truth
 

@@ -10,6 +10,7 @@ module reaching up into the modules that need arms.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -44,6 +45,12 @@ def rule_names() -> list[str]:
 def rig_names() -> list[str]:
     """The shipped rigs (``planar``, ``three-link``, ...; calibrations too)."""
     return sorted(p.name[:-len(".yaml")] for p in CAMERAS_DIR.glob("*.yaml"))
+
+
+def holds_a_folder(name_or_path: str) -> bool:
+    """Whether a name holds a folder separator, which makes it a path whatever its suffix (a
+    shipped name never holds one)."""
+    return "/" in name_or_path or os.sep in name_or_path
 
 
 def or_a_path(name: str, kind: str, suffix: str) -> str:

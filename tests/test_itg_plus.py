@@ -586,8 +586,7 @@ def test_the_straight_start_dead_band_ends_at_its_width_from_the_arms_line(name,
     it, 10 sqrt(100^2 + 12^2) / 100 = 10.07 mm, and the set points keep the same margin in
     proportion (the forearm's line tilts with the observed gripper's move)."""
     arm = ArmSpec.from_args(name)
-    rb = itg_plus(arm)
-    rb = rb.with_links(rb.links_mm, rb.base_axis_mm, sL=sL, h=rb.h)
+    rb = dataclasses.replace(itg_plus(arm), sL=sL)
     q0 = arm.start_q_deg
     elbow = arm.n_joints - 1
     m = forward_kinematics(arm, q0)

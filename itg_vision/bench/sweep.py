@@ -40,6 +40,7 @@ from ..arm import ArmSpec, arm_names, names_a_file
 from ..errors import ConfigError, UserError, at_least_one
 from ..inputs import file_sha256
 from ..rules import PARAM_FIELDS, RULES_DIR, resolve_rules_path
+from ..shipped import holds_a_folder
 
 #: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
 #: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
@@ -314,7 +315,7 @@ def _default_points(trajectory: str) -> int:
 def is_trajectory_file(name: str) -> bool:
     """Whether a ``--trajectories`` entry is a user's CSV file (it ends in .csv or holds a
     folder separator), not one of the benchmark's :data:`TRAJECTORIES`."""
-    return name.lower().endswith(".csv") or "/" in name or os.sep in name
+    return name.lower().endswith(".csv") or holds_a_folder(name)
 
 
 def trajectory_label(trajectory: str) -> str:
