@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import glob
 import io
 import json
 import math
@@ -571,12 +572,17 @@ def staged_dir(out: str | Path, command: str = "itg_vision", *, force: bool = Fa
         clean_stale(path)  # first: a killed swap's old folder comes back
         out = check_out_dir(out, command, force=force, option=option, inputs=inputs)
     created: list[Path] = []
+    prefix = f".{out.name}.staging-{os.getpid()}-"
     try:
         created = _make_parents(out.parent)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-{os.getpid()}-", dir=out.parent))
+        tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=out.parent))
         os.chmod(tmp, 0o755)
-    except OSError as exc:
+    except BaseException as exc:  # a signal may land after mkdtemp, before tmp is known: by name
+        for made in out.parent.glob(f"{glob.escape(prefix)}*"):
+            shutil.rmtree(made, ignore_errors=True)
         _remove_dirs(created)
+        if not isinstance(exc, OSError):
+            raise
         raise UserError(f"{option} {out}: cannot create a folder there ({exc.strerror or exc})") \
             from None
     try:

@@ -53,6 +53,31 @@ def test_a_command_replaces_its_own_folder_and_marks_it(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]  # no staging or old folder left
 
 
+@pytest.mark.parametrize("where", ["in mkdtemp, once the folder exists", "in chmod"])
+def test_a_signal_while_the_staging_folder_is_made_leaves_none_behind(tmp_path, monkeypatch,
+                                                                      where):
+    """SIGTERM/SIGHUP/Ctrl-C raise in the main thread wherever it is; one that landed after
+    mkdtemp had made the staging folder and before the cleanup knew of it left the folder behind
+    (seen once in test_processes' SIGHUP case, which polls for that folder and signals at once).
+    An interrupt raised at either point now leaves nothing beside ``out``."""
+    out = tmp_path / "r"
+    if where == "in chmod":
+        def interrupted(*args):
+            raise KeyboardInterrupt
+        monkeypatch.setattr(outputs.os, "chmod", interrupted)
+    else:
+        made = outputs.tempfile.mkdtemp
+
+        def interrupted(**kwargs):
+            made(**kwargs)
+            raise KeyboardInterrupt
+        monkeypatch.setattr(outputs.tempfile, "mkdtemp", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with outputs.staged_dir(out, "run"):
+            pass
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("setup, expect", [
     ("foreign", "is a folder that run did not make (2 entries: sub, thesis.tex)"),
     ("other-command", "holds the output of `paper`"),
