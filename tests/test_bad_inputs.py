@@ -451,8 +451,9 @@ def test_bad_input_one_line_exit_2_nothing_touched(inputs, case, command, argv, 
         argv += ["--out", str(tmp / "out")]
     before, cameras = _tree(tmp), _cameras_tree()
     rc = COMMANDS[command](argv)
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert rc == 2, err
+    assert out == "", out
     assert "Traceback" not in err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), err

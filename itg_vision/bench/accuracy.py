@@ -189,16 +189,17 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is not None:  # refuse a bad --out before the renders, not after
             outputs.check_out_dir(args.out, COMMAND, force=args.force,
                                   inputs={"--arm": arm.source, "--rig": rig.source})
-        say = outputs.Transcript()
-        say(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
-            "zero added noise")
-        names = arm.marker_names
-        say(f"{'setting':<17}{'centroid px RMS/p95/max':>24}{'mean u, v px':>18}"
-            + "".join(f"{n + ' mm RMS/p95/max':>26}" for n in names) + f"{'missed':>8}")
         with opencv_threads(1):
-            # the default setting once, with every added noise (its zero-noise row is the same)
-            measured = {}
+            # the default setting once, with every added noise (its zero-noise row is the same);
+            # first, so that a rig that sees nothing is refused before anything is printed
             default = measure(arm, rig, (0.0, 0.1, 0.3, 1.0), args.poses, args.seed)
+            say = outputs.Transcript()
+            say(f"{arm.name} on {rig.name}: {args.poses} random poses, seed {args.seed}; "
+                "zero added noise")
+            names = arm.marker_names
+            say(f"{'setting':<17}{'centroid px RMS/p95/max':>24}{'mean u, v px':>18}"
+                + "".join(f"{n + ' mm RMS/p95/max':>26}" for n in names) + f"{'missed':>8}")
+            measured = {}
             for label, s, full in SETTINGS:
                 r = default if (s, full) == (DEFAULT_SUPERSAMPLE, False) else measure(
                     arm, rig, (0.0,), args.poses, args.seed, supersample=s, full_frame=full)
