@@ -25,7 +25,7 @@ SHIPPED_CURVES = ("ellipse-by-base", "gerono", "lemniscate", "lemniscate-2", "li
 @pytest.mark.parametrize("arm, trajectory", [("one-link", "arc"), ("two-link", "ellipse-t1"),
                                              ("two-link", "ellipse-t2"), ("two-link", "abcd"),
                                              ("three-link", "line-ab"), ("three-link", "line-ab-reach"),
-                                             ("three-link", "helix"),
+                                             ("three-link", "helix"), ("three-link", "reach-loop"),
                                              *(("two-link", c) for c in SHIPPED_CURVES)])
 @pytest.mark.parametrize("calibrated", [False, True])
 def test_the_shipped_rigs_see_every_shipped_trajectory(arm, trajectory, calibrated):
