@@ -627,6 +627,51 @@ def test_the_straight_start_dead_band_ends_at_its_width_from_the_arms_line(name,
     assert bends == {1.0, -1.0}  # set points on either side of the arm
 
 
+#: The upper arm's lean from vertical (deg) below which the elbow's band widens to 2 sL: the elbow
+#: LED within tan(20 deg) of its height above the shoulder, xe^2 + ye^2 <= 0.1325 (ze - L1)^2, which
+#: its stand-off h along the pitch axis brings to asin(sqrt((0.1325 - (h / L2)^2) / 1.1325)).
+SCOPE_DEG = 18.84
+
+
+@pytest.mark.parametrize("lean_deg, widened", [(0.0, True), (15.0, True), (SCOPE_DEG - 0.05, True),
+                                               (SCOPE_DEG + 0.05, False), (25.0, False),
+                                               (60.0, False)])
+def test_the_elbows_band_widens_to_2_sL_only_near_the_straight_up_start(lean_deg, widened):
+    """The 2 sL clause decides the start's bend (the straight-up start and the walk of its first
+    set points); elsewhere a near-straight elbow is left to the servo step's band, as clean (on
+    reach-loop, which straightens the elbow to 8 deg far from the vertical, the unscoped clause
+    raised the 4 px tracking max). The straight arm leaned by lean_deg in its plane (q2 = 90 -
+    lean, q1 = 0) with sL = 5 mm: the gripper observed 6 mm off the upper arm's line, between
+    the servo step's band (3.52 mm there) and 2 sL (10.07 mm), on either side. Within the scope
+    the singular rules fire (the elbow a full step or the forearm towards the set point), beyond
+    it the radial step. The scope's edge: (L2 sin t)^2 + h^2 = 0.1325 (L2 cos t)^2 at t = 18.84
+    deg (L2 = 100, h = 12 mm). Set points more than 10 mm off the arm's plane, as above."""
+    arm = ArmSpec.from_args("three-link")
+    L2, h = arm.links_mm[1], arm.led_standoff_mm
+    assert np.degrees(np.arcsin(np.sqrt((0.1325 - (h / L2) ** 2) / 1.1325))) == pytest.approx(
+        SCOPE_DEG, abs=0.005)
+    rb = dataclasses.replace(itg_plus(arm), sL=5.0)
+    q0 = np.array([0.0, 90.0 - lean_deg, 0.0])
+    m = forward_kinematics(arm, q0)
+    g, e, s = m["gripper"], m["elbow"], arm.shoulder_mm()
+    a = np.array([0.0, -1.0, 0.0])  # the pitch axis at q1 = 0
+    n = np.cross(a, e - s)
+    n /= np.linalg.norm(n)  # in the arm's plane, square to the upper arm
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        p = reachable_target(arm, rng)
+        while abs(p[0]) <= 10.0:
+            p = reachable_target(arm, rng)
+        for side in (1, -1):
+            seen = rb.step(p, Markers(g + side * 6.0 * n, e), q0)
+            fired = set(seen.fired)
+            if widened:
+                assert fired & SINGULAR_RULES["three-link"], (p, side, seen)
+            else:
+                assert fired & RADIAL_RULES["three-link"] and not fired & SINGULAR_RULES[
+                    "three-link"], (p, side, seen)
+
+
 #: The three-link start bent by a forearm offset (deg) within one servo step of straight (2.014
 #: deg), past the band of 4 w alone (1.154 deg with the nominal links; the itg-plus-three-link
 #: sweep's eye measured 1.08-1.11 deg at its 1 deg offset and 5 % long links), and the other way.
