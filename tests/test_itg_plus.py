@@ -636,16 +636,17 @@ SCOPE_DEG = 18.84
 @pytest.mark.parametrize("lean_deg, widened", [(0.0, True), (15.0, True), (SCOPE_DEG - 0.05, True),
                                                (SCOPE_DEG + 0.05, False), (25.0, False),
                                                (60.0, False)])
-def test_the_elbows_band_widens_to_2_sL_only_near_the_straight_up_start(lean_deg, widened):
+def test_the_elbows_band_widens_to_2_sL_only_near_the_straight_up_pose(lean_deg, widened):
     """The 2 sL clause decides the start's bend (the straight-up start and the walk of its first
     set points); elsewhere a near-straight elbow is left to the servo step's band, as clean (on
-    reach-loop, which straightens the elbow to 8 deg far from the vertical, the unscoped clause
+    reach-loop, which straightens the elbow to 10.6 deg far from the vertical, the unscoped clause
     raised the 4 px tracking max). The straight arm leaned by lean_deg in its plane (q2 = 90 -
     lean, q1 = 0) with sL = 5 mm: the gripper observed 6 mm off the upper arm's line, between
     the servo step's band (3.52 mm there) and 2 sL (10.07 mm), on either side. Within the scope
     the singular rules fire (the elbow a full step or the forearm towards the set point), beyond
     it the radial step. The scope's edge: (L2 sin t)^2 + h^2 = 0.1325 (L2 cos t)^2 at t = 18.84
-    deg (L2 = 100, h = 12 mm). Set points more than 10 mm off the arm's plane, as above."""
+    deg (L2 = 100, h = 12 mm). Set points more than 10 mm from the plane x = 0 through the base
+    axis, square to the arm's plane at q1 = 0, as above."""
     arm = ArmSpec.from_args("three-link")
     L2, h = arm.links_mm[1], arm.led_standoff_mm
     assert np.degrees(np.arcsin(np.sqrt((0.1325 - (h / L2) ** 2) / 1.1325))) == pytest.approx(
@@ -761,7 +762,8 @@ def test_under_4px_the_start_bends_the_straight_way_and_tracks(seed):
 @pytest.mark.slow
 def test_the_reach_loop_keeps_the_starts_elbow_branch_through_the_clean_eye():
     """reach-loop.csv takes the gripper from 144.5 to 199.5 mm from the shoulder, so the elbow
-    straightens to an 8.1 deg bend (0.5 mm short of full reach), where either branch reaches the
+    straightens to a 10.6 deg bend (0.9 mm short of full reach in the arm's plane; the LED stands
+    12 mm off it), where either branch reaches the
     set point and the rules choose by the measured bend alone. Through the clean rendered eye
     (a few um at the arm) the bend stays far outside every band and noise, so the elbow keeps the
     straight start's branch (q3 < 0) over both laps and tracks below issue 13's 3 mm (0.164 mm
