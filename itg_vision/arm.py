@@ -20,8 +20,8 @@ import numpy as np
 
 from .errors import ConfigError, UserError
 from .inputs import FILE_TYPES, Fields, count, read_yaml, resolve_relative, show
-from .shipped import (ARMS_DIR, TRAJECTORY_NAMES, holds_a_folder, not_found, or_a_path,
-                      rig_names, rule_names, shipped_name_hint, trajectory_file_names)
+from .shipped import (ARMS_DIR, TRAJECTORY_NAMES, YAML_SUFFIXES, names_a_path, not_found,
+                      or_a_path, rig_names, rule_names, shipped_name_hint, trajectory_file_names)
 
 #: A set point within this of the arm's reach counts as in reach (mm, on the radius; see
 #: ArmSpec.reachable): the tolerance w of the paper's reach test (Table 1's RULE 0, |xd^2 + yd^2
@@ -197,7 +197,7 @@ def arm_markers(n_joints: int) -> tuple[str, ...]:
 def names_a_file(name_or_path: str) -> bool:
     """Whether ``--arm`` names an arm file (a .yaml or a path with a folder), not a shipped arm
     (whatever files the current folder holds)."""
-    return Path(name_or_path).suffix in (".yaml", ".yml") or holds_a_folder(name_or_path)
+    return names_a_path(name_or_path, YAML_SUFFIXES)
 
 
 def arm_path(name_or_path: str) -> Path:

@@ -49,7 +49,7 @@ import yaml
 
 from .errors import UserError
 from .inputs import Fields, file_sha256, read_yaml, resolve_relative
-from .shipped import CAMERAS_DIR, holds_a_folder, not_found, or_a_path, rig_names
+from .shipped import CAMERAS_DIR, YAML_SUFFIXES, names_a_path, not_found, or_a_path, rig_names
 
 _MM = 1e-3
 #: Largest image accepted (pixels per camera): rendering costs about :data:`BYTES_PER_PIXEL`.
@@ -79,7 +79,7 @@ UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10
 def resolve_rig(name_or_path: str) -> Path:
     """``--rig``: a shipped rig by name (``cameras/<name>.yaml``) or a path to a rig file."""
     p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or holds_a_folder(name_or_path):
+    if names_a_path(name_or_path, YAML_SUFFIXES):
         if not p.exists() and p.stem in rig_names():  # else read_text says why it cannot read it
             raise UserError(not_found(p, "rig", rig_names()))
         return p

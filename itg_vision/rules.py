@@ -85,7 +85,7 @@ import numpy as np
 from .contracts import Step
 from .errors import UserError
 from .inputs import clip, is_real, is_whole, read_text
-from .shipped import RULES_DIR, holds_a_folder, not_found, or_a_path, rule_names
+from .shipped import RULES_DIR, names_a_path, not_found, or_a_path, rule_names
 
 MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
@@ -1302,7 +1302,7 @@ def resolve_rules_path(name_or_path: str) -> Path:
     (whatever files the current folder holds: a file or folder called ``table2`` there does not
     replace the shipped ``table2``)."""
     p = Path(name_or_path)
-    if p.suffix == ".rules" or holds_a_folder(name_or_path):
+    if names_a_path(name_or_path, (".rules",)):
         if not p.exists():
             raise UserError(not_found(p, "rule", rule_names()))
         return p

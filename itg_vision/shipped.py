@@ -47,10 +47,20 @@ def rig_names() -> list[str]:
     return sorted(p.name[:-len(".yaml")] for p in CAMERAS_DIR.glob("*.yaml"))
 
 
+#: The suffixes of a YAML file (arm and rig files).
+YAML_SUFFIXES = (".yaml", ".yml")
+
+
 def holds_a_folder(name_or_path: str) -> bool:
     """Whether a name holds a folder separator, which makes it a path whatever its suffix (a
     shipped name never holds one)."""
     return "/" in name_or_path or os.sep in name_or_path
+
+
+def names_a_path(name_or_path: str, suffixes: tuple[str, ...]) -> bool:
+    """Whether an option's value (``--arm``, ``--rig``, ``--rules``, ``--trajectory``) is a path,
+    not a shipped name: it ends in one of its file type's ``suffixes`` or holds a folder."""
+    return Path(name_or_path).suffix in suffixes or holds_a_folder(name_or_path)
 
 
 def or_a_path(name: str, kind: str, suffix: str) -> str:

@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import MAX_POINTS, ConfigError, UserError
 from .inputs import clip, count, read_text
-from .shipped import (TRAJECTORIES_DIR, TRAJECTORY_NAMES, holds_a_folder, not_found, or_a_path,
+from .shipped import (TRAJECTORIES_DIR, TRAJECTORY_NAMES, names_a_path, not_found, or_a_path,
                       trajectory_file_names)
 
 
@@ -342,7 +342,7 @@ def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory
     p = Path(name_or_path)
     if name_or_path in trajectory_file_names():
         p = TRAJECTORIES_DIR / f"{name_or_path}.csv"
-    if p.suffix.lower() == ".csv" or holds_a_folder(name_or_path) or p.exists():
+    if names_a_path(name_or_path.lower(), (".csv",)) or p.exists():  # any case: .CSV too
         if not p.exists():
             raise UserError(not_found(p, "trajectory", trajectory_file_names()))
         if n_points is not None:
