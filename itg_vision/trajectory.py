@@ -334,6 +334,12 @@ def span_note(trajectory: Trajectory, reach_mm: float) -> str | None:
             "coordinates are read as millimetres, not metres")
 
 
+def names_a_csv_file(name: str) -> bool:
+    """Whether a trajectory's name is a path to a CSV file, not a shipped or named trajectory:
+    it ends in .csv (any case: .CSV too) or holds a folder separator."""
+    return names_a_path(name.lower(), (".csv",))
+
+
 def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory:
     """A named trajectory (placed on ``arm``, see :func:`named`), a CSV file's, or a shipped
     file's by its name (``peanut``: data/trajectories/peanut.csv, as the benchmark names it)."""
@@ -342,7 +348,7 @@ def load(name_or_path: str, n_points: int | None = None, arm=None) -> Trajectory
     p = Path(name_or_path)
     if name_or_path in trajectory_file_names():
         p = TRAJECTORIES_DIR / f"{name_or_path}.csv"
-    if names_a_path(name_or_path.lower(), (".csv",)) or p.exists():  # any case: .CSV too
+    if names_a_csv_file(name_or_path) or p.exists():
         if not p.exists():
             raise UserError(not_found(p, "trajectory", trajectory_file_names()))
         if n_points is not None:

@@ -21,15 +21,15 @@ from .. import outputs
 from ..arm import arm_names
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
 from ..options import add_rule_options, labels, rule_params
+from ..trajectory import names_a_csv_file
 from .execute import (check_scheduler_address, dask_executor, local_executor, results,
                       shutdown)
 from .report import DEFAULT_PLOT_METRICS, PLOT_METRICS, write_report
 from .store import (Results, check_sweep_file, code_warning, definition_hash, params_cell,
                     LOCK, record_sweep_file, started, sweep_lock)
 from .sweep import (ALL_CONTROLLERS, CONDITIONS, FILES_ARM, FULL_SEEDS, MAX_SEEDS, QUICK,
-                    SWEEPS, TRAJECTORIES, RunSpec, _parse_names, build_sweep, is_trajectory_file,
-                    rules_controllers, seed_count, span_notes, trajectory_label,
-                    user_rules)
+                    SWEEPS, TRAJECTORIES, RunSpec, _parse_names, build_sweep, rules_controllers,
+                    seed_count, span_notes, trajectory_label, user_rules)
 
 #: The name this benchmark writes into its output folder's manifest.
 COMMAND = "bench noise"
@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                              "controller")
         plot_metrics = _parse_names(args.plot_metrics, PLOT_METRICS, "plot-metrics", "metric")
         trajs = _parse_names(args.trajectories, TRAJECTORIES, "trajectories", "trajectory",
-                             files=is_trajectory_file)
+                             files=names_a_csv_file)
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         params = rule_params(args)  # checked as run checks them
@@ -194,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
                             controllers=ctrls, trajectories=trajs, points=args.points,
                             sweep=args.sweep, rules=tuple(args.rules), arm=arm,
                             rule_params=params)  # checks the arm file, given or not
-        if args.arm is not None and not any(map(is_trajectory_file, trajs or ())):
+        if args.arm is not None and not any(map(names_a_csv_file, trajs or ())):
             raise UserError(f"--arm {args.arm}: applies to trajectory files given to "
                             "--trajectories, and none is given (the benchmark's own "
                             "trajectories keep their arms)")
@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
             # name (an arm file is another arm, whatever its name)
             taken = {k: v for s in specs for k, v in s.rule_params.items()}
             yours = [Path(r).stem for r in args.rules] + [
-                trajectory_label(t) for t in trajs or () if is_trajectory_file(t)] + (
+                trajectory_label(t) for t in trajs or () if names_a_csv_file(t)] + (
                 [Path(arm).stem] if arm != FILES_ARM else []) + labels(taken)
             if yours:  # a folder of its own: the sweep without your files keeps its results
                 out = out.with_name(f"{out.name}-" + "-".join(yours))
@@ -245,7 +245,7 @@ def listing(specs: list[RunSpec], rules, trajectories, arm: str, params: dict[st
     sweep's size."""
     arms = list(dict.fromkeys(s.arm for s in specs))
     users = user_rules(rules, arms, params)
-    files = [t for t in trajectories if is_trajectory_file(t)]
+    files = [t for t in trajectories if names_a_csv_file(t)]
     cost = sum(s.cost_s() for s in specs)
     return (["controllers: " + ", ".join(ALL_CONTROLLERS)]
             + [f"  yours (--rules): {', '.join(u.controllers)}: {u.rules}, on the "

@@ -15,8 +15,9 @@ from .. import outputs
 from ..inputs import count
 from ..loop import DIVERGED_MM
 from .store import params_cell, started
+from ..trajectory import names_a_csv_file
 from .sweep import (CONDITIONS, CONTROLLER_TITLES, Condition, RunSpec, _default_points,
-                    controller_title, is_trajectory_file, span_notes, trajectory_label)
+                    controller_title, span_notes, trajectory_label)
 
 def _float(v: str) -> float:
     try:
@@ -380,7 +381,7 @@ def write_report(out: Path, rows: list[dict], specs: list[RunSpec], command: str
 def _file_note(specs: list[RunSpec], traj: str) -> str:
     """``, your file PATH`` for a user's trajectory file (``--trajectories FILE``), else ``""``."""
     path = next(s.trajectory for s in specs if trajectory_label(s.trajectory) == traj)
-    return f", your file {path}" if is_trajectory_file(path) else ""
+    return f", your file {path}" if names_a_csv_file(path) else ""
 
 
 def _rigs_line(specs: list[RunSpec]) -> str:

@@ -40,7 +40,7 @@ from ..arm import ArmSpec, arm_names, names_a_file
 from ..errors import ConfigError, UserError, at_least_one
 from ..inputs import file_sha256
 from ..rules import PARAM_FIELDS, RULES_DIR, resolve_rules_path
-from ..shipped import holds_a_folder
+from ..trajectory import names_a_csv_file
 
 #: Bench controller name -> (RunConfig.controller, RunConfig.feedback, truth noise in mm, the
 #: arm file's ``defaults`` entry naming the rule base: ``rules`` (the paper's) or
@@ -307,21 +307,15 @@ def _default_points(trajectory: str) -> int:
     """Set points of one lap (a file's own count: read once per process)."""
     from ..trajectory import DEFAULT_POINTS
 
-    if trajectory in TRAJECTORY_FILES or is_trajectory_file(trajectory):
+    if trajectory in TRAJECTORY_FILES or names_a_csv_file(trajectory):
         return len(load_trajectory(trajectory))
     return DEFAULT_POINTS[trajectory]
-
-
-def is_trajectory_file(name: str) -> bool:
-    """Whether a ``--trajectories`` entry is a user's CSV file (it ends in .csv or holds a
-    folder separator), not one of the benchmark's :data:`TRAJECTORIES`."""
-    return name.lower().endswith(".csv") or holds_a_folder(name)
 
 
 def trajectory_label(trajectory: str) -> str:
     """What the report, the plots' file names and the progress call a trajectory: a user's
     file by its stem (:func:`user_trajectory` keeps stems apart from the shipped names)."""
-    return Path(trajectory).stem if is_trajectory_file(trajectory) else trajectory
+    return Path(trajectory).stem if names_a_csv_file(trajectory) else trajectory
 
 
 def user_trajectory(given: str, arm: str, taken) -> str:
@@ -381,7 +375,7 @@ def load_trajectory(name: str, points: int | None = None):
     arm; or a user's file (:func:`user_trajectory`), as it is."""
     from ..trajectory import load
 
-    arm = None if is_trajectory_file(name) else ArmSpec.from_args(TRAJECTORIES[name])
+    arm = None if names_a_csv_file(name) else ArmSpec.from_args(TRAJECTORIES[name])
     return load(trajectory_source(name), points, arm=arm)
 
 
@@ -391,7 +385,7 @@ def span_notes(specs) -> list[str]:
     such file the sweep ``specs`` tracks."""
     from ..trajectory import span_note
 
-    files = dict.fromkeys((s.trajectory, s.arm) for s in specs if is_trajectory_file(s.trajectory))
+    files = dict.fromkeys((s.trajectory, s.arm) for s in specs if names_a_csv_file(s.trajectory))
     notes = (span_note(load_trajectory(t), ArmSpec.from_args(arm).reach_mm()[1])
              for t, arm in files)
     return [n for n in notes if n]
@@ -563,7 +557,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     closed trajectories run ``LAPS`` laps. ``rules``: a user's rule bases (``--rules``, as
     given: :func:`user_rules`), their controllers run beside the sweep's (or as ``controllers``
     says, which may name them), on the trajectories of the arms each fits. ``trajectories``
-    may name a user's CSV files (:func:`is_trajectory_file`), tracked by the arm ``arm`` (a
+    may name a user's CSV files (:func:`names_a_csv_file`), tracked by the arm ``arm`` (a
     shipped arm or an arm file: :func:`files_arm`).
     ``rule_params``: the rule parameters of those rule bases (RunConfig fields, checked values:
     :func:`itg_vision.options.rule_params`); the shipped controllers keep theirs, so
@@ -578,11 +572,11 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
     base = SWEEPS[sweep]
     conds = conditions or (QUICK["conditions"] if quick else base["conditions"])
     trajs = list(trajectories or (QUICK["trajectories"] if quick else base["trajectories"]))
-    arm_of = {t: TRAJECTORIES[t] for t in trajs if not is_trajectory_file(t)}
+    arm_of = {t: TRAJECTORIES[t] for t in trajs if not names_a_csv_file(t)}
     arm = files_arm(arm)
     taken = set(TRAJECTORIES)
     for i, t in enumerate(trajs):
-        if is_trajectory_file(t):
+        if names_a_csv_file(t):
             trajs[i] = user_trajectory(t, arm, taken)
             arm_of[trajs[i]] = arm
             taken.add(Path(t).stem)
@@ -607,7 +601,7 @@ def build_sweep(*, quick: bool = False, seeds: int | None = None, conditions=Non
         inputs = {v: inputs_sha(traj_name, vision=v, arm=arm) for v in (False, True)}
         limits = spec_arm.benchmark  # the servo limit every controller runs under
         laps = LAPS if load_trajectory(traj_name).closed else 1
-        file = traj_name in TRAJECTORY_FILES or is_trajectory_file(traj_name)
+        file = traj_name in TRAJECTORY_FILES or names_a_csv_file(traj_name)
         n = None if file else points  # a file has its own points
         if n is not None and traj_name == "abcd" and n % 2:
             n += 1  # abcd needs an even number of points (two segments)
@@ -682,7 +676,7 @@ def _read_files(trajectory: str, vision: bool, arm: str) -> list[Path]:
     from ..camera import default_rig_path
 
     files = [arm_path(arm)] + ([default_rig_path(arm)] if vision else [])
-    if trajectory in TRAJECTORY_FILES or is_trajectory_file(trajectory):
+    if trajectory in TRAJECTORY_FILES or names_a_csv_file(trajectory):
         files.append(Path(trajectory_source(trajectory)))
     return files
 
