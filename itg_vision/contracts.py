@@ -37,6 +37,11 @@ class Markers:
     timing_ms : per-stage wall time of this observation (vision only).
     missed_why : marker -> why it was missed, for the markers in ``missed`` (vision: the
         :class:`Observation`'s cause, a fixed phrase); a feedback may leave it empty.
+    pitch_axis : three-link, the pitch axis the loop keeps: the start-up's measured shoulder
+        axis turned about the vertical by the base's commanded angle, made horizontal and unit,
+        shape (3,) with z = 0 (:class:`itg_vision.loop.Session`'s ``pitch_axis_mm``). The LEDs
+        alone tell its direction but not always its sign; the loop's copy cannot flip. None:
+        not kept (planar arms; a feedback's own estimate before the loop adds it).
     """
 
     gripper_mm: np.ndarray
@@ -45,6 +50,7 @@ class Markers:
     residual_px: dict[str, float] = field(default_factory=dict)
     timing_ms: dict[str, float] = field(default_factory=dict)
     missed_why: dict[str, str] = field(default_factory=dict)
+    pitch_axis: np.ndarray | None = None
 
     def get(self, name: str) -> np.ndarray:
         """The estimate of marker ``name`` (one of :data:`MARKERS`), shape (3,) mm."""

@@ -176,9 +176,17 @@ class JacobianTracker:
     arm turns its base about the vertical base axis (q1: lever g less the axis point) and its
     pitch joints about the measured pitch axis (:func:`pitch_axis`, from the LEDs relative to
     the base axis) through the shoulder (q2: g - shoulder) and the elbow LED (q3: g - e; the
-    LED's stand-off lies along the axis and drops out of the cross product). The axis is kept
-    continuous from the first decision (of the two the LEDs allow, the one nearer the last
-    decision's: :func:`pitch_axis`), so one tracker follows one run. A look that missed either LED keeps the last axis: the
+    LED's stand-off lies along the axis and drops out of the cross product). Of the two axes
+    the LEDs allow (:func:`pitch_axis`) it takes the one nearer the axis the loop keeps
+    (:attr:`itg_vision.contracts.Markers.pitch_axis`, the start-up's turned with the base's
+    commanded angle), or, given none, the one nearer the last decision's, so one tracker
+    follows one run. The loop's cannot keep a wrong start: nearer the last decision's, a sign
+    misread at the noisy straight-up start (where the forearm is near vertical and the choice
+    rests on the stand-off) was kept for the run: given to ITG+ under 4 px, 8 of 100
+    line-ab-reach runs and 3 of 100 helix runs diverged (docs/robustness.md). Taking the
+    loop's axis outright, the tracker did no better under 4 px (paired over seeds 0-19, the
+    tracking maxima +1.0 mm on line-ab-reach, +1.3 mm on the helix: within their noise), so it
+    keeps measuring the direction. A look that missed either LED keeps the last axis: the
     elbow's held estimate is from an earlier pose, and a missed gripper is the loop's last aim,
     not a measurement. Measured (vision): re-measured from a held elbow the axis flipped by
     170 deg and stayed (helix, 4 seeds: tracking max 55-60 mm; kept, 0.54 mm); from a
@@ -252,7 +260,8 @@ class JacobianTracker:
         if not np.all(np.isfinite(err)) or (self.n > 1 and not np.all(np.isfinite(e[:dim]))):
             return Step(np.zeros(self.n), (), False)
         if not self.planar and (self.axis is None or not markers.missed):
-            self.axis = self.pitch_axis(g, e, self.axis)
+            kept = markers.pitch_axis  # the loop's, which cannot flip; else the last decision's
+            self.axis = self.pitch_axis(g, e, self.axis if kept is None else kept)
         J = self.jacobian(g, e, self.axis)
         dq = np.degrees(J.T @ np.linalg.solve(J @ J.T + self.damping**2 * np.eye(dim), err))
         if self.max_step is not None:

@@ -59,7 +59,7 @@ from .arm import ArmSpec
 from .loop import Session
 from .contracts import Step
 from .errors import ConfigError
-from .runner import RunConfig, given_rule_params, prepare, start_up_geometry
+from .runner import RunConfig, given_rule_params, prepare, session_geometry, start_up_geometry
 from .world import World
 
 #: Bounds of the observed positions (mm): none. An arm file's links and a trajectory file's
@@ -123,6 +123,8 @@ class TrackingEnv(gym.Env):
         self.marker_names = model.marker_names
         box = gym.spaces.Box(-POSITION_BOUND_MM, POSITION_BOUND_MM, (3,), np.float64)
         spaces = {"desired_mm": box, **{f"{m}_mm": box for m in self.marker_names}}
+        if not model.planar:  # the pitch axis the loop keeps (contracts.Markers.pitch_axis)
+            spaces["pitch_axis"] = gym.spaces.Box(-1.0, 1.0, (3,), np.float64)
         if self.images:
             cams = self._prep.feedback_factory().render_rig.cameras
             spaces["camera_images"] = gym.spaces.Tuple(
@@ -158,7 +160,8 @@ class TrackingEnv(gym.Env):
         self._session = Session(self._world, self._feedback, prep.trajectory.points_mm,
                                 iterations=cfg.iterations, planar=prep.model.planar,
                                 max_step_deg=cfg.max_step_deg,
-                                tracking_start=prep.trajectory.tracking_start)
+                                tracking_start=prep.trajectory.tracking_start,
+                                **session_geometry(geometry, prep.model))
         markers = self._session.observe()
         return self._observation(markers), {
             "geometry": geometry, "q_deg": self._world.q_deg.copy(), "k": 0,
@@ -207,6 +210,8 @@ class TrackingEnv(gym.Env):
         obs = {"desired_mm": np.array(self._session.desired_mm, np.float64)}
         for m in self.marker_names:
             obs[f"{m}_mm"] = np.array(markers.get(m), np.float64)
+        if "pitch_axis" in self.observation_space.spaces:
+            obs["pitch_axis"] = np.array(markers.pitch_axis, np.float64)
         if self.images:
             obs["camera_images"] = tuple(np.ascontiguousarray(f, np.uint8)
                                          for f in self._feedback.last_observation.frames())

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arm import wrap_deg
+from .arm import pitch_axis, wrap_deg
 from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
@@ -106,7 +106,8 @@ class ArmGeometry:
         the normal of the elbow LED's circle in the shoulder sweep, oriented so that the
         sweep's increasing q2 turns counter-clockwise about it, and turned back about the
         vertical by the base's commanded angle at the start (it turns with the base: at q1,
-        turned by q1 about the vertical). None: not measured (planar arms, the nominal model).
+        turned by q1 about the vertical). The nominal model's: its axis at base angle 0.
+        None: planar arms.
     elbow_seen : measured: ``(elbow_mm, q_deg)``, the elbow LED where the start-up saw it (a
         median of its looks) and the commanded joints then: the shoulder sweep's look at the
         start pose (three-link), the base sweep's look nearest the start's base angle (planar).
@@ -145,10 +146,12 @@ class ArmGeometry:
 
 
 def nominal_geometry(arm) -> ArmGeometry:
-    """The nominal model's geometry (what ``--feedback model`` and open-loop IK use)."""
+    """The nominal model's geometry (what ``--feedback model`` and open-loop IK use); three-link:
+    the model's pitch axis at base angle 0 (:func:`itg_vision.arm.pitch_axis`)."""
     standoff = 0.0 if arm.planar else arm.led_standoff_mm
+    axis = None if arm.planar else tuple(float(v) for v in pitch_axis(arm, 0.0))
     return ArmGeometry(tuple(arm.links_mm), tuple(float(v) for v in arm.shoulder_mm()),
-                       standoff, "nominal model")
+                       standoff, "nominal model", pitch_axis=axis)
 
 
 # ---------------------------------------------------------------------------- fits

@@ -373,8 +373,9 @@ class Session:
         gives its last measured position turned about the shoulder axis (as the base had
         turned it then) by the shoulder's commanded turn since, and about the vertical base
         axis through the shoulder by the base's: where a three-link arm's elbow is (it moves
-        with q1 and q2 alone), flagged ``elbow_turned``. None (the default): the feedback's
-        last estimate.
+        with q1 and q2 alone), flagged ``elbow_turned``. Every look also carries the pitch
+        axis the loop keeps from it (:meth:`kept_pitch_axis`). None (the default): the
+        feedback's last estimate, and no kept axis.
     elbow_seen : ``(elbow_mm, q_deg)``, an elbow measured before the session and the commanded
         joints then (the start-up's: :attr:`itg_vision.identify.ArmGeometry.elbow_seen`), with
         ``base_axis_mm`` or ``pitch_axis_mm``: a look that misses the elbow before the session
@@ -429,9 +430,10 @@ class Session:
             point, direction = (np.asarray(v, float) for v in pitch_axis_mm)
             if (point.shape != (3,) or direction.shape != (3,)
                     or not np.isfinite([*point, *direction]).all()
-                    or not abs(np.linalg.norm(direction) - 1.0) < 1e-6):
-                raise ValueError(f"pitch_axis_mm: (shoulder (x, y, z) in mm, unit direction) "
-                                 f"expected, got {pitch_axis_mm!r}")
+                    or not abs(np.linalg.norm(direction) - 1.0) < 1e-6
+                    or not np.hypot(*direction[:2]) >= 0.5):  # a shoulder axis is horizontal
+                raise ValueError(f"pitch_axis_mm: (shoulder (x, y, z) in mm, unit direction "
+                                 f"within 60 deg of horizontal) expected, got {pitch_axis_mm!r}")
             self._pivot, self._pitch = point, direction
         self._elbow_seen: tuple[np.ndarray, np.ndarray] | None = None  # and the joints then
         if elbow_seen is not None:
@@ -485,7 +487,23 @@ class Session:
         for m in self._estimate.missed:
             self.flag(f"missed:{m}")
         self._estimate = self._elbow_on_lost(self._estimate)
+        if self._pitch is not None:
+            self._estimate = replace(self._estimate, pitch_axis=self.kept_pitch_axis())
         return self._estimate
+
+    def kept_pitch_axis(self) -> np.ndarray | None:
+        """Three-link: the pitch axis the loop keeps, given to the controllers with each look
+        (:attr:`itg_vision.contracts.Markers.pitch_axis`): ``pitch_axis_mm``'s direction turned
+        about the vertical by the base's commanded angle, made horizontal and unit, shape (3,).
+        The LEDs tell the axis's direction at most poses, but its sign only from which side of
+        the base axis their line passes, 12 mm off, and under 4 px that sign was wrong at a
+        median 6.7 % of reach-loop's decisions (docs/robustness.md): every pitch step then
+        turns the wrong way. This copy cannot flip. None without ``pitch_axis_mm``."""
+        if self._pitch is None:
+            return None
+        a = turn_about(_UP, self.world.q_deg[0]) @ self._pitch
+        a[2] = 0.0
+        return a / np.linalg.norm(a)
 
     def _elbow_on_lost(self, estimate: Markers) -> Markers:
         """``estimate`` with a missed elbow turned with the joints since it was last seen (see

@@ -58,7 +58,9 @@ run's ``max_step_deg`` rather than to ``--step`` (the ITG+ rule bases, whose ste
 to +-S and whose compensations assume each joint moves what the rules ask).
 
 Names: desired ``xd yd zd``, gripper ``xg yg zg``, elbow ``xe ye ze`` (mm; none on a one-link arm); radial squares
-``rd2 rg2 re2`` (x^2 + y^2, mm^2); joints ``q1..qn`` (deg); gain ``f`` (deg/mm), fixed step
+``rd2 rg2 re2`` (x^2 + y^2, mm^2); the pitch axis ``xa ya`` (three-link only: the loop's kept
+axis, :attr:`~itg_vision.contracts.Markers.pitch_axis`, a horizontal unit vector; NaN where no
+loop keeps one); joints ``q1..qn`` (deg); gain ``f`` (deg/mm), fixed step
 ``S`` (deg), tolerance ``w`` (mm); link lengths ``L1..Ln`` and ``L`` (= L1) in mm, and ``sL`` (mm),
 the largest standard error of the lengths: 0 for the nominal model's, else what the noise of the
 start-up's looks leaves uncertain in the measured ones (a reach test on measured lengths allows a
@@ -87,8 +89,10 @@ from .errors import UserError
 from .inputs import clip, is_real, is_whole, read_text
 from .shipped import RULES_DIR, names_a_path, not_found, or_a_path, rule_names
 
-MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2")
+MARKER_NAMES = ("xd", "yd", "zd", "xg", "yg", "zg", "xe", "ye", "ze", "rd2", "rg2", "re2", "xa",
+                "ya")
 ELBOW_NAMES = ("xe", "ye", "ze", "re2")  # none on a one-link arm
+AXIS_NAMES = ("xa", "ya")  # the three-link arm's pitch axis, as the loop keeps it
 #: The rule parameters and the field names (units included) they go by outside the rules.
 PARAM_FIELDS = {"f": "gain_deg_per_mm", "S": "step_deg", "w": "tolerance_mm"}
 #: The other way: RunConfig field -> the rules' name.
@@ -1031,7 +1035,8 @@ class RuleBase:
     def known_names(self) -> set[str]:
         joints = {f"q{i}" for i in range(1, self.n_joints + 1)}
         links = {f"L{i}" for i in range(1, len(self.links_mm) + 1)} | {"L", "sL", "h"}
-        markers = set(MARKER_NAMES) - (set(ELBOW_NAMES) if self.n_joints == 1 else set())
+        markers = (set(MARKER_NAMES) - (set(ELBOW_NAMES) if self.n_joints == 1 else set())
+                   - (set(AXIS_NAMES) if self.n_joints != 3 else set()))
         return markers | set(PARAM_NAMES) | joints | links
 
     def _check(self) -> None:
@@ -1099,6 +1104,7 @@ class RuleBase:
         joints = [int(n[1:]) for n in names if re.fullmatch(r"[qL]\d+", n)]
         joints += [a.joint for r in self.rules for a in r.actions if a.kind != "out"]
         joints += [2] if set(names) & set(ELBOW_NAMES) else []
+        joints += [3] if set(names) & set(AXIS_NAMES) else []
         return ForAnotherArm(f"{self.source}:{where[0]}:{where[1]}: {what}", max(joints))
 
     def _check_names(self, nodes, known: set[str]) -> None:
@@ -1107,6 +1113,9 @@ class RuleBase:
             if name in ELBOW_NAMES and name not in known:  # NaN: its comparisons never hold
                 raise self._for_another_arm(where, f"{name!r} reads the elbow LED, but a "
                                                    "one-link arm has no elbow")
+            if name in AXIS_NAMES and name not in known:
+                raise self._for_another_arm(where, f"{name!r} reads the pitch axis, which only "
+                                                   "a three-link arm has")
             if name not in known and re.fullmatch(r"L\d+", name):
                 raise self._for_another_arm(where, f"{name!r} is link {name[1:]}'s length, but "
                                                    f"only {len(self.links_mm)} link length(s) "
@@ -1236,15 +1245,16 @@ class RuleBase:
     def arguments(self, desired_mm, markers, q_deg) -> tuple[float, ...]:
         """The compiled function's arguments, in its order, as plain Python floats (with NaN,
         comparisons are False and raise no warning); x, y relative to :attr:`base_axis_mm`."""
-        d, g, e = desired_mm, markers.gripper_mm, markers.elbow_mm
+        d, g, e, a = desired_mm, markers.gripper_mm, markers.elbow_mm, markers.pitch_axis
         ox, oy = self.base_axis_mm
         xd, yd, zd = float(d[0]) - ox, float(d[1]) - oy, float(d[2])
         xg, yg, zg = float(g[0]) - ox, float(g[1]) - oy, float(g[2])
         xe, ye, ze = float(e[0]) - ox, float(e[1]) - oy, float(e[2])
         links = self.links_mm
         nan_q = (math.nan,) * self.n_joints  # rules that read no q are not given the encoders
+        xa, ya = (math.nan, math.nan) if a is None else (float(a[0]), float(a[1]))
         return (xd, yd, zd, xg, yg, zg, xe, ye, ze,
-                xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye,
+                xd * xd + yd * yd, xg * xg + yg * yg, xe * xe + ye * ye, xa, ya,
                 *(nan_q if q_deg is None else (float(q) for q in q_deg)),
                 float(self.f), float(self.S), float(self.w), links[0], *links, float(self.sL),
                 float(self.h))

@@ -445,10 +445,7 @@ def execute(prep: Prepared, progress=None, recorder=None) -> tuple[Trace, dict]:
                          tracking_start=prep.trajectory.tracking_start,
                          correction=cfg.correction,
                          aims_mm=None if prep.preview is None else prep.preview.aims_mm,
-                         base_axis_mm=geometry.base_axis_mm if prep.model.planar else None,
-                         pitch_axis_mm=None if geometry.pitch_axis is None
-                         else (geometry.shoulder_mm, geometry.pitch_axis),
-                         elbow_seen=geometry.elbow_seen,
+                         **session_geometry(geometry, prep.model),
                          progress=progress, recorder=recorder)
     wall_s = time.perf_counter() - t0
     summary = {
@@ -512,6 +509,16 @@ def start_up_geometry(cfg: RunConfig, world, feedback, model):
             raise
         return dataclasses.replace(nominal_geometry(model),
                                    source=f"nominal model ({exc}; --allow-unseen)")
+
+
+def session_geometry(geometry, model) -> dict:
+    """What the loop's :class:`~itg_vision.loop.Session` takes of the start-up's geometry: the
+    base axis (planar arms) or the shoulder's axis (three-link), which turn a lost elbow with
+    the joints and give each look the kept pitch axis, and where the start-up saw the elbow."""
+    return {"base_axis_mm": geometry.base_axis_mm if model.planar else None,
+            "pitch_axis_mm": None if geometry.pitch_axis is None
+            else (geometry.shoulder_mm, geometry.pitch_axis),
+            "elbow_seen": geometry.elbow_seen}
 
 
 def bind_geometry(controller, geometry, model, max_step_deg=None):

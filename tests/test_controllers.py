@@ -435,6 +435,30 @@ def test_pitch_axis_keeps_the_previous_sign_where_the_leds_line_misses_the_stand
     assert kept @ true == pytest.approx(np.cos(tilt), abs=0.01)
 
 
+def test_the_tracker_chooses_its_axis_nearer_the_loops_kept_axis():
+    """A tracker whose last decision's axis is reversed (the sign misread at a noisy start, and
+    kept) chooses, of the two axes the LEDs allow, the one nearer the axis the loop keeps
+    (Markers.pitch_axis) when a look carries it: the true one, and with it a step that shrinks a
+    small error; a look without it keeps the reversed axis and steps the pitch joints the wrong
+    way (the error grows)."""
+    from itg_vision.controllers import JacobianTracker
+    from itg_vision.identify import nominal_geometry
+
+    arm = ArmSpec.from_args("three-link")
+    q = np.array([30.0, 40.0, 70.0])
+    m = forward_kinematics(arm, q)
+    true = np.array([np.sin(np.radians(30.0)), -np.cos(np.radians(30.0)), 0.0])
+    p = forward_kinematics(arm, q + [0.0, 0.6, -0.8])["gripper"]  # in the arm's plane
+    before = np.linalg.norm(p - m["gripper"])
+    for kept, closer in ((true, True), (None, False)):
+        tracker = JacobianTracker(nominal_geometry(arm), False, 3)
+        tracker.axis = -true
+        step = tracker.step(p, Markers(m["gripper"], m["elbow"], pitch_axis=kept), None)
+        np.testing.assert_allclose(tracker.axis, true if closer else -true, atol=1e-9)
+        after = np.linalg.norm(p - forward_kinematics(arm, q + step.dq_deg)["gripper"])
+        assert (after < before / 10) if closer else (after > before), (kept, before, after)
+
+
 # -------------------------------------- reach edges, the pitch axis, a start without stand-off
 from itg_vision.arm import REACH_TOL_MM  # noqa: E402
 from itg_vision.contracts import Markers  # noqa: E402

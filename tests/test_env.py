@@ -81,7 +81,7 @@ def test_env_and_command_line_loop_run_the_same_steps(arm):
     while not done:
         from itg_vision.feedback import Markers
 
-        m = Markers(obs["gripper_mm"], obs["elbow_mm"])
+        m = Markers(obs["gripper_mm"], obs["elbow_mm"], pitch_axis=obs.get("pitch_axis"))
         obs, _, done, _, info = env.step(tracker.step(obs["desired_mm"], m, None).dq_deg)
     assert np.array_equal(env.trace.error_mm(), trace.error_mm())
     assert info["metrics"]["e_av_mm"] == summary["e_av_mm"]

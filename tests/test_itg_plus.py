@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import PYBULLET_RTOL, affine_eye
 
-from itg_vision.arm import ArmSpec, forward_kinematics
+from itg_vision.arm import ArmSpec, forward_kinematics, pitch_axis
 from itg_vision.errors import UserError
 from itg_vision.feedback import Markers
 from itg_vision.loop import DIVERGED_MM
@@ -42,11 +42,14 @@ def near_base(arm: ArmSpec, q) -> bool:
 
 
 def observe(arm, q, rng=None, sigma=0.0):
+    """The LEDs at joints ``q`` (``sigma`` mm of noise each), and on the three-link arm the pitch
+    axis the loop keeps, exact here: a start-up's measured axis turned by the commanded q1 is
+    the true one (Session's own is tested against it in test_loop)."""
     m = forward_kinematics(arm, q)
     g, e = m["gripper"], m["elbow"]
     if rng is not None and sigma:
         g, e = g + rng.normal(0, sigma, 3), e + rng.normal(0, sigma, 3)
-    return Markers(g, e)
+    return Markers(g, e, pitch_axis=None if arm.planar else pitch_axis(arm, q[0]))
 
 
 def distance(arm, p, q):
@@ -329,8 +332,8 @@ def test_one_step_removes_a_small_error_like_newton(name, factor):
     """A set point 1-2 mm away (above the hold band w), within one servo step, away from singular
     poses (J from finite differences well conditioned): one step shrinks the error by at least
     ``factor``, as Newton's step does (it leaves terms of order |err|^2 / lever). Three-link: the
-    pitch axis's length comes from two Heron steps (0.2 % at most), and the forearm is kept 10
-    degrees off vertical, where the markers cannot tell the arm's plane (see the rule file).
+    pitch axis is the loop's (exact here), and the forearm is kept 10 degrees off vertical, where
+    the LEDs cannot tell the arm's plane and q1 reads it from them (see the rule file).
     Two-link: not within a quarter forearm of the base, where q1's step is damped (tested below)."""
     arm = ArmSpec.from_args(name)
     rb = itg_plus(arm)
@@ -353,6 +356,87 @@ def test_one_step_removes_a_small_error_like_newton(name, factor):
         after = distance(arm, p, q + rb.step(p, observe(arm, q), q).dq_deg)
         assert after <= before / factor, (q, dq, before, after)
         n += 1
+
+
+def _bent_three_link_poses(rng):
+    """Three-link poses with the elbow bent 20-160 deg either way (far outside the elbow's
+    bands: RULE 10's radial step), the forearm 10 deg or more off vertical."""
+    while True:
+        q = np.array([rng.uniform(-180, 180), rng.uniform(-60, 150),
+                      rng.choice([-1, 1]) * rng.uniform(20, 160)])
+        if abs((q[1] + q[2]) % 180 - 90) >= 10:
+            yield q
+
+
+def test_the_pitch_steps_turn_about_the_kept_axis_and_q1_reads_the_leds():
+    """The pitch joints take their axis from the loop (xa, ya), not from the LEDs: the same LEDs
+    with the kept axis reversed give RULE 10's pitch steps exactly reversed (every term of them
+    is odd in a but its scale), and q1's step, read from the LEDs' own P, unchanged. A set point
+    1-3 mm away in the arm's plane: with the true axis the step shrinks the error tenfold or more (Newton's step,
+    tested above), reversed it grows it. (Before the kept axis the rules read a from P, which
+    under 4 px had the wrong sign at a median 6.7 % of reach-loop's decisions.)"""
+    arm = ArmSpec.from_args("three-link")
+    rb = itg_plus(arm)
+    rng = np.random.default_rng(7)
+    poses, n = _bent_three_link_poses(rng), 0
+    for _ in range(5000):  # about 600 draws give the 100 (RULE 10 fires at most)
+        if n == 100:
+            break
+        q = next(poses)
+        dq = np.array([0.0, *rng.normal(0, 1.0, 2)])  # in the arm's plane: the pitch joints'
+        p = forward_kinematics(arm, q + dq * rng.uniform(0.3, 0.9) / np.abs(dq).max())["gripper"]
+        seen = observe(arm, q)
+        true = rb.step(p, seen, None)
+        flipped = rb.step(p, dataclasses.replace(seen, pitch_axis=-seen.pitch_axis), None)
+        if set(true.fired) != {4, 10} or not 1.0 <= distance(arm, p, q) <= 3.0:
+            continue
+        assert set(flipped.fired) == {4, 10}, (q, p, flipped)
+        assert flipped.dq_deg[0] == true.dq_deg[0]
+        np.testing.assert_allclose(flipped.dq_deg[1:], -true.dq_deg[1:], rtol=1e-12, atol=0)
+        before = distance(arm, p, q)
+        assert distance(arm, p, q + true.dq_deg) < before / 10, (q, p, true)
+        assert distance(arm, p, q + flipped.dq_deg) > before, (q, p, flipped)
+        n += 1
+    assert n == 100, n
+
+
+def test_the_pitch_pair_is_scaled_as_a_whole_keeping_its_direction():
+    """RULE 10 scales q2's and q3's steps together so that the larger moves S, where the loop
+    would clip each on its own and bend the step away from the error (docs/robustness.md).
+    Set points in the arm's plane (q1's step unclipped, the same whatever S: hundredths of a
+    degree from P's fade), 20-150 mm from the gripper, so that
+    the pair asks for more than 4 deg: at S = 2 and at S = 4 the larger moves exactly S and the
+    step at 4 is the step at 2 doubled, the same direction; clipped joint by joint it would not
+    be (|d2| = 3, |d3| = 10 deg clip to (2, 2) and (3, 4)). And the direction is the pair's own:
+    the same as at S = 8 wherever that step is scaled too."""
+    arm = ArmSpec.from_args("three-link")
+    rules = {S: load_rules(ARMS["three-link"], 3, arm.links_mm, S=S, w=0.5) for S in (2.0, 4.0, 8.0)}
+    rng = np.random.default_rng(9)
+    poses, n, unequal = _bent_three_link_poses(rng), 0, 0
+    for _ in range(20000):
+        if n == 200:
+            break
+        q = next(poses)
+        other = np.array([q[0], *next(poses)[1:]])  # the same plane
+        p = forward_kinematics(arm, other)["gripper"]
+        seen = observe(arm, q)
+        if not 20.0 <= distance(arm, p, q) <= 150.0:
+            continue
+        steps = {S: rb.step(p, seen, None) for S, rb in rules.items()}
+        if any(set(s.fired) != {4, 10} for s in steps.values()):
+            continue
+        two, four = steps[2.0].dq_deg, steps[4.0].dq_deg
+        assert two[0] == pytest.approx(four[0], rel=1e-9) and abs(two[0]) < 1.0, (q, p, two)
+        if np.abs(four[1:]).max() < 4.0 - 1e-9:  # the pair asked for less than 4 deg
+            continue
+        assert np.abs(two[1:]).max() == pytest.approx(2.0, abs=1e-12)
+        np.testing.assert_allclose(four[1:], 2.0 * two[1:], rtol=1e-12, atol=1e-12)
+        eight = steps[8.0].dq_deg[1:]
+        if np.abs(eight).max() == pytest.approx(8.0, abs=1e-12):
+            np.testing.assert_allclose(eight, 4.0 * two[1:], rtol=1e-12, atol=1e-12)
+        unequal += abs(abs(two[1]) - abs(two[2])) > 0.1  # not the clip's (+-S, +-S)
+        n += 1
+    assert n == 200 and unequal > 100, (n, unequal)
 
 
 def _around_base(rng, lo_mm, hi_mm):
@@ -559,7 +643,7 @@ def test_the_straight_start_tie_is_settled_the_same_way_whatever_the_noise(name)
 
 #: The elbow's rules at a singular pose (the dead band) and elsewhere (the radial step).
 SINGULAR_RULES = {"two-link": set(range(8, 13)), "three-link": set(range(5, 10))}
-RADIAL_RULES = {"two-link": {13, 14, 15}, "three-link": {10, 11, 12}}
+RADIAL_RULES = {"two-link": {13, 14, 15}, "three-link": {10}}
 
 
 @pytest.mark.parametrize("name, sL", [("two-link", 0.0), ("three-link", 0.0), ("three-link", 1.0),
@@ -596,6 +680,7 @@ def test_the_straight_start_dead_band_ends_at_its_width_from_the_arms_line(name,
     else:  # the pitch axis (sin q1, -cos q1, 0), along which the LEDs stand off
         q1 = np.radians(q0[0])
         a, s, flat = np.array([np.sin(q1), -np.cos(q1), 0.0]), arm.shoulder_mm(), np.ones(3)
+    axis = None if arm.planar else a  # the loop's kept axis: the true one here
     lever = np.cross(a, (e - s) * flat)
     assert abs(a @ np.cross(g - e, (g - s) * flat)) < 1e-9  # straight: on the band's centre
     step_band = 4 * W_MM if arm.planar else max(4 * W_MM,
@@ -612,15 +697,15 @@ def test_the_straight_start_dead_band_ends_at_its_width_from_the_arms_line(name,
         p = reachable_target(arm, rng)
         while abs(p[0]) <= 10.0 * band / step_band:
             p = reachable_target(arm, rng)
-        clean = rb.step(p, Markers(g, e), q0)
+        clean = rb.step(p, Markers(g, e, pitch_axis=axis), q0)
         assert set(clean.fired) & SINGULAR_RULES[name], (p, clean)
         bends.add(np.sign(clean.dq_deg[elbow]))
         outside = []
         for side in (1, -1):
-            seen = rb.step(p, Markers(g + side * (edge - 0.01) * n, e), q0)
+            seen = rb.step(p, Markers(g + side * (edge - 0.01) * n, e, pitch_axis=axis), q0)
             assert seen.fired == clean.fired, (p, side, seen, clean)
             assert np.sign(seen.dq_deg[elbow]) == np.sign(clean.dq_deg[elbow]) != 0, (p, side, seen)
-            seen = rb.step(p, Markers(g + side * (edge + 0.01) * n, e), q0)
+            seen = rb.step(p, Markers(g + side * (edge + 0.01) * n, e, pitch_axis=axis), q0)
             assert set(seen.fired) & RADIAL_RULES[name], (p, side, seen)
             outside.append(np.sign(seen.dq_deg[elbow]))
         assert outside[0] == -outside[1] != 0, (p, outside)
@@ -664,7 +749,7 @@ def test_the_elbows_band_widens_to_2_sL_only_near_the_straight_up_pose(lean_deg,
         while abs(p[0]) <= 10.0:
             p = reachable_target(arm, rng)
         for side in (1, -1):
-            seen = rb.step(p, Markers(g + side * 6.0 * n, e), q0)
+            seen = rb.step(p, Markers(g + side * 6.0 * n, e, pitch_axis=a), q0)
             fired = set(seen.fired)
             if widened:
                 assert fired & SINGULAR_RULES["three-link"], (p, side, seen)

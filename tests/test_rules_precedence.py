@@ -8,6 +8,8 @@ from hypothesis import given, settings, strategies as st
 from itg_vision.feedback import Markers
 from itg_vision.rules import RuleBase
 
+NAN = float("nan")  # the pitch axis's xa, ya on an arm without one
+
 _atoms = st.sampled_from(["xd", "yd", "xg", "yg", "1", "2", "-3"])
 _ops = st.sampled_from(["<", "<=", ">", ">=", "==", "!="])
 _cmp = st.tuples(_atoms, _ops, _atoms).map(" ".join)
@@ -66,7 +68,8 @@ def test_definitions_a_condition_reads_after_its_first_operand_wait_for_it():
              for name in ("if v_xg > 0.0:", "v_E =", "v_F =")}
     assert depth["v_E ="] > depth["if v_xg > 0.0:"] and depth["v_F ="] > depth["v_E ="]
     for xg, xd, want in ((1.0, 1.0, [6.0]), (1.0, 0.0, [2.0]), (-1.0, 1.0, [2.0])):
-        args = (xd, 2.0, 0.0, xg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.06, 0.5, 0.5, 100.0, 100.0, 0.0, 0.0)
+        args = (xd, 2.0, 0.0, xg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, NAN, NAN,  # no pitch axis
+                0.0, 0.06, 0.5, 0.5, 100.0, 100.0, 0.0, 0.0)
         assert rb.compiled(*args)[0] == want
 
 
@@ -81,6 +84,6 @@ def test_a_definition_the_steps_share_with_later_rules_is_computed_with_what_it_
                             + "RULE 1: IF xg > 0 AND D > 1 THEN q1 += E\n"
                             "RULE 2: IF yd > 0 THEN q2 += E", 3, (100.0,) * 3)
     for xd, xg, yg in ((1.0, 1.0, 1.0), (1.0, 1.0, -1.0), (0.2, -1.0, -1.0), (5.0, 1.0, 1.0)):
-        args = (xd, 1.0, 0.0, xg, yg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        args = (xd, 1.0, 0.0, xg, yg, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, NAN, NAN, 0.0, 0.0, 0.0,
                 0.06, 0.5, 0.5, 100.0, 100.0, 100.0, 100.0, 0.0, 0.0)
         _assert_compiled_is_reference(rb, args)
