@@ -185,8 +185,9 @@ class JacobianTracker:
     rests on the stand-off) was kept for the run: given to ITG+ under 4 px, 8 of 100
     line-ab-reach runs and 3 of 100 helix runs diverged (docs/robustness.md). Taking the
     loop's axis outright, the tracker did no better under 4 px (paired over seeds 0-19, the
-    tracking maxima +1.0 mm on line-ab-reach, +1.3 mm on the helix: within their noise), so it
-    keeps measuring the direction. A look that missed either LED keeps the last axis: the
+    tracking maxima +1.0, +1.3 and +1.5 mm on line-ab-reach, the helix and reach-loop, each
+    within two standard errors), so it keeps measuring the direction; nearer the loop's axis
+    instead of the last decision's, +1.7, +0.7 and -0.6 mm (the same). A look that missed either LED keeps the last axis: the
     elbow's held estimate is from an earlier pose, and a missed gripper is the loop's last aim,
     not a measurement. Measured (vision): re-measured from a held elbow the axis flipped by
     170 deg and stayed (helix, 4 seeds: tracking max 55-60 mm; kept, 0.54 mm); from a
