@@ -178,6 +178,28 @@ def test_info_names_the_markers_each_observation_missed():
     env.close()
 
 
+def test_a_missed_elbow_is_observed_turned_with_the_joints_as_run_gives_it():
+    """The env's session is run's: a look that misses the elbow gives its last measurement turned
+    about the measured base axis by the base's commanded turn since (loop.Session's
+    base_axis_mm), not the eye's held estimate. The base turns 6 deg a step, so a held elbow
+    would be 100 mm x 2 sin(3 deg) = 10.5 mm off per step since it was seen; turned, it is within
+    the eye's error of the true elbow (0.1 mm at 0 px; 1 mm bounds it with the start-up's axis;
+    0.026-0.079 mm measured over 9 such looks)."""
+    env = TrackingEnv(feedback="vision", points=24, supersample=1, dropout=0.4)
+    arm = ArmSpec.from_args("two-link")
+    obs, info = env.reset(seed=3)
+    turned = 0
+    done = False
+    while not done:
+        obs, _, done, _, info = env.step([6.0, -3.0])
+        if "elbow" in info["missed"] and not done:
+            true = forward_kinematics(arm, info["q_deg"])["elbow"]
+            assert np.hypot(*(obs["elbow_mm"] - true)[:2]) < 1.0, (info["q_deg"], obs["elbow_mm"])
+            turned += 1
+    assert turned >= 3, turned
+    env.close()
+
+
 def test_reset_without_a_seed_runs_the_next_episode_of_a_reproducible_sequence():
     def firsts(seeds, seed=10):
         env = TrackingEnv(feedback="truth", noise_mm=0.3, points=5, seed=seed)
