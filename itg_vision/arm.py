@@ -376,15 +376,16 @@ def forward_kinematics(arm: ArmSpec, q_deg: np.ndarray) -> dict[str, np.ndarray]
     rg = re + L[2] * np.cos(q[1] + q[2])
     zg = ze + L[2] * np.sin(q[1] + q[2])
     c, s = np.cos(q[0]), np.sin(q[0])
-    side = h * np.array([s, -c, 0.0])  # pitch_axis's, the offset already in q
+    side = h * model_pitch_axis(arm, q_deg[0])
     return {"gripper": np.array([rg * c, rg * s, zg]) + side,
             "elbow": np.array([re * c, re * s, ze]) + side}
 
 
-def pitch_axis(arm: ArmSpec, q1_deg: float) -> np.ndarray:
+def model_pitch_axis(arm: ArmSpec, q1_deg: float) -> np.ndarray:
     """The yaw-pitch-pitch arm's pitch axis at base angle ``q1_deg`` (its joint offset added):
     (sin q1, -cos q1, 0), unit. Positive q2 and q3 turn the links about it (right-hand rule),
-    and the LEDs stand ``led_standoff_mm`` along it (:func:`forward_kinematics`)."""
+    and the LEDs stand ``led_standoff_mm`` along it (:func:`forward_kinematics`). The model's,
+    not the one the LEDs show (:func:`itg_vision.controllers.pitch_axis`)."""
     if arm.planar:
         raise ValueError(f"{arm.label} is planar: it has no pitch axis")
     q1 = math.radians(q1_deg + (arm.joint_offset_deg[0] if arm.joint_offset_deg else 0.0))

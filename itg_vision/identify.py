@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arm import pitch_axis, wrap_deg
+from .arm import model_pitch_axis, wrap_deg
 from .errors import UserError
 
 #: Shoulder angles (deg, relative to the start pose) at which the three-link elbow is observed.
@@ -147,9 +147,9 @@ class ArmGeometry:
 
 def nominal_geometry(arm) -> ArmGeometry:
     """The nominal model's geometry (what ``--feedback model`` and open-loop IK use); three-link:
-    the model's pitch axis at base angle 0 (:func:`itg_vision.arm.pitch_axis`)."""
+    the model's pitch axis at base angle 0 (:func:`itg_vision.arm.model_pitch_axis`)."""
     standoff = 0.0 if arm.planar else arm.led_standoff_mm
-    axis = None if arm.planar else tuple(float(v) for v in pitch_axis(arm, 0.0))
+    axis = None if arm.planar else tuple(float(v) for v in model_pitch_axis(arm, 0.0))
     return ArmGeometry(tuple(arm.links_mm), tuple(float(v) for v in arm.shoulder_mm()),
                        standoff, "nominal model", pitch_axis=axis)
 

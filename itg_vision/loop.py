@@ -501,9 +501,14 @@ class Session:
         turns the wrong way. This copy cannot flip. None without ``pitch_axis_mm``."""
         if self._pitch is None:
             return None
-        a = turn_about(_UP, self.world.q_deg[0]) @ self._pitch
+        a = self._pitch_at(self.world.q_deg[0])
         a[2] = 0.0
         return a / np.linalg.norm(a)
+
+    def _pitch_at(self, q1_deg: float) -> np.ndarray:
+        """``pitch_axis_mm``'s direction with the base at commanded angle ``q1_deg``: turned
+        about the vertical with it."""
+        return turn_about(_UP, q1_deg) @ self._pitch
 
     def _elbow_on_lost(self, estimate: Markers) -> Markers:
         """``estimate`` with a missed elbow turned with the joints since it was last seen (see
@@ -528,7 +533,7 @@ class Session:
         immaterial as long as the shoulder's axis is the one of ``q_then``."""
         turn = turn_about(_UP, q[0] - q_then[0])  # q1 turns the arm counter-clockwise from above
         if self._pitch is not None:
-            pitch_then = turn_about(_UP, q_then[0]) @ self._pitch
+            pitch_then = self._pitch_at(q_then[0])
             turn = turn @ turn_about(pitch_then, q[1] - q_then[1])
         return self._pivot + turn @ (elbow - self._pivot)
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import PYBULLET_RTOL, affine_eye
 
-from itg_vision.arm import ArmSpec, forward_kinematics, pitch_axis
+from itg_vision.arm import ArmSpec, forward_kinematics, model_pitch_axis
 from itg_vision.errors import UserError
 from itg_vision.feedback import Markers
 from itg_vision.loop import DIVERGED_MM
@@ -49,7 +49,7 @@ def observe(arm, q, rng=None, sigma=0.0):
     g, e = m["gripper"], m["elbow"]
     if rng is not None and sigma:
         g, e = g + rng.normal(0, sigma, 3), e + rng.normal(0, sigma, 3)
-    return Markers(g, e, pitch_axis=None if arm.planar else pitch_axis(arm, q[0]))
+    return Markers(g, e, pitch_axis=None if arm.planar else model_pitch_axis(arm, q[0]))
 
 
 def distance(arm, p, q):

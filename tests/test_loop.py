@@ -638,12 +638,12 @@ class _AxisSpy(Constant):
 def test_each_three_link_look_carries_the_pitch_axis_turned_with_the_base(offset_deg):
     """The pitch axis the loop keeps (Session.kept_pitch_axis): the start-up's measured shoulder
     axis turned about the vertical by the base's commanded angle is the simulator's own,
-    arm.pitch_axis at the true base angle, look by look while the base turns 25 deg a look
+    arm.model_pitch_axis at the true base angle, look by look while the base turns 25 deg a look
     through a full turn and more, with joint offsets the commanded angles do not know of. The
     start-up's fit from float32 looks leaves it within 1e-4 rad; an axis not turned with the
     base is 25 deg off after one look, a reversed one 180. Without pitch_axis_mm no look
     carries one."""
-    from itg_vision.arm import pitch_axis
+    from itg_vision.arm import model_pitch_axis
 
     arm = dataclasses.replace(ArmSpec.from_args("three-link"),
                               joint_offset_deg=(offset_deg, -offset_deg, offset_deg))
@@ -653,7 +653,7 @@ def test_each_three_link_look_carries_the_pitch_axis_turned_with_the_base(offset
         world.set_q([10.0, 60.0, -30.0])
         simulate(world, ctrl, TruthFeedback(), np.zeros((18, 3)), pitch_axis_mm=(shoulder, axis))
     for kept, q in zip(ctrl.axes, ctrl.q):
-        true = pitch_axis(arm, q[0])
+        true = model_pitch_axis(arm, q[0])
         assert kept[2] == 0.0 and np.linalg.norm(kept) == pytest.approx(1.0, abs=1e-12)
         assert np.degrees(np.arccos(min(1.0, kept @ true))) < np.degrees(1e-4), (q, kept, true)
     assert ctrl.q[-1][0] - ctrl.q[0][0] == pytest.approx(17 * 25.0)  # more than a full turn
