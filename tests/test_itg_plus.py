@@ -400,17 +400,21 @@ def test_the_pitch_steps_turn_about_the_kept_axis():
     assert n == 100, n
 
 
-def test_the_pitch_pair_is_scaled_as_a_whole_keeping_its_direction():
-    """RULE 10 scales q2's and q3's steps together so that the larger moves S, where the loop
-    would clip each on its own and bend the step away from the error (docs/robustness.md).
-    Set points in the arm's plane (q1's step 0 to round-off whatever S: the LED and the set
-    point lie equally far along the kept axis), 20-150 mm from the gripper, so that
-    the pair asks for more than 4 deg: at S = 2 and at S = 4 the larger moves exactly S and the
-    step at 4 is the step at 2 doubled, the same direction; clipped joint by joint it would not
-    be (|d2| = 3, |d3| = 10 deg clip to (2, 2) and (3, 4)). And the direction is the pair's own:
-    the same as at S = 8 wherever that step is scaled too."""
+def test_within_the_eyes_noise_the_pitch_pair_is_scaled_as_a_whole_keeping_its_direction():
+    """An error within 3 sL (sL the lengths' standard error, the eye's uncertainty; 60 mm here,
+    so that 20-150 mm errors count as noise): RULE 11 scales q2's and q3's steps together so
+    that the larger moves S, where the loop would clip each on its own and bend the step away
+    from the error (docs/robustness.md). Set points in the arm's plane (q1's step 0 to
+    round-off whatever S: the LED and the set point lie equally far along the kept axis),
+    20-150 mm from the gripper, so that the pair asks for more than 4 deg: at S = 2 and at
+    S = 4 the larger moves exactly S and the step at 4 is the step at 2 doubled, the same
+    direction; clipped joint by joint it would not be (|d2| = 3, |d3| = 10 deg clip to (2, 2)
+    and (3, 4)). And the direction is the pair's own: the same as at S = 8 wherever that step
+    is scaled too. With sL = 0 (the same errors beyond the noise) RULE 10 takes them instead:
+    the elbow a full step S the same way (the radial step's sign), the shoulder within S."""
     arm = ArmSpec.from_args("three-link")
-    rules = {S: load_rules(ARMS["three-link"], 3, arm.links_mm, S=S, w=0.5) for S in (2.0, 4.0, 8.0)}
+    clean = {S: load_rules(ARMS["three-link"], 3, arm.links_mm, S=S, w=0.5) for S in (2.0, 4.0, 8.0)}
+    rules = {S: rb.with_links(rb.links_mm, rb.base_axis_mm, sL=60.0, h=rb.h) for S, rb in clean.items()}
     rng = np.random.default_rng(9)
     poses, n, unequal = _bent_three_link_poses(rng), 0, 0
     for _ in range(20000):
@@ -423,13 +427,18 @@ def test_the_pitch_pair_is_scaled_as_a_whole_keeping_its_direction():
         if not 20.0 <= distance(arm, p, q) <= 150.0:
             continue
         steps = {S: rb.step(p, seen, None) for S, rb in rules.items()}
-        if any(set(s.fired) != {4, 10} for s in steps.values()):
+        if any(set(s.fired) != {4, 11} for s in steps.values()):
             continue
         two, four = steps[2.0].dq_deg, steps[4.0].dq_deg
         assert abs(two[0]) < 1e-9 and abs(four[0]) < 1e-9, (q, p, two, four)
         if np.abs(four[1:]).max() < 4.0 - 1e-9:  # the pair asked for less than 4 deg
             continue
         assert np.abs(two[1:]).max() == pytest.approx(2.0, abs=1e-12)
+        beyond = clean[2.0].step(p, seen, None)
+        if abs(two[2]) == pytest.approx(2.0, abs=1e-12):  # the elbow's step the larger
+            assert set(beyond.fired) == {4, 10}, (q, p, beyond)
+            assert beyond.dq_deg[2] == pytest.approx(two[2], abs=1e-12), (q, p, beyond, two)
+            assert abs(beyond.dq_deg[1]) <= 2.0 + 1e-12, (q, p, beyond, two)
         np.testing.assert_allclose(four[1:], 2.0 * two[1:], rtol=1e-12, atol=1e-12)
         eight = steps[8.0].dq_deg[1:]
         if np.abs(eight).max() == pytest.approx(8.0, abs=1e-12):
@@ -437,6 +446,39 @@ def test_the_pitch_pair_is_scaled_as_a_whole_keeping_its_direction():
         unequal += abs(abs(two[1]) - abs(two[2])) > 0.1  # not the clip's (+-S, +-S)
         n += 1
     assert n == 200 and unequal > 100, (n, unequal)
+
+
+def test_from_the_straight_start_a_still_set_point_is_reached_in_the_servos_time():
+    """From the straight-up start to a still, reachable set point, exact markers, one decision a
+    step under the servo limit S: the gripper comes within 1 mm in at most ceil(n*) + 2 steps,
+    n* the servo's bound, the fewest any controller needs (over the closed-form IK solutions,
+    the largest joint travel over S): ceil(n*) with the slowest joint at its limit every step,
+    then Newton's finish (test_one_step_removes_a_small_error_like_newton) of what one step
+    leaves. RULE 10 gives it: beyond the eye's noise (3 sL, 0 here) each joint runs at its own
+    limit, q2's turn computed from q3's clipped step. With the pair scaled as a whole there too
+    (RULE 11's step), the turn waited on the radial step, which near the straight pose is many
+    times the bend the set point needs: a median of 15 steps beyond the bound and up to 55,
+    and line-ab-reach at one iteration per set point reached a tracking max of 25.3 mm."""
+    from itg_vision.arm import wrap_deg
+    from itg_vision.controllers import three_link_ik
+
+    arm = ArmSpec.from_args("three-link")
+    S, rb = SERVO["three-link"], itg_plus(arm)
+    rng = np.random.default_rng(5)
+    late = []
+    for _ in range(200):
+        p = reachable_target(arm, rng)
+        q0 = arm.start_q_deg.astype(float)
+        bound = min(np.abs(wrap_deg(np.array(sol) - q0)).max() / S
+                    for sol in three_link_ik(p, arm.links_mm, arm.led_standoff_mm))
+        q = q0.copy()
+        for n in range(400):
+            if distance(arm, p, q) <= 1.0:
+                break
+            q = q + step(rb, arm, p, q)
+        if n > np.ceil(bound) + 2:
+            late.append((np.round(p, 1).tolist(), n, round(bound, 1)))
+    assert not late, late
 
 
 def _around_base(rng, lo_mm, hi_mm):
@@ -643,7 +685,7 @@ def test_the_straight_start_tie_is_settled_the_same_way_whatever_the_noise(name)
 
 #: The elbow's rules at a singular pose (the dead band) and elsewhere (the radial step).
 SINGULAR_RULES = {"two-link": set(range(8, 13)), "three-link": set(range(5, 10))}
-RADIAL_RULES = {"two-link": {13, 14, 15}, "three-link": {10}}
+RADIAL_RULES = {"two-link": {13, 14, 15}, "three-link": {10, 11}}
 
 
 @pytest.mark.parametrize("name, sL", [("two-link", 0.0), ("three-link", 0.0), ("three-link", 1.0),
