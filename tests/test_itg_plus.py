@@ -6,6 +6,7 @@ noise, no link length in the motion rules)."""
 import dataclasses
 import re
 from dataclasses import fields, is_dataclass
+from itertools import islice
 
 import numpy as np
 import pytest
@@ -71,6 +72,15 @@ def reachable_target(arm, rng):
 def step(rb, arm, p, q, rng=None, sigma=0.0):
     dq = rb.step(p, observe(arm, q, rng, sigma), q).dq_deg
     return np.clip(dq, -SERVO[arm.name], SERVO[arm.name])  # the loop's servo limit
+
+
+def poses_from_the_start(rb, arm, p):
+    """The joints from the arm's start pose, one decision a step towards ``p`` (ideal sensors,
+    the servo limit): the start, then each step's pose, without end."""
+    q = arm.start_q_deg.astype(float)
+    while True:
+        yield q
+        q = q + step(rb, arm, p, q)
 
 
 # ----------------------------------------------------------------------------- LET
@@ -487,14 +497,11 @@ def test_from_the_straight_start_a_still_set_point_is_reached_in_the_servos_time
     late = []
     for _ in range(200):
         p = reachable_target(arm, rng)
-        q0 = arm.start_q_deg.astype(float)
-        bound = min(np.abs(wrap_deg(np.array(sol) - q0)).max() / S
+        bound = min(np.abs(wrap_deg(np.array(sol) - arm.start_q_deg)).max() / S
                     for sol in three_link_ik(p, arm.links_mm, arm.led_standoff_mm))
-        q = q0.copy()
-        for n in range(400):
+        for n, q in zip(range(400), poses_from_the_start(rb, arm, p)):
             if distance(arm, p, q) <= 1.0:
                 break
-            q = q + step(rb, arm, p, q)
         if n > np.ceil(bound) + 2:
             late.append((np.round(p, 1).tolist(), n, round(bound, 1)))
     assert not late, late
@@ -958,9 +965,7 @@ def test_converges_to_any_reachable_set_point_from_the_start(name, iterations):
         p = reachable_target(arm, rng)
         while arm.planar and np.hypot(*p[:2]) < 5.0:
             p = reachable_target(arm, rng)
-        q = arm.start_q_deg.astype(float)
-        for _ in range(iterations):
-            q = q + step(rb, arm, p, q)
+        q = next(islice(poses_from_the_start(rb, arm, p), iterations, None))
         assert distance(arm, p, q) <= 0.5, (p, q)
 
 
