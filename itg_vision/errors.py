@@ -119,6 +119,9 @@ def signals_held():
         yield
     finally:
         _held[0] -= 1
+    if not _held[0] and _deferred:  # raised here, not at the carrier's next tick: a body that
+        signal.setitimer(signal.ITIMER_REAL, 0)  # ended within it returned 0, the signal lost
+        _on_signal(_deferred[0], None)
 
 
 def _importing(frame) -> bool:

@@ -45,7 +45,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from .errors import UserError
+from .errors import UserError, signals_held
 from .inputs import count
 
 #: The manifest file that marks a folder as made by an itg_vision command.
@@ -58,8 +58,10 @@ def write_files(files: dict[str | Path, bytes]) -> None:
     first, then all renamed, in the order given (put the file that readers look for last).
 
     If anything fails before the renames (a full disk, Ctrl-C), every temporary file is removed
-    and no file is replaced. This is the one place outputs are written; :func:`write_bytes`,
-    :func:`write_text` and :func:`write_json` are its one-file forms.
+    and no file is replaced; a command's signal that lands among the renames is raised after the
+    last (:func:`itg_vision.errors.signals_held`), so that a calibrated rig is never left beside
+    a new picture of another calibration. This is the one place outputs are written;
+    :func:`write_bytes`, :func:`write_text` and :func:`write_json` are its one-file forms.
 
     An `OSError` names the file that could not be written (its ``filename``), not the
     temporary name, so that a command can report it in one line.
@@ -75,10 +77,11 @@ def write_files(files: dict[str | Path, bytes]) -> None:
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
             os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are for everyone to read
-        while temps:
-            tmp, path = temps[0]
-            os.replace(tmp, path)
-            temps.pop(0)
+        with signals_held():  # every file renamed, or (failing) the rest not
+            while temps:
+                tmp, path = temps[0]
+                os.replace(tmp, path)
+                temps.pop(0)
     except BaseException as exc:
         for tmp, _ in temps:
             if os.path.exists(tmp):

@@ -357,6 +357,42 @@ def test_a_signal_while_c_streams_are_silenced_still_gets_its_word_out(at_call):
     assert time.monotonic() - t0 < 8  # ended as the streams were put back, not after 10 s
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals as on Linux")
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_among_the_renames_of_one_result_comes_after_the_last(tmp_path, sig):
+    """A calibration writes its corner picture and its rig as one result, renamed into place
+    one after the other. A Ctrl-C between the two renames left the new picture beside the old
+    rig (an audit found it by slowing the renames). Deterministic here: the process signals
+    itself right after the first rename; both files must be the new ones, and the command
+    still ends interrupted."""
+    pic, rig = tmp_path / "x.calib.png", tmp_path / "x.calib.yaml"
+    pic.write_text("old picture")
+    rig.write_text("old rig")
+    code = ("import sys; sys.argv[:1] = ['-m']\n"  # a command, as under python -m
+            "import os, signal, itg_vision\n"
+            "from itg_vision import outputs\n"
+            "from itg_vision.errors import exit_status, run_main\n"
+            "real_replace, calls = os.replace, []\n"
+            "def replace(a, b):\n"
+            "    real_replace(a, b)\n"
+            "    calls.append(b)\n"
+            "    if len(calls) == 1:\n"
+            f"        os.kill(os.getpid(), signal.{sig})\n"
+            "os.replace = replace\n"
+            "def body():\n"
+            f"    outputs.write_files({{{str(pic)!r}: b'new picture', {str(rig)!r}: b'new rig'}})\n"
+            "    return 0\n"
+            "sys.exit(exit_status(run_main(body)))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         timeout=60)
+    status = 130 if sig == "SIGINT" else 128 + getattr(signal, sig)
+    last = "interrupted" if sig == "SIGINT" else f"terminated ({sig})"
+    assert (res.returncode, res.stderr.strip()) == (status, last)
+    assert (pic.read_text(), rig.read_text()) == ("new picture", "new rig")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.calib.png", "x.calib.yaml"]
+
+
 def test_after_an_interruption_a_further_ctrl_c_is_ignored_while_exiting():
     from itg_vision.errors import exit_status
 
