@@ -664,6 +664,25 @@ def test_names_whose_bytes_are_not_utf8_are_written_and_drawn(cli, tmp_path):
     assert cv2.VideoCapture(str(moved)).get(cv2.CAP_PROP_FRAME_COUNT) == 4
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/stdin"), reason="no /dev/stdin")
+def test_an_arm_file_given_through_a_pipe_is_read_once(tmp_path):
+    """``--arm /dev/stdin`` (or bash's ``<(...)``): run reads its arm file for its defaults, the
+    model and the true arm, and a pipe read again is empty, so a valid arm was refused as
+    "(top level): must be a mapping ... got None" (an audit's finding). The pipe's arm runs as
+    the same file does."""
+    arm = (ROOT / "data" / "arms" / "two-link.yaml").read_text()
+    args = ["--quiet", "--feedback", "model", "--points", "10"]
+    runs = {}
+    for name, given, stdin in (("pipe", "/dev/stdin", arm), ("file", "two-link", "")):
+        res = subprocess.run([sys.executable, "-m", "itg_vision.run", *args, "--arm", given,
+                              "--out", str(tmp_path / name)], input=stdin, text=True,
+                             capture_output=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+    assert runs["pipe"]["e_av_mm"] == runs["file"]["e_av_mm"]
+    assert runs["pipe"]["track_max_mm"] == runs["file"]["track_max_mm"]
+
+
 # --------------------------------------------- what run passes on: seed, force, names, inputs
 def test_an_input_in_a_subfolder_of_out_is_refused_even_with_force(main_in_process, tmp_path):
     """A rule file anywhere below --out, not only directly in it, is refused even with --force,
