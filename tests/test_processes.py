@@ -195,6 +195,27 @@ def test_a_run_killed_mid_way_keeps_the_old_result_and_the_next_run_cleans_its_s
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
 
 
+def test_a_byte_order_mark_a_spreadsheet_wrote_is_dropped_and_the_rows_kept(tmp_path):
+    """A results.csv saved by a spreadsheet as "CSV UTF-8" starts with a byte-order mark: the
+    header then read as another tool's and the sweep's own folder was refused (an audit's
+    finding). The mark is reported on line 1 and dropped; every row is kept. A file that is the
+    mark alone gets its header again."""
+    path = tmp_path / "results.csv"
+    rows = [_row(f"{i:016x}") for i in (1, 2)]
+    text = ",".join(COLUMNS) + "\n" + "".join(rows)
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    r = Results(path)
+    assert sorted(r.rows) == [f"{1:016x}", f"{2:016x}"]
+    assert r.problems == [f"{path}:1: a byte-order mark (the file saved by a spreadsheet): dropped"]
+    r.repair()
+    assert path.read_bytes() == text.encode() and Results(path).problems == []
+    path.write_bytes(b"\xef\xbb\xbf")
+    r = Results(path)
+    r.repair()
+    r.append({c: ("0123456789abcdef" if c == "run_id" else "1") for c in COLUMNS})
+    assert path.read_text() == ",".join(COLUMNS) + "\n" + _row("0123456789abcdef")
+
+
 def test_a_torn_header_is_dropped_and_rewritten_whole(tmp_path):
     path = tmp_path / "results.csv"
     path.write_text(",".join(COLUMNS)[:17])

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import csv
 import dataclasses
@@ -129,7 +130,8 @@ class Results:
     write) and any damaged row (wrong number of fields, a run_id that is not 16 hex digits,
     bytes that are not UTF-8) are dropped, each named by its line number in :attr:`problems`;
     :meth:`repair` rewrites the file without them (atomically) before anything is appended, and
-    their runs are redone. A file whose header is not this benchmark's is refused.
+    their runs are redone. A byte-order mark before the header is dropped the same way. A file
+    whose header is not this benchmark's is refused.
     """
 
     def __init__(self, path: Path):
@@ -147,6 +149,11 @@ class Results:
             data = self.path.read_bytes()
         except OSError as exc:
             raise UserError(f"{self.path}: cannot read ({exc.strerror})") from None
+        if data.startswith(codecs.BOM_UTF8):  # a spreadsheet's "CSV UTF-8" save puts one first
+            data = data[len(codecs.BOM_UTF8):]
+            self.problems.append(f"{self.path}:1: a byte-order mark (the file saved by a "
+                                 "spreadsheet): dropped")
+            self._repaired = data.decode("utf-8", errors="replace")
         if not data:
             return
         lines = data.split(b"\n")
