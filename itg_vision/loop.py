@@ -383,12 +383,16 @@ class Session:
         (after the start-up, from the last pose of its sweep).
     progress : called with 1 when a set point is done.
     recorder : optional video recorder (``frame(feedback, desired_mm, label)`` per set point, labelled ``k N`` as trace.csv).
+    rules_at : ``rules_at(numbers) -> str``, where the rules of those numbers are (a rule base's
+        :meth:`~itg_vision.rules.RuleBase.rules_at`: ``FILE:LINE``), for the one error a step
+        can cause here (a joint angle overflowing); None: the numbers alone.
     """
 
     def __init__(self, world, feedback, points_mm, *, iterations: int = 1, planar: bool | None = None,
                  max_step_deg: float | None = None, tracking_start: int | None = None,
                  base_axis_mm=None, pitch_axis_mm=None, elbow_seen=None,
-                 progress: Callable[[int], None] | None = None, recorder=None):
+                 progress: Callable[[int], None] | None = None, recorder=None,
+                 rules_at: Callable[[tuple[int, ...]], str] | None = None):
         self.world = world
         self.feedback = feedback
         points = np.asarray(points_mm, float)
@@ -447,6 +451,7 @@ class Session:
         self.max_step_deg = max_step_deg
         self.progress = progress
         self.recorder = recorder
+        self.rules_at = rules_at
         n = len(self.points_mm)
         if tracking_start is not None and not (is_whole(tracking_start)
                                                and 0 <= tracking_start < n):
@@ -567,7 +572,8 @@ class Session:
         q = [a + b for a, b in zip(self.world.q_deg.tolist(), dq.tolist())]
         if not all(map(math.isfinite, q)):
             j = next(j for j, v in enumerate(q) if not math.isfinite(v))
-            fired = f"; rules fired: {', '.join(map(str, step.fired))}" if step.fired else ""
+            fired = "" if not step.fired else "; rules fired: " + (
+                self.rules_at(step.fired) if self.rules_at else ", ".join(map(str, step.fired)))
             fix = ("the controller's step is not a number (NaN): the step itself is wrong"
                    if math.isnan(dq[j]) else "bound each step with the servo limit "
                    "(max_step_deg; run's --max-step)")
@@ -647,7 +653,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       base_axis_mm=base_axis_mm, pitch_axis_mm=pitch_axis_mm,
-                      elbow_seen=elbow_seen, progress=progress, recorder=recorder)
+                      elbow_seen=elbow_seen, progress=progress, recorder=recorder,
+                      rules_at=getattr(controller, "rules_at", None))
     if aims_mm is not None:  # one short ran its set points, then failed as an IndexError
         aims_mm = np.asarray(aims_mm, float)
         if aims_mm.shape != session.points_mm.shape or not np.isfinite(aims_mm).all():

@@ -1270,6 +1270,12 @@ class RuleBase:
                 dq[j] = self._non_finite_step(j, v, fired, args)
         return Step(np.array(dq), tuple(fired), False)
 
+    def rules_at(self, numbers) -> str:
+        """Where the rules of those numbers are, for a message: ``RULE 1 (FILE:LINE), ...``."""
+        line = {r.number: r.line for r in self.rules}
+        return ", ".join(f"RULE {n} ({self.source}:{line[n]})" if n in line else f"RULE {n}"
+                         for n in numbers)
+
     def _inputs_of(self, node: Node) -> list[str]:
         """The function's inputs ``node`` reads, directly or through definitions (in file
         order), each once."""

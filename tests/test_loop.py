@@ -773,14 +773,17 @@ def test_a_look_lost_after_a_set_point_out_of_reach_is_given_where_the_arm_staye
 def test_finite_steps_that_overflow_a_joint_angle_are_one_line():
     """Each step finite, their sum not: q1 += 1e308 twice (no servo limit) ended in World's
     ValueError traceback, exit 1. Now a UserError naming the set point, the joint and the rules
-    that fired, before the arm moves."""
+    that fired, with their file and line (they were numbers alone, the file unnamed: an
+    audit's finding), before the arm moves."""
     from itg_vision.rules import RuleBase
 
     arm = ArmSpec.from_args("two-link")
-    rb = RuleBase.from_text("RULE 7: IF 1 > 0 THEN q1 += 1e308, q2 HOLD", 2, arm.links_mm)
+    rb = RuleBase.from_text("# mine\nRULE 7: IF 1 > 0 THEN q1 += 1e308, q2 HOLD", 2, arm.links_mm,
+                            source="mine.rules")
     with World(arm) as world:
         with pytest.raises(UserError, match=r"^set point k = 1: joint q1 would turn to inf deg "
-                                            r"\(from 1e\+308 by 1e\+308; rules fired: 7\): no "
+                                            r"\(from 1e\+308 by 1e\+308; rules fired: RULE 7 "
+                                            r"\(mine\.rules:2\)\): no "
                                             r"joint angle is that; bound each step with "
                                             r"the servo limit \(max_step_deg; run's "
                                             r"--max-step\)$"):
