@@ -129,9 +129,12 @@ class Controller(Protocol):
     :meth:`step` needs the joint angles; else it gets ``None``) and calls :meth:`step`, which
     must return a :class:`Step` with one increment per joint (else a one-line TypeError or
     ValueError). ``params()``: the parameters it runs with, units in their names, which the
-    runner records in summaries; the runner, ``run`` and ``TrackingEnv`` build their
-    controllers from names (``itg``, ``ik``, ``jacobian``), so a controller of your own runs
-    through :func:`~itg_vision.loop.simulate` (README, "Your own controller").
+    runner records in summaries. ``uses_markers`` (optional, True if absent): False declares an
+    open-loop controller that ignores the estimates (the model-based IK), which a look that
+    missed the gripper then neither holds nor hands the last aim. The runner, ``run`` and
+    ``TrackingEnv`` build their controllers from names (``itg``, ``ik``, ``jacobian``), so a
+    controller of your own runs through :func:`~itg_vision.loop.simulate` (README, "Your own
+    controller").
     """
 
     uses_encoders: bool

@@ -74,6 +74,7 @@ class InverseKinematics:
 
     name = "ik"
     uses_encoders = True  # open loop: the commanded angles are all it has
+    uses_markers = False  # so a look that missed the gripper does not hold it
 
     def __init__(self, model: ArmSpec):
         self.model = model

@@ -645,7 +645,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     observe through the feedback, aim, let the controller decide, apply the step under the
     servo limit. A look that did not measure the gripper gives the controller the last
     decision's aim for it, whatever the controller (:data:`AIM_ON_LOST`; after a step flagged
-    out of reach, the gripper that decision saw; before the first decision the joints hold).
+    out of reach, the gripper that decision saw; before the first decision the joints hold), but
+    an open-loop one (``uses_markers = False``: IK), which ignores the estimates.
     """
     if not (is_real(correction) and 0 < correction <= 1):  # NaN aimed every decision at NaN
         raise ValueError(f"correction must be a finite number in (0, 1] (the fraction of the "
@@ -667,7 +668,8 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     while not session.done:
         estimate = session.observe()
         desired = session.desired_mm
-        if AIM_ON_LOST in estimate.missed:  # no new error measured
+        # no new error measured (an open-loop controller reads none: it goes on)
+        if AIM_ON_LOST in estimate.missed and getattr(controller, "uses_markers", True):
             if last_aim is None:
                 session.hold()
                 continue

@@ -747,6 +747,36 @@ def test_a_look_that_lost_only_the_elbow_decides():
     assert all("missed:elbow" in r.flags for r in trace.records)
 
 
+def test_an_open_loop_controller_is_not_held_by_a_missed_first_look():
+    """IK ignores the estimates (``uses_markers = False``), yet a first look that missed the
+    gripper held it for a step, as it holds every closed-loop controller: `run --controller ik
+    --dropout 0.5` had E_av 1.58 mm where the clean run has 1.5e-06 (an audit's finding). Now
+    its run is the clean run's, joint for joint, and nothing is flagged held; a closed-loop
+    controller is still held."""
+    from itg_vision.controllers import InverseKinematics
+
+    class LosesFirst(TruthFeedback):  # the first look misses the gripper, as no look before
+        def observe(self, world):
+            m = super().observe(world)
+            self.looks = getattr(self, "looks", 0) + 1
+            return m if self.looks > 1 else dataclasses.replace(
+                m, gripper_mm=np.full(3, np.nan), missed=("gripper",))
+
+    arm = ArmSpec.from_args("two-link")
+    points = np.array([[120.0, 40.0, 0.0], [125.0, 45.0, 0.0], [130.0, 50.0, 0.0]])
+    runs = {}
+    for name, eye in (("clean", TruthFeedback()), ("lost", LosesFirst())):
+        with World(arm) as world:
+            runs[name] = simulate(world, InverseKinematics(arm), eye, points)
+    assert runs["lost"].n_held == 0 and "missed:gripper" in runs["lost"].records[0].flags
+    assert not any("held" in r.flags or "at_last_aim" in r.flags for r in runs["lost"].records)
+    assert np.array_equal(np.array([r.q_deg for r in runs["lost"].records]),
+                          np.array([r.q_deg for r in runs["clean"].records]))
+    with World(arm) as world:  # a closed-loop controller: held
+        held = simulate(world, Constant([1.0, -1.0]), LosesFirst(), points)
+    assert held.n_held == 1 and "held" in held.records[0].flags
+
+
 def test_a_look_lost_after_a_set_point_out_of_reach_is_given_where_the_arm_stayed():
     """A step flagged out of reach holds the arm (the rule bases return zeros): it aimed at
     nothing. A lost look right after it is given, for the gripper, where that decision saw it,
