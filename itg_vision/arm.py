@@ -214,23 +214,11 @@ def arm_path(name_or_path: str) -> Path:
     return candidate
 
 
-#: Arm files that can be read once only (a pipe: /dev/stdin, bash's ``<(...)``), as first read,
-#: by path and inode: a command reads its arm file several times (its defaults, the model, the
-#: true arm), and a pipe read again is empty.
-_READ_ONCE: dict[tuple[str, int, int], ArmSpec] = {}
-
-
 def load_arm(name_or_path: str) -> ArmSpec:
     """Read and check an arm file (see ``data/arms/two-link.yaml``): every field, so code
     using the spec can trust it; a bad one raises `UserError` ``<file>: <field>: <problem>``."""
     path = arm_path(name_or_path)
-    if path.is_file() or not path.exists():  # a file is read afresh each time
-        return arm_from_dict(read_yaml(path, "arm file"), str(path))
-    st = path.stat()
-    key = (str(path), st.st_dev, st.st_ino)
-    if key not in _READ_ONCE:
-        _READ_ONCE[key] = arm_from_dict(read_yaml(path, "arm file"), str(path))
-    return _READ_ONCE[key]
+    return arm_from_dict(read_yaml(path, "arm file"), str(path))
 
 
 def arm_from_dict(doc, path: str = "<arm>") -> ArmSpec:

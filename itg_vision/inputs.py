@@ -15,8 +15,10 @@ import functools
 import hashlib
 import math
 import numbers
+import os
 import re
 import reprlib
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -44,9 +46,34 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
     return beside if beside.exists() else p
 
 
+#: Pipes read so far (``/dev/stdin``, bash's ``<(...)``), by path and inode: a command reads an
+#: input more than once (an arm file for its defaults, the model, the true arm and the run's
+#: input digest), and a pipe read again is empty, so a pipe is read once per process.
+_PIPES: dict[tuple[str, int, int], bytes] = {}
+
+
+def _pipe_bytes(path: str | Path, limit: int) -> bytes | None:
+    """A pipe's bytes (at most ``limit + 1`` of them), read once per process; None if ``path``
+    is not a pipe (a file, a folder, nothing: read it as such)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    if not stat.S_ISFIFO(st.st_mode):
+        return None
+    key = (str(path), st.st_dev, st.st_ino)
+    if key not in _PIPES:
+        with open(path, "rb") as f:
+            _PIPES[key] = f.read(limit + 1)
+    return _PIPES[key]
+
+
 def file_sha256(path: str | Path) -> str:
     """The SHA-256 of a file's bytes, as 64 hex digits: a calibrated rig's ``true_rig_sha256``,
-    and, cut short, a run's input digests and a sweep's file hashes."""
+    and, cut short, a run's input digests and a sweep's file hashes (a pipe's: what it gave)."""
+    piped = _pipe_bytes(path, 1 << 30)
+    if piped is not None:
+        return hashlib.sha256(piped).hexdigest()
     h = hashlib.sha256()
     with open(path, "rb") as f:  # in blocks: a long video is not read into memory whole
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -64,12 +91,15 @@ def read_text(path: str | Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
 
     Refused: a missing or unreadable file, a folder, more than ``limit`` bytes, bytes that are
     not UTF-8 (reported at their line and column), NUL characters (a binary file). Line ends
-    are returned as ``\n`` whatever the file used (``\r\n``, ``\r``).
+    are returned as ``\n`` whatever the file used (``\r\n``, ``\r``). A pipe is read once
+    per process, and read again gives the same text.
     """
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            data = f.read(limit + 1)
+        data = _pipe_bytes(path, limit)
+        if data is None:
+            with open(path, "rb") as f:
+                data = f.read(limit + 1)
     except IsADirectoryError:
         raise UserError(f"{path}: is a folder, not {_a(what)}") from None
     except OSError as exc:

@@ -667,9 +667,10 @@ def test_names_whose_bytes_are_not_utf8_are_written_and_drawn(cli, tmp_path):
 @pytest.mark.skipif(not os.path.exists("/dev/stdin"), reason="no /dev/stdin")
 def test_an_arm_file_given_through_a_pipe_is_read_once(tmp_path):
     """``--arm /dev/stdin`` (or bash's ``<(...)``): run reads its arm file for its defaults, the
-    model and the true arm, and a pipe read again is empty, so a valid arm was refused as
-    "(top level): must be a mapping ... got None" (an audit's finding). The pipe's arm runs as
-    the same file does."""
+    model, the true arm and the run's input digest, and a pipe read again is empty, so a valid
+    arm was refused as "(top level): must be a mapping ... got None" (an audit's finding), and
+    once read, its digest was an empty file's (two runs of different piped arms were one run to
+    the default folder's check). The pipe's arm runs as the same file does, digest included."""
     arm = (ROOT / "data" / "arms" / "two-link.yaml").read_text()
     args = ["--quiet", "--feedback", "model", "--points", "10"]
     runs = {}
@@ -679,6 +680,9 @@ def test_an_arm_file_given_through_a_pipe_is_read_once(tmp_path):
                              capture_output=True, timeout=300)
         assert res.returncode == 0, res.stderr
         runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+        runs[name]["digests"] = json.loads(
+            (tmp_path / name / ".itg_vision-output.json").read_text())["key"]["inputs_sha256"]
+    assert runs["pipe"]["digests"] == runs["file"]["digests"]
     assert runs["pipe"]["e_av_mm"] == runs["file"]["e_av_mm"]
     assert runs["pipe"]["track_max_mm"] == runs["file"]["track_max_mm"]
 
