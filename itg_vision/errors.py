@@ -119,9 +119,11 @@ def signals_held():
         yield
     finally:
         _held[0] -= 1
-    if not _held[0] and _deferred:  # raised here, not at the carrier's next tick: a body that
-        signal.setitimer(signal.ITIMER_REAL, 0)  # ended within it returned 0, the signal lost
-        _on_signal(_deferred[0], None)
+        # raised here, not at the carrier's next tick (a body that ended within it returned 0,
+        # the signal lost), in place of an error in flight; still carried inside an import
+        if not _held[0] and _deferred and threading.current_thread() is threading.main_thread():
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            _on_signal(_deferred[0], sys._getframe())
 
 
 def _importing(frame) -> bool:
@@ -141,7 +143,7 @@ def _on_signal(signum, frame):
     did: the run went on to its end, status 0, its results written as if no signal had come).
     Nor inside `signals_held` (stderr pointed at /dev/null for PyBullet's banner and never put
     back: the run ended, status 143, without a word). There the signal is taken up again every
-    10 ms (on SIGALRM) until the import or the section is done."""
+    10 ms (on SIGALRM) until the import is done, and raised where the section ends."""
     if signum == _CARRIER:
         signum = _deferred[0] if _deferred else signum  # SIGALRM from outside: its default
     if _CARRIER and (_held[0] or _importing(frame)) and signal.getsignal(_CARRIER) is _on_signal:

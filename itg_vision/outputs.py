@@ -58,9 +58,10 @@ def write_files(files: dict[str | Path, bytes]) -> None:
     first, then all renamed, in the order given (put the file that readers look for last).
 
     If anything fails before the renames (a full disk, Ctrl-C), every temporary file is removed
-    and no file is replaced; a command's signal that lands among the renames is raised after the
-    last (:func:`itg_vision.errors.signals_held`), so that a calibrated rig is never left beside
-    a new picture of another calibration. This is the one place outputs are written;
+    and no file is replaced; a command's Ctrl-C, SIGTERM or SIGHUP that lands among the renames
+    is raised after the last (:func:`itg_vision.errors.signals_held`; under ``python -m``, where
+    the platform has SIGALRM), so that a calibrated rig is never left beside a new picture of
+    another calibration. This is the one place outputs are written;
     :func:`write_bytes`, :func:`write_text` and :func:`write_json` are its one-file forms.
 
     An `OSError` names the file that could not be written (its ``filename``), not the

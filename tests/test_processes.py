@@ -406,7 +406,7 @@ def test_a_signal_among_the_renames_of_one_result_comes_after_the_last(tmp_path,
             "sys.exit(exit_status(run_main(body)))\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                         timeout=60)
+                         timeout=60, preexec_fn=_default_signals)
     status = 130 if sig == "SIGINT" else 128 + getattr(signal, sig)
     last = "interrupted" if sig == "SIGINT" else f"terminated ({sig})"
     assert (res.returncode, res.stderr.strip()) == (status, last)
