@@ -86,7 +86,7 @@ class Observation:
     Attributes
     ----------
     markers : the eye's estimates (held values for missed markers; ``run``'s loop gives its
-        controller the last decision's aim for a missed gripper:
+        controller the last decision's aim for a missed gripper, but an open-loop one's:
         :data:`itg_vision.loop.AIM_ON_LOST`).
     patches : marker -> per camera the image the LED was looked for in: a window around it,
         or the whole frame (``--full-frame``, ``--video``); None where the LED's window falls

@@ -38,8 +38,9 @@ from .outputs import unsigned_zero
 #: set point. At the aim, only the set point's own motion since then is answered (measured in
 #: docs/robustness.md, "Lost looks"). Before the first decision there is no aim: the joints
 #: hold. After a step flagged out of reach (it holds the arm) the gripper is taken to be where
-#: that decision saw it. A lost elbow: see :class:`Session`'s ``base_axis_mm`` and
-#: ``pitch_axis_mm``.
+#: that decision saw it. An open-loop controller (``uses_markers = False``: IK) reads no
+#: estimate and is neither held nor given the aim (unless a correction < 1 makes its aim read
+#: the gripper). A lost elbow: see :class:`Session`'s ``base_axis_mm`` and ``pitch_axis_mm``.
 AIM_ON_LOST = "gripper"
 
 #: Why a look missed a marker when its feedback did not say (``Markers.missed_why`` empty).
@@ -651,6 +652,7 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
     if not (is_real(correction) and 0 < correction <= 1):  # NaN aimed every decision at NaN
         raise ValueError(f"correction must be a finite number in (0, 1] (the fraction of the "
                          f"measured error corrected per decision), got {correction!r}")
+    reads_gripper = getattr(controller, "uses_markers", True) or correction != 1  # aim_mm's
     session = Session(world, feedback, points_mm, iterations=iterations, planar=planar,
                       max_step_deg=max_step_deg, tracking_start=tracking_start,
                       base_axis_mm=base_axis_mm, pitch_axis_mm=pitch_axis_mm,
@@ -669,7 +671,7 @@ def simulate(world, controller: Controller, feedback, points_mm: np.ndarray, *,
         estimate = session.observe()
         desired = session.desired_mm
         # no new error measured (an open-loop controller reads none: it goes on)
-        if AIM_ON_LOST in estimate.missed and getattr(controller, "uses_markers", True):
+        if AIM_ON_LOST in estimate.missed and reads_gripper:
             if last_aim is None:
                 session.hold()
                 continue

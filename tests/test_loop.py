@@ -775,6 +775,9 @@ def test_an_open_loop_controller_is_not_held_by_a_missed_first_look():
     with World(arm) as world:  # a closed-loop controller: held
         held = simulate(world, Constant([1.0, -1.0]), LosesFirst(), points)
     assert held.n_held == 1 and "held" in held.records[0].flags
+    with World(arm) as world:  # IK whose aim a correction < 1 makes read the gripper: held
+        held = simulate(world, InverseKinematics(arm), LosesFirst(), points, correction=0.5)
+    assert held.n_held == 1
 
 
 def test_a_look_lost_after_a_set_point_out_of_reach_is_given_where_the_arm_stayed():
