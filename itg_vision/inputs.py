@@ -52,15 +52,20 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
 _PIPES: dict[tuple[str, int, int], bytes] = {}
 
 
+def is_pipe(path: str | Path) -> bool:
+    """Whether ``path`` is a pipe (``/dev/stdin``, bash's ``<(...)``, a named FIFO)."""
+    try:
+        return stat.S_ISFIFO(os.stat(path).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
 def _pipe_bytes(path: str | Path, limit: int) -> bytes | None:
     """A pipe's bytes (at most ``limit + 1`` of them), read once per process; None if ``path``
     is not a pipe (a file, a folder, nothing: read it as such)."""
-    try:
-        st = os.stat(path)
-    except OSError:
+    if not is_pipe(path):
         return None
-    if not stat.S_ISFIFO(st.st_mode):
-        return None
+    st = os.stat(path)
     key = (str(path), st.st_dev, st.st_ino)
     if key not in _PIPES:
         with open(path, "rb") as f:

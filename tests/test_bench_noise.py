@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -1693,6 +1694,24 @@ def test_an_option_that_would_apply_to_no_run_is_refused(tmp_path, monkeypatch, 
     for extra in (["--list"], ["--out", "o", "--quiet"]):
         assert main(["--quick", *argv, *extra]) == 2
         _one_line_error(capsys, what)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes")
+@pytest.mark.parametrize("option", ["--arm", "--rules"])
+def test_a_pipe_given_as_an_input_is_refused_before_it_is_read(tmp_path, monkeypatch, capsys,
+                                                               option):
+    """Each run of a sweep reads its input files afresh, in a worker process, and a pipe
+    (``--arm <(...)``) cannot be read again: the sweep ended with "/proc/N/fd/pipe:[M]: cannot
+    read arm file" (a path no user gave). Refused in one line naming the option, before
+    anything reads it (a named FIFO here, which reading would block on)."""
+    monkeypatch.chdir(tmp_path)
+    os.mkfifo(tmp_path / "piped")
+    (tmp_path / "path.csv").write_text("x_mm,y_mm\n120,40\n125,45\n130,50\n")
+    argv = {"--arm": ["--trajectories", "path.csv", "--arm", "piped"],
+            "--rules": ["--rules", "piped"]}[option]
+    assert main(["--quick", *argv, "--out", "o", "--quiet"]) == 2
+    _one_line_error(capsys, f"{option} piped: a pipe, which the sweep cannot read again")
     assert not (tmp_path / "o").exists()
 
 

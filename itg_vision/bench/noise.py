@@ -20,6 +20,7 @@ from pathlib import Path
 from .. import outputs
 from ..arm import arm_names
 from ..errors import ArgumentParser, UserError, at_least_one, exit_status, points_arg, run_main
+from ..inputs import is_pipe
 from ..options import add_rule_options, labels, rule_params
 from ..trajectory import names_a_csv_file
 from .execute import (check_scheduler_address, dask_executor, local_executor, results,
@@ -189,6 +190,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         params = rule_params(args)  # checked as run checks them
+        for option, given in (("--arm", [args.arm]), ("--rules", args.rules),
+                              ("--trajectories", trajs or ())):
+            for path in (p for p in given if p is not None and is_pipe(p)):
+                raise UserError(f"{option} {path}: a pipe, which the sweep cannot read again "
+                                "(each run reads its input files afresh, in a worker process): "
+                                "give a file")
         arm = FILES_ARM if args.arm is None else args.arm
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
