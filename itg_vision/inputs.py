@@ -52,21 +52,26 @@ def resolve_relative(path: str, relative_to: Path) -> Path:
 _PIPES: dict[tuple[str, int, int], bytes] = {}
 
 
+def _pipe_key(path: str | Path) -> tuple[str, int, int] | None:
+    """``path``'s key in :data:`_PIPES` if it is a pipe, else None."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return (str(path), st.st_dev, st.st_ino) if stat.S_ISFIFO(st.st_mode) else None
+
+
 def is_pipe(path: str | Path) -> bool:
     """Whether ``path`` is a pipe (``/dev/stdin``, bash's ``<(...)``, a named FIFO)."""
-    try:
-        return stat.S_ISFIFO(os.stat(path).st_mode)
-    except (OSError, ValueError):
-        return False
+    return _pipe_key(path) is not None
 
 
 def _pipe_bytes(path: str | Path, limit: int) -> bytes | None:
     """A pipe's bytes (at most ``limit + 1`` of them), read once per process; None if ``path``
     is not a pipe (a file, a folder, nothing: read it as such)."""
-    if not is_pipe(path):
+    key = _pipe_key(path)
+    if key is None:
         return None
-    st = os.stat(path)
-    key = (str(path), st.st_dev, st.st_ino)
     if key not in _PIPES:
         with open(path, "rb") as f:
             _PIPES[key] = f.read(limit + 1)

@@ -406,7 +406,7 @@ def test_a_feedback_that_breaks_the_contract_is_told_in_one_line(seen, said):
 class _LosesLooks(TruthFeedback):
     """The simulator's LEDs, but the looks numbered by ``lost`` (1-based; default every second
     one: the 2nd, 4th, ...) miss ``marker`` and hand on its last estimate, as the stereo eye
-    does when it loses an LED."""
+    does when it loses an LED (NaN before any look saw it)."""
 
     def __init__(self, marker, lost=lambda n: n % 2 == 0):
         super().__init__()
@@ -419,7 +419,8 @@ class _LosesLooks(TruthFeedback):
             self.last = m
             return m
         field = f"{self.marker}_mm"
-        return dataclasses.replace(m, **{field: getattr(self.last, field)}, missed=(self.marker,))
+        last = np.full(3, np.nan) if self.last is None else getattr(self.last, field)
+        return dataclasses.replace(m, **{field: last}, missed=(self.marker,))
 
 
 class _Spy(Constant):
@@ -755,17 +756,13 @@ def test_an_open_loop_controller_is_not_held_by_a_missed_first_look():
     controller is still held."""
     from itg_vision.controllers import InverseKinematics
 
-    class LosesFirst(TruthFeedback):  # the first look misses the gripper, as no look before
-        def observe(self, world):
-            m = super().observe(world)
-            self.looks = getattr(self, "looks", 0) + 1
-            return m if self.looks > 1 else dataclasses.replace(
-                m, gripper_mm=np.full(3, np.nan), missed=("gripper",))
+    def loses_first():  # the first look misses the gripper, as no look before
+        return _LosesLooks("gripper", lost=lambda n: n == 1)
 
     arm = ArmSpec.from_args("two-link")
     points = np.array([[120.0, 40.0, 0.0], [125.0, 45.0, 0.0], [130.0, 50.0, 0.0]])
     runs = {}
-    for name, eye in (("clean", TruthFeedback()), ("lost", LosesFirst())):
+    for name, eye in (("clean", TruthFeedback()), ("lost", loses_first())):
         with World(arm) as world:
             runs[name] = simulate(world, InverseKinematics(arm), eye, points)
     assert runs["lost"].n_held == 0 and "missed:gripper" in runs["lost"].records[0].flags
@@ -773,10 +770,10 @@ def test_an_open_loop_controller_is_not_held_by_a_missed_first_look():
     assert np.array_equal(np.array([r.q_deg for r in runs["lost"].records]),
                           np.array([r.q_deg for r in runs["clean"].records]))
     with World(arm) as world:  # a closed-loop controller: held
-        held = simulate(world, Constant([1.0, -1.0]), LosesFirst(), points)
+        held = simulate(world, Constant([1.0, -1.0]), loses_first(), points)
     assert held.n_held == 1 and "held" in held.records[0].flags
     with World(arm) as world:  # IK whose aim a correction < 1 makes read the gripper: held
-        held = simulate(world, InverseKinematics(arm), LosesFirst(), points, correction=0.5)
+        held = simulate(world, InverseKinematics(arm), loses_first(), points, correction=0.5)
     assert held.n_held == 1
 
 

@@ -190,12 +190,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.limit is not None and args.limit < 0:
             raise UserError(f"--limit: must be >= 0, got {args.limit}")
         params = rule_params(args)  # checked as run checks them
-        for option, given in (("--arm", [args.arm]), ("--rules", args.rules),
-                              ("--trajectories", trajs or ())):
-            for path in (p for p in given if p is not None and is_pipe(p)):
-                raise UserError(f"{option} {path}: a pipe, which the sweep cannot read again "
-                                "(each run reads its input files afresh, in a worker process): "
-                                "give a file")
+        piped = next(((option, p) for option, given in (("--arm", [args.arm]),
+                                                         ("--rules", args.rules),
+                                                         ("--trajectories", trajs or ()))
+                      for p in given if p is not None and is_pipe(p)), None)
+        if piped:
+            raise UserError(f"{piped[0]} {piped[1]}: a pipe, which the sweep cannot read again "
+                            "(each run reads its input files afresh, in a worker process): "
+                            "give a file")
         arm = FILES_ARM if args.arm is None else args.arm
         specs = build_sweep(quick=args.quick, seeds=args.seeds, conditions=conds,
                             controllers=ctrls, trajectories=trajs, points=args.points,
